@@ -1,0 +1,206 @@
+"""Camera models: pinhole with OpenCV distortion, and fisheye (equidistant, Kannala-Brandt).
+
+Pixel convention (OpenCV's): integer pixel coordinates are pixel *centres*; (0, 0)
+is the centre of the top-left pixel, u grows right, v grows down. The image covers
+u in [-0.5, width - 0.5], v in [-0.5, height - 0.5].
+
+The core functions are pure and broadcast: the distortion coefficients may be one
+vector for all points or one row per point, which is how the bundle adjustment
+evaluates every observation at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+
+import numpy as np
+
+PINHOLE_DIST_LENGTHS = (2, 4, 5, 8, 12)
+FISHEYE_DIST_LENGTH = 4
+MODELS = ("pinhole", "fisheye")
+
+# Distortion model names used by --distortion and in reports, by coefficient count.
+PINHOLE_MODEL_NAMES = {2: "radial2", 4: "radtan4", 5: "radtan5", 8: "rational8", 12: "thinprism12"}
+
+
+def pad12(dist: np.ndarray) -> np.ndarray:
+    """OpenCV pinhole coefficients (..., k) with k in 2,4,5,8,12 -> (..., 12), zeros appended."""
+    dist = np.asarray(dist, dtype=float)
+    pad = [(0, 0)] * (dist.ndim - 1) + [(0, 12 - dist.shape[-1])]
+    return np.pad(dist, pad)
+
+
+def distort_pinhole(xn: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Normalised undistorted (..., 2) -> normalised distorted (..., 2), OpenCV's formula:
+    radial (1+k1 r2+k2 r4+k3 r6)/(1+k4 r2+k5 r4+k6 r6), tangential p1 p2, thin prism s1..s4."""
+    d = pad12(dist)
+    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = (d[..., i] for i in range(12))
+    x, y = xn[..., 0], xn[..., 1]
+    r2 = x * x + y * y
+    r4 = r2 * r2
+    r6 = r4 * r2
+    radial = (1 + k1 * r2 + k2 * r4 + k3 * r6) / (1 + k4 * r2 + k5 * r4 + k6 * r6)
+    xy = x * y
+    xd = x * radial + 2 * p1 * xy + p2 * (r2 + 2 * x * x) + s1 * r2 + s2 * r4
+    yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * xy + s3 * r2 + s4 * r4
+    return np.stack([xd, yd], axis=-1)
+
+
+def fisheye_theta_d(theta: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Equidistant model: theta_d = theta (1 + k1 th^2 + k2 th^4 + k3 th^6 + k4 th^8)."""
+    d = np.asarray(dist, dtype=float)
+    t2 = theta * theta
+    return theta * (1 + t2 * (d[..., 0] + t2 * (d[..., 1] + t2 * (d[..., 2] + t2 * d[..., 3]))))
+
+
+def distort_fisheye(p_cam: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    """Camera-frame points (..., 3) -> normalised distorted (..., 2).
+
+    Uses theta = atan2(rho, z) rather than atan(rho / z) so that points at or past
+    90 degrees (wide fisheye) map continuously; identical to OpenCV for z > 0."""
+    x, y, z = p_cam[..., 0], p_cam[..., 1], p_cam[..., 2]
+    rho = np.hypot(x, y)
+    theta = np.arctan2(rho, z)
+    theta_d = fisheye_theta_d(theta, dist)
+    safe = np.where(rho > 0, rho, 1.0)
+    scale = np.where(rho > 0, theta_d / safe, 0.0)
+    # On the axis theta_d/rho -> 1/z; keep the exact limit.
+    scale = np.where(rho > 0, scale, 1.0 / np.where(z != 0, z, 1.0))
+    return np.stack([x * scale, y * scale], axis=-1)
+
+
+def max_valid_radius_pinhole(dist: np.ndarray, r_limit: float = 20.0) -> float:
+    """Largest undistorted normalised radius over which the radial map r -> r*radial(r)
+    is still increasing. Past it the model folds back and a pixel would be a lie."""
+    d = pad12(dist)
+    r = np.linspace(0.0, r_limit, 20001)[1:]
+    rd = r * (1 + d[0] * r**2 + d[1] * r**4 + d[4] * r**6) / (1 + d[5] * r**2 + d[6] * r**4 + d[7] * r**6)
+    bad = np.nonzero(np.diff(rd) <= 0)[0]
+    denom = 1 + d[5] * r**2 + d[6] * r**4 + d[7] * r**6
+    bad_den = np.nonzero(denom <= 1e-9)[0]
+    cut = min([r_limit] + ([r[bad[0]]] if len(bad) else []) + ([r[bad_den[0]]] if len(bad_den) else []))
+    return float(cut)
+
+
+def max_valid_theta_fisheye(dist: np.ndarray, theta_limit: float = np.pi) -> float:
+    """Largest angle from the optical axis over which theta_d(theta) is increasing."""
+    th = np.linspace(0.0, theta_limit, 20001)[1:]
+    td = fisheye_theta_d(th, np.asarray(dist, dtype=float))
+    bad = np.nonzero(np.diff(td) <= 0)[0]
+    return float(th[bad[0]]) if len(bad) else float(theta_limit)
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics of one camera. `dist` is OpenCV's order (rig-yaml.md)."""
+
+    model: str  # "pinhole" | "fisheye"
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    dist: tuple[float, ...] = field(default=(0.0, 0.0, 0.0, 0.0, 0.0))
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    @property
+    def D(self) -> np.ndarray:
+        return np.array(self.dist, dtype=float)
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return (self.width, self.height)
+
+    @cached_property
+    def _valid_limit(self) -> float:
+        if self.model == "fisheye":
+            # Beyond ~ 110 deg the equidistant polynomial is extrapolating; no real lens here.
+            return min(max_valid_theta_fisheye(self.D), np.radians(110.0))
+        return max_valid_radius_pinhole(self.D)
+
+    def with_(self, **changes) -> "CameraModel":
+        return replace(self, **changes)
+
+    def project(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """p_cam (N, 3) -> (uv (N, 2), valid (N,)).
+
+        Invalid points (behind a pinhole camera, past a fisheye's field of view, or
+        where the distortion model folds back) get NaN pixels, never a number."""
+        p = np.atleast_2d(np.asarray(p_cam, dtype=float))
+        if self.model == "fisheye":
+            xd = distort_fisheye(p, self.D)
+            theta = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
+            valid = theta < self._valid_limit
+        else:
+            z = p[:, 2]
+            valid = z > 1e-12
+            zs = np.where(valid, z, 1.0)
+            xn = p[:, :2] / zs[:, None]
+            valid &= np.hypot(xn[:, 0], xn[:, 1]) < self._valid_limit
+            xd = distort_pinhole(xn, self.D)
+        valid &= np.all(np.isfinite(xd), axis=1)
+        uv = np.column_stack([self.fx * xd[:, 0] + self.cx, self.fy * xd[:, 1] + self.cy])
+        uv[~valid] = np.nan
+        return uv, valid
+
+    def in_image(self, uv: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """True where a pixel lies inside the image (pixel-centre convention), less a margin."""
+        uv = np.atleast_2d(uv)
+        with np.errstate(invalid="ignore"):
+            return (
+                (uv[:, 0] >= -0.5 + margin)
+                & (uv[:, 0] <= self.width - 0.5 - margin)
+                & (uv[:, 1] >= -0.5 + margin)
+                & (uv[:, 1] <= self.height - 0.5 - margin)
+            )
+
+    def unproject(self, uv: np.ndarray, iters: int = 30) -> np.ndarray:
+        """Pixels (N, 2) -> unit rays (N, 3) in the camera frame (Newton on the distortion)."""
+        uv = np.atleast_2d(np.asarray(uv, dtype=float))
+        xd = np.column_stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy])
+        if self.model == "fisheye":
+            rays = _undistort_fisheye(xd, self.D, iters)
+        else:
+            xn = _undistort_pinhole(xd, self.D, iters)
+            rays = np.column_stack([xn, np.ones(len(xn))])
+        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+
+
+def _undistort_pinhole(xd: np.ndarray, dist: np.ndarray, iters: int) -> np.ndarray:
+    """Solve distort(x) = xd by Newton with a finite-difference 2x2 Jacobian, all points at once."""
+    x = xd.copy()
+    h = 1e-7
+    for _ in range(iters):
+        f = distort_pinhole(x, dist) - xd
+        if np.abs(f).max() < 1e-15:
+            break
+        fx = (distort_pinhole(x + [h, 0.0], dist) - distort_pinhole(x - [h, 0.0], dist)) / (2 * h)
+        fy = (distort_pinhole(x + [0.0, h], dist) - distort_pinhole(x - [0.0, h], dist)) / (2 * h)
+        J = np.stack([fx, fy], axis=-1)  # (N, 2, 2): J[:, i, j] = d f_i / d x_j
+        x = x - np.linalg.solve(J, f[..., None])[..., 0]
+    return x
+
+
+def _undistort_fisheye(xd: np.ndarray, dist: np.ndarray, iters: int) -> np.ndarray:
+    """Invert theta_d(theta) by Newton, then rebuild the ray at angle theta from the axis."""
+    theta_d = np.hypot(xd[:, 0], xd[:, 1])
+    th = theta_d.copy()
+    d = np.asarray(dist, dtype=float)
+    for _ in range(iters):
+        t2 = th * th
+        f = fisheye_theta_d(th, d) - theta_d
+        df = 1 + 3 * d[0] * t2 + 5 * d[1] * t2**2 + 7 * d[2] * t2**3 + 9 * d[3] * t2**4
+        step = f / df
+        th = th - step
+        if np.abs(step).max() < 1e-15:
+            break
+    safe = np.where(theta_d > 0, theta_d, 1.0)
+    dirx = np.where(theta_d > 0, xd[:, 0] / safe, 0.0)
+    diry = np.where(theta_d > 0, xd[:, 1] / safe, 0.0)
+    s = np.sin(th)
+    return np.column_stack([dirx * s, diry * s, np.cos(th)])

@@ -1,0 +1,221 @@
+"""The `rigcal` command line (../shared/spec/cli.md). Thin: parse, call the library, print.
+
+Results go to stdout, progress and warnings to stderr. A RigcalError becomes one
+line on stderr and its exit code (2 bad input, 1 the work failed); nothing else
+ever reaches the user as a traceback (set RIGCAL_DEBUG=1 to see one).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from enum import Enum
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from .errors import RigcalError
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="Calibrate the cameras of a drone's camera rig (body frame FLU).",
+)
+
+
+def _fail(message: str, code: int) -> None:
+    typer.echo(f"rigcal: {message}", err=True)
+    raise typer.Exit(code)
+
+
+def guarded(fn):
+    """Turn every failure into one stderr line and an exit code."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except typer.Exit:
+            raise
+        except RigcalError as e:
+            _fail(str(e), e.exit_code)
+        except KeyboardInterrupt:
+            _fail("interrupted; no partial output was left behind", 130)
+        except Exception as e:  # pragma: no cover - the last line of defence
+            if os.environ.get("RIGCAL_DEBUG"):
+                raise
+            _fail(f"internal error: {e.__class__.__name__}: {e} (set RIGCAL_DEBUG=1 for a traceback)", 1)
+
+    return wrapper
+
+
+def out(text) -> None:
+    """Print a result (str or rich renderable) to stdout."""
+    if isinstance(text, str):
+        typer.echo(text)
+    else:
+        from rich.console import Console
+
+        Console(soft_wrap=True).print(text)
+
+
+class Scene(str, Enum):
+    room = "room"
+    board = "board"
+
+
+class Distortion(str, Enum):
+    auto = "auto"
+    radial2 = "radial2"
+    radtan4 = "radtan4"
+    radtan5 = "radtan5"
+    rational8 = "rational8"
+
+
+class ExportFormat(str, Enum):
+    kalibr = "kalibr"
+    opencv = "opencv"
+    ros = "ros"
+    json = "json"
+
+
+class ImportFormat(str, Enum):
+    kalibr = "kalibr"
+
+
+@app.command()
+@guarded
+def simulate(
+    rig: Path = typer.Argument(..., help="rig YAML (every camera needs a pose)"),
+    out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md)"),
+    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front. Default: room when some camera shares no view with the others"),
+    frames: Optional[int] = typer.Option(None, help="number of frames (default 60 room, 40 board)"),
+    seed: int = typer.Option(0, help="random seed; the same seed writes byte-identical images"),
+    noise: float = typer.Option(2.0, help="Gaussian image noise, grey levels (sigma)"),
+    blur: float = typer.Option(0.0, help="motion blur length, pixels"),
+    mount_error_mm: float = typer.Option(5.0, help="1-sigma mounting position error, mm"),
+    mount_error_deg: float = typer.Option(1.0, help="1-sigma mounting rotation error, degrees"),
+    focal_error: float = typer.Option(0.02, help="1-sigma relative focal length error"),
+    target: Optional[Path] = typer.Option(None, help="target YAML to use instead of one generated from the rig"),
+    force: bool = typer.Option(False, help="replace a non-empty output folder"),
+    jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
+):
+    """Render a synthetic ChArUco dataset with ground truth (truth.yaml)."""
+    from . import simulate as sim
+
+    out(sim.run(rig_path=rig, out_dir=out_dir, scene=scene.value if scene else None, frames=frames, seed=seed,
+                noise=noise, blur=blur, mount_error_mm=mount_error_mm, mount_error_deg=mount_error_deg,
+                focal_error=focal_error, target_path=target, force=force, jobs=jobs))
+
+
+@app.command()
+@guarded
+def calibrate(
+    dataset: Path = typer.Argument(..., help="dataset folder (dataset.md)"),
+    out_yaml: Path = typer.Option(..., "--out", help="calibrated rig YAML to write"),
+    rig: Optional[Path] = typer.Option(None, help="declared rig (default DATASET/rig.yaml)"),
+    target: Optional[Path] = typer.Option(None, help="target YAML (default DATASET/target.yaml)"),
+    report: Optional[Path] = typer.Option(None, help="write a self-contained HTML report here"),
+    jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
+    reference: str = typer.Option("aligned", help="body frame: 'aligned' (fit to the declared rig) or 'camera:NAME'"),
+    distortion: Distortion = typer.Option(Distortion.auto, help="pinhole distortion model; auto picks per camera"),
+    fix_intrinsics: bool = typer.Option(False, help="keep the declared intrinsics and distortion"),
+    allow_resize: bool = typer.Option(False, help="accept images whose size differs from the rig's resolution (intrinsics are scaled)"),
+):
+    """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
+    from . import calibrate as cal
+
+    out(cal.run(dataset=dataset, out_path=out_yaml, rig_path=rig, target_path=target, report_path=report, jobs=jobs,
+                reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
+                allow_resize=allow_resize))
+
+
+@app.command()
+@guarded
+def compare(
+    calibrated: Path = typer.Argument(..., help="calibrated rig YAML"),
+    truth: Path = typer.Argument(..., help="truth.yaml of a simulated dataset, or another rig file"),
+):
+    """Errors of a calibrated rig against truth: per camera, per camera pair, per stereo baseline."""
+    from . import compare as cmp
+
+    out(cmp.run(calibrated, truth))
+
+
+@app.command()
+@guarded
+def project(
+    rig: Path = typer.Argument(..., help="rig YAML"),
+    position: tuple[float, float, float] = typer.Option(..., help="body position E N U (metres)"),
+    point: tuple[float, float, float] = typer.Option(..., help="navigation-frame point E N U (metres)"),
+    heading: Optional[float] = typer.Option(None, help="degrees clockwise from north (0 = flying north), level flight"),
+    axes: Optional[tuple[str, str, str]] = typer.Option(None, help="body F, L, U axes in ENU terms, e.g. N -E U"),
+):
+    """Project an ENU point into every camera at a body pose; stereo disparity and depth."""
+    from .project import run as run_project
+
+    out(run_project(rig, position=position, point=point, heading=heading, axes=axes))
+
+
+@app.command()
+@guarded
+def export(
+    rig: Path = typer.Argument(..., help="calibrated rig YAML"),
+    format: ExportFormat = typer.Option(..., "--format", help="kalibr | opencv | ros | json"),
+    out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros)"),
+):
+    """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON."""
+    from . import export as exp
+
+    out(exp.run(rig, format.value, out_path))
+
+
+@app.command("import")
+@guarded
+def import_(
+    source: Path = typer.Argument(..., help="file to import (Kalibr camchain.yaml)"),
+    format: ImportFormat = typer.Option(ImportFormat.kalibr, "--format"),
+    out_path: Path = typer.Option(..., "--out", help="rig YAML to write"),
+    rig: Optional[Path] = typer.Option(None, help="declared rig giving the body frame (camera names and poses)"),
+    body_from: Optional[str] = typer.Option(None, help="use this camera (e.g. cam0) as the body frame instead"),
+):
+    """Read another tool's calibration into a rig YAML."""
+    from . import export as exp
+
+    out(exp.run_import(source, format.value, out_path, rig_path=rig, body_from=body_from))
+
+
+@app.command()
+@guarded
+def board(
+    target: Path = typer.Argument(..., help="target YAML"),
+    out_path: Path = typer.Option(..., "--out", help="FILE.png or FILE.pdf"),
+    dpi: int = typer.Option(300, help="dots per inch; 1 board metre = dpi / 0.0254 px"),
+):
+    """A printable image of each board, to scale."""
+    from . import target as tgt
+
+    out(tgt.run_board(target, out_path, dpi))
+
+
+@app.command()
+@guarded
+def view(
+    rig: Path = typer.Argument(..., help="rig YAML"),
+    out_path: Path = typer.Option(..., "--out", help="HTML file to write"),
+):
+    """The rig's camera frames in the FLU body frame, as an interactive 3D page (works offline)."""
+    from . import view as vw
+
+    out(vw.run(rig, out_path))
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,450 @@
+"""The rig model and its YAML schema (../shared/spec/rig-yaml.md).
+
+File keys equal the code's names, so the spec, the loader and the writer cannot
+drift apart. Validation happens here, once; the rest of rigcal trusts the types.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import yaml
+
+from . import geometry as geo
+from .camera import FISHEYE_DIST_LENGTH, MODELS, PINHOLE_DIST_LENGTHS, CameraModel
+from .errors import RigFileError
+from .io import atomic_write_text
+
+NAME_RE = re.compile(r"^[a-z0-9_]+$")
+TOP_KEYS = ("rig", "body_frame", "cameras", "stereo_pairs", "calibration")
+CAMERA_KEYS = ("model", "resolution", "intrinsics", "distortion", "position", "look", "axes", "rotation",
+               "quaternion", "calibration")
+ORIENTATION_KEYS = ("look", "axes", "rotation", "quaternion")
+INTRINSIC_KEYS = ("fx", "fy", "cx", "cy", "focal")
+PAIR_KEYS = ("left", "right", "baseline_m", "depth_check", "sanity_10m")
+
+
+@dataclass(frozen=True, eq=False)
+class Camera:
+    """One camera: its intrinsics and, when declared or calibrated, T_body_cam (4x4)."""
+
+    name: str
+    intrinsics: CameraModel
+    T_body_cam: np.ndarray | None = None
+    calibration: Mapping[str, Any] | None = None
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Camera):
+            return NotImplemented
+        same_pose = (self.T_body_cam is None and other.T_body_cam is None) or (
+            self.T_body_cam is not None
+            and other.T_body_cam is not None
+            and np.array_equal(self.T_body_cam, other.T_body_cam)
+        )
+        return (self.name, self.intrinsics, self.calibration) == (other.name, other.intrinsics, other.calibration) and same_pose
+
+    @property
+    def has_pose(self) -> bool:
+        return self.T_body_cam is not None
+
+    def project_body(self, p_body: np.ndarray) -> "Projection":
+        """Body-frame points (N, 3) -> this camera's pixels."""
+        if self.T_body_cam is None:
+            raise ValueError(f"camera {self.name} has no pose")
+        p_cam = geo.transform(geo.inv_T(self.T_body_cam), np.atleast_2d(p_body))
+        uv, valid = self.intrinsics.project(p_cam)
+        return Projection(p_cam=p_cam, uv=uv, valid=valid, in_image=valid & self.intrinsics.in_image(uv))
+
+
+@dataclass(frozen=True)
+class Projection:
+    """Points in one camera: p_cam (N, 3); uv (N, 2), NaN where not valid;
+    valid: in front of / inside the model's field; in_image: valid and on the sensor."""
+
+    p_cam: np.ndarray
+    uv: np.ndarray
+    valid: np.ndarray
+    in_image: np.ndarray
+
+    def reason(self, i: int = 0) -> str | None:
+        """None when point i is seen, else why not (words for the CLI)."""
+        if self.in_image[i]:
+            return None
+        if not self.valid[i]:
+            return "behind the camera" if self.p_cam[i, 2] <= 0 else "outside the lens model's field of view"
+        return "outside the image"
+
+
+@dataclass(frozen=True)
+class StereoPair:
+    left: str
+    right: str
+    baseline_m: float | None = None
+    depth_check: Mapping[str, Any] | None = None
+    sanity_10m: Mapping[str, Any] | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Rig:
+    name: str
+    cameras: tuple[Camera, ...]
+    stereo_pairs: tuple[StereoPair, ...] = ()
+    calibration: Mapping[str, Any] | None = None
+    body_frame: str = "FLU"
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Rig):
+            return NotImplemented
+        return (self.name, self.cameras, self.stereo_pairs, self.calibration, self.body_frame) == (
+            other.name, other.cameras, other.stereo_pairs, other.calibration, other.body_frame)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(c.name for c in self.cameras)
+
+    def camera(self, name: str) -> Camera:
+        for c in self.cameras:
+            if c.name == name:
+                return c
+        raise KeyError(name)
+
+    def with_cameras(self, cameras: Sequence[Camera]) -> "Rig":
+        return replace(self, cameras=tuple(cameras))
+
+    def project(self, p_nav: np.ndarray, T_nav_body: np.ndarray) -> dict[str, Projection]:
+        """ENU points (N, 3) seen from the body pose T_nav_body -> per camera Projection."""
+        p_body = geo.transform(geo.inv_T(T_nav_body), np.atleast_2d(p_nav))
+        return {c.name: c.project_body(p_body) for c in self.cameras}
+
+    def stereo_depth(self, pair: StereoPair | tuple[str, str], p_nav: np.ndarray, T_nav_body: np.ndarray):
+        """Disparity (px) and depth Z = B f / d of ENU points in a stereo pair's rectified frame."""
+        from .stereo import rectify_pair, stereo_depth_of_points
+
+        left, right = (pair.left, pair.right) if isinstance(pair, StereoPair) else pair
+        rect = rectify_pair(self.camera(left), self.camera(right))
+        p_body = geo.transform(geo.inv_T(T_nav_body), np.atleast_2d(p_nav))
+        return stereo_depth_of_points(rect, p_body, rig=self)
+
+
+# ----------------------------------------------------------------------------- loading
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read and validate a rig file; raises RigFileError naming file, key and what was expected."""
+    path = Path(path)
+    label = str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise RigFileError(f"{label}: file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise RigFileError(f"{label}: cannot read ({e.__class__.__name__}: {e})") from None
+    return parse_rig(text, label)
+
+
+def parse_rig(text: str, label: str = "<rig>") -> Rig:
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise RigFileError(f"{label}: not valid YAML{where}: {getattr(e, 'problem', None) or e}") from None
+    return rig_from_dict(doc, label)
+
+
+def rig_from_dict(doc: Any, label: str = "<rig>") -> Rig:
+    def err(key: str, msg: str) -> RigFileError:
+        return RigFileError(f"{label}: {key}: {msg}" if key else f"{label}: {msg}")
+
+    if not isinstance(doc, dict):
+        raise err("", f"expected a mapping with `cameras`, got {_kind(doc)}")
+    _unknown(doc, TOP_KEYS, "", err)
+    name = doc.get("rig", "rig")
+    if not isinstance(name, (str, int, float)) or isinstance(name, bool):
+        raise err("rig", f"expected a name (text), got {_kind(name)}")
+    body = doc.get("body_frame", "FLU")
+    if body != "FLU":
+        raise err("body_frame", f"only FLU is defined, got {body!r}")
+    if "cameras" not in doc:
+        raise err("cameras", "missing (expected a mapping of camera name -> camera)")
+    cams_doc = doc["cameras"]
+    if not isinstance(cams_doc, dict) or not cams_doc:
+        raise err("cameras", f"expected a non-empty mapping of camera name -> camera, got {_kind(cams_doc)}")
+    cameras = []
+    for cname, cdoc in cams_doc.items():
+        if not isinstance(cname, str) or not NAME_RE.match(cname):
+            raise err(f"cameras.{cname}", "camera names must match [a-z0-9_]+")
+        cameras.append(_camera_from_dict(cname, cdoc, f"cameras.{cname}", err))
+    names = [c.name for c in cameras]
+    pairs = _pairs_from_doc(doc.get("stereo_pairs"), names, err)
+    calib = doc.get("calibration")
+    if calib is not None and not isinstance(calib, dict):
+        raise err("calibration", f"expected a mapping, got {_kind(calib)}")
+    _check_finite_tree(calib, "calibration", err)
+    return Rig(name=str(name), cameras=tuple(cameras), stereo_pairs=pairs, calibration=calib)
+
+
+def _camera_from_dict(name: str, d: Any, key: str, err) -> Camera:
+    if not isinstance(d, dict):
+        raise err(key, f"expected a mapping, got {_kind(d)}")
+    _unknown(d, CAMERA_KEYS, key, err)
+    model = d.get("model", "pinhole")
+    if model not in MODELS:
+        raise err(f"{key}.model", f"expected one of {', '.join(MODELS)}, got {model!r}")
+    if "resolution" not in d:
+        raise err(f"{key}.resolution", "missing (expected [width, height] in pixels)")
+    res = d["resolution"]
+    if (not isinstance(res, (list, tuple)) or len(res) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in res)):
+        raise err(f"{key}.resolution", f"expected two positive integers [width, height], got {res!r}")
+    width, height = res
+    fx, fy, cx, cy = _intrinsics(d.get("intrinsics"), width, height, f"{key}.intrinsics", err)
+    dist = _distortion(d.get("distortion"), model, f"{key}.distortion", err)
+    cam = CameraModel(model=model, width=width, height=height, fx=fx, fy=fy, cx=cx, cy=cy, dist=dist)
+    T = _pose(d, key, err)
+    calib = d.get("calibration")
+    if calib is not None and not isinstance(calib, dict):
+        raise err(f"{key}.calibration", f"expected a mapping, got {_kind(calib)}")
+    _check_finite_tree(calib, f"{key}.calibration", err)
+    return Camera(name=name, intrinsics=cam, T_body_cam=T, calibration=calib)
+
+
+def _intrinsics(d: Any, width: int, height: int, key: str, err) -> tuple[float, float, float, float]:
+    if d is None:
+        raise err(key, "missing (expected fx, fy or focal, and optionally cx, cy)")
+    if not isinstance(d, dict):
+        raise err(key, f"expected a mapping, got {_kind(d)}")
+    _unknown(d, INTRINSIC_KEYS, key, err)
+    if "focal" in d and ("fx" in d or "fy" in d):
+        raise err(key, "give either `focal` or `fx`/`fy`, not both")
+    if "focal" in d:
+        fx = fy = _positive(d["focal"], f"{key}.focal", err)
+    else:
+        for k in ("fx", "fy"):
+            if k not in d:
+                raise err(f"{key}.{k}", "missing (expected a positive focal length in pixels, or `focal`)")
+        fx = _positive(d["fx"], f"{key}.fx", err)
+        fy = _positive(d["fy"], f"{key}.fy", err)
+    cx = _number(d.get("cx", width / 2.0), f"{key}.cx", err)
+    cy = _number(d.get("cy", height / 2.0), f"{key}.cy", err)
+    return fx, fy, cx, cy
+
+
+def _distortion(v: Any, model: str, key: str, err) -> tuple[float, ...]:
+    if v is None:
+        return (0.0,) * (FISHEYE_DIST_LENGTH if model == "fisheye" else 5)
+    if not isinstance(v, (list, tuple)):
+        raise err(key, f"expected a list of numbers, got {_kind(v)}")
+    vals = tuple(_number(x, f"{key}[{i}]", err) for i, x in enumerate(v))
+    allowed = (FISHEYE_DIST_LENGTH,) if model == "fisheye" else PINHOLE_DIST_LENGTHS
+    if len(vals) not in allowed:
+        what = "4 (k1 k2 k3 k4)" if model == "fisheye" else "2, 4, 5, 8 or 12"
+        raise err(key, f"a {model} camera takes {what} coefficients, got {len(vals)}")
+    return vals
+
+
+def _pose(d: dict, key: str, err) -> np.ndarray | None:
+    present = [k for k in ORIENTATION_KEYS if k in d]
+    has_pos = "position" in d
+    if not present and not has_pos:
+        return None  # pose left for calibrate to find
+    if not has_pos:
+        raise err(f"{key}.position", "missing (an orientation without a position)")
+    t = _vector(d["position"], 3, f"{key}.position", err)
+    # A calibrated file writes rotation + quaternion together (rig-yaml.md); they must agree.
+    if sorted(present) == ["quaternion", "rotation"]:
+        R = _rotation(d, "rotation", key, err)
+        Rq = _rotation(d, "quaternion", key, err)
+        if np.abs(R - Rq).max() > 1e-6:
+            raise err(f"{key}.quaternion", "does not match `rotation` (a calibrated file writes both; they must agree)")
+    elif len(present) > 1:
+        raise err(key, f"exactly one orientation key expected, got {', '.join(present)}")
+    elif not present:
+        raise err(key, "missing orientation (one of look, axes, rotation, quaternion)")
+    else:
+        R = _rotation(d, present[0], key, err)
+    return geo.make_T(R, t)
+
+
+def _rotation(d: dict, k: str, key: str, err) -> np.ndarray:
+    v = d[k]
+    try:
+        if k == "look":
+            if not isinstance(v, str):
+                raise ValueError(f"expected one of {', '.join(geo.LOOK_AXES)}, got {v!r}")
+            return geo.R_from_look(v)
+        if k == "axes":
+            if isinstance(v, (list, tuple)):
+                for i, a in enumerate(v):
+                    if isinstance(a, (list, tuple)):
+                        _vector(a, 3, f"{key}.axes[{i}]", err)
+            return geo.R_from_axes(v)
+        if k == "rotation":
+            if (not isinstance(v, (list, tuple)) or len(v) != 3
+                    or not all(isinstance(r, (list, tuple)) and len(r) == 3 for r in v)):
+                raise ValueError(f"expected a 3x3 matrix [[r00, r01, r02], ...], got {v!r}")
+            rows = [[_number(x, f"{key}.rotation[{i}][{j}]", err) for j, x in enumerate(r)] for i, r in enumerate(v)]
+            return geo.check_rotation(np.array(rows))
+        q = _vector(v, 4, f"{key}.quaternion", err)
+        return geo.R_from_quat(q)
+    except ValueError as e:
+        raise err(f"{key}.{k}", str(e)) from None
+
+
+def _pairs_from_doc(v: Any, names: list[str], err) -> tuple[StereoPair, ...]:
+    if v is None:
+        return ()
+    if not isinstance(v, list):
+        raise err("stereo_pairs", f"expected a list of [left, right] pairs, got {_kind(v)}")
+    pairs = []
+    for i, p in enumerate(v):
+        key = f"stereo_pairs[{i}]"
+        if isinstance(p, (list, tuple)):
+            if len(p) != 2:
+                raise err(key, f"expected [left, right], got {p!r}")
+            left, right, extra = p[0], p[1], {}
+        elif isinstance(p, dict):
+            _unknown(p, PAIR_KEYS, key, err)
+            if "left" not in p or "right" not in p:
+                raise err(key, "expected `left` and `right` camera names")
+            left, right = p["left"], p["right"]
+            extra = {k: p[k] for k in ("baseline_m", "depth_check", "sanity_10m") if k in p}
+            if "baseline_m" in extra:
+                extra["baseline_m"] = _positive(extra["baseline_m"], f"{key}.baseline_m", err)
+            for k in ("depth_check", "sanity_10m"):
+                _check_finite_tree(extra.get(k), f"{key}.{k}", err)
+        else:
+            raise err(key, f"expected [left, right], got {_kind(p)}")
+        for side, n in (("left", left), ("right", right)):
+            if n not in names:
+                raise err(key, f"{side} camera {n!r} is not declared under cameras ({', '.join(names)})")
+        if left == right:
+            raise err(key, f"a pair needs two different cameras, got {left!r} twice")
+        pairs.append(StereoPair(left=left, right=right, **extra))
+    return tuple(pairs)
+
+
+# ----------------------------------------------------------------------------- validators
+
+
+def _kind(v: Any) -> str:
+    if v is None:
+        return "nothing"
+    return {dict: "a mapping", list: "a list", str: f"text {v!r}", bool: f"{v!r}"}.get(type(v), repr(v))
+
+
+def _unknown(d: dict, allowed: Sequence[str], key: str, err) -> None:
+    for k in d:
+        if k not in allowed:
+            hint = _closest(str(k), allowed)
+            at = f"{key}.{k}" if key else str(k)
+            raise err(at, f"unknown key" + (f" (did you mean `{hint}`?)" if hint else "")
+                      + f"; expected one of {', '.join(allowed)}")
+
+
+def _closest(word: str, options: Sequence[str]) -> str | None:
+    import difflib
+
+    m = difflib.get_close_matches(word, options, n=1, cutoff=0.6)
+    return m[0] if m else None
+
+
+def _number(v: Any, key: str, err) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise err(key, f"expected a number, got {_kind(v)}")
+    if not math.isfinite(v):
+        raise err(key, f"expected a finite number, got {v!r}")
+    return float(v)
+
+
+def _positive(v: Any, key: str, err) -> float:
+    x = _number(v, key, err)
+    if x <= 0:
+        raise err(key, f"expected a positive number, got {v!r}")
+    return x
+
+
+def _vector(v: Any, n: int, key: str, err) -> np.ndarray:
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        raise err(key, f"expected {n} numbers, got {v!r}")
+    return np.array([_number(x, f"{key}[{i}]", err) for i, x in enumerate(v)])
+
+
+def _check_finite_tree(v: Any, key: str, err) -> None:
+    """Reject NaN / inf anywhere inside free-form stats blocks."""
+    if isinstance(v, dict):
+        for k, x in v.items():
+            _check_finite_tree(x, f"{key}.{k}", err)
+    elif isinstance(v, list):
+        for i, x in enumerate(v):
+            _check_finite_tree(x, f"{key}[{i}]", err)
+    elif isinstance(v, float) and not math.isfinite(v):
+        raise err(key, f"expected a finite number, got {v!r}")
+
+
+# ----------------------------------------------------------------------------- saving
+
+
+def rig_to_dict(rig: Rig) -> dict:
+    """The calibrated-file form: every posed camera gets `rotation` and `quaternion`."""
+    cams = {}
+    for c in rig.cameras:
+        m = c.intrinsics
+        d: dict[str, Any] = {
+            "model": m.model,
+            "resolution": [m.width, m.height],
+            "intrinsics": {"fx": float(m.fx), "fy": float(m.fy), "cx": float(m.cx), "cy": float(m.cy)},
+            "distortion": [float(x) for x in m.dist],
+        }
+        if c.T_body_cam is not None:
+            # `+ 0.0` turns -0.0 into 0.0 so files read cleanly.
+            d["position"] = [float(x) + 0.0 for x in c.T_body_cam[:3, 3]]
+            d["rotation"] = [[float(x) + 0.0 for x in row] for row in c.T_body_cam[:3, :3]]
+            d["quaternion"] = [float(x) + 0.0 for x in geo.quat_from_R(c.T_body_cam[:3, :3])]
+        if c.calibration is not None:
+            d["calibration"] = _plain(c.calibration)
+        cams[c.name] = d
+    out: dict[str, Any] = {"rig": rig.name, "body_frame": rig.body_frame, "cameras": cams}
+    if rig.stereo_pairs:
+        pairs = []
+        for p in rig.stereo_pairs:
+            if p.baseline_m is None and p.depth_check is None and p.sanity_10m is None:
+                pairs.append([p.left, p.right])
+            else:
+                e: dict[str, Any] = {"left": p.left, "right": p.right}
+                if p.baseline_m is not None:
+                    e["baseline_m"] = float(p.baseline_m)
+                if p.depth_check is not None:
+                    e["depth_check"] = _plain(p.depth_check)
+                if p.sanity_10m is not None:
+                    e["sanity_10m"] = _plain(p.sanity_10m)
+                pairs.append(e)
+        out["stereo_pairs"] = pairs
+    if rig.calibration is not None:
+        out["calibration"] = _plain(rig.calibration)
+    return out
+
+
+def _plain(v: Any) -> Any:
+    """numpy scalars/arrays -> plain Python so yaml.safe_dump accepts them."""
+    if isinstance(v, Mapping):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple, np.ndarray)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def dump_rig(rig: Rig) -> str:
+    return yaml.safe_dump(rig_to_dict(rig), sort_keys=False, default_flow_style=None, width=120)
+
+
+def save_rig(rig: Rig, path: str | Path) -> None:
+    """Write atomically: the file is complete or absent, never half-written."""
+    atomic_write_text(path, dump_rig(rig))
