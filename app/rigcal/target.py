@@ -1,0 +1,509 @@
+"""Calibration targets: target.yaml (../shared/spec/dataset.md), board geometry, printable boards.
+
+Board coordinates are OpenCV's (`CharucoBoard.getChessboardCorners()`): origin at
+the top-left *outer* corner of the print, x right along the print, y down the
+print, z into the printed face; metres.
+
+The printed face is rasterised here by exact area coverage (each pixel's grey is
+the fraction of its area that is white), so a board image at any scale carries
+its geometry exactly: an edge between pixels is where it should be to within
+the 8-bit grey quantisation, not to within a pixel. The renderer uses the same
+rasteriser for its textures, and `rigcal board` for print.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import re
+import struct
+import zlib
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from .errors import InputError, OutputError, TargetFileError
+from .io import atomic_write_bytes, atomic_write_text
+
+TYPES = ("charuco", "chessboard")
+TOP_KEYS = ("boards",)
+CHARUCO_KEYS = ("name", "type", "dictionary", "squares", "square_length", "marker_length", "first_marker_id",
+                "legacy_pattern")
+CHESSBOARD_KEYS = ("name", "type", "inner_corners", "square_length")
+NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
+DICTIONARIES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
+MAX_PRINT_PX = 30000  # per side; a bigger raster is a mistake (dpi or size), not a print
+
+
+@dataclass(frozen=True)
+class Board:
+    """One planar target. `squares` counts squares along board x and y (a chessboard's
+    inner corners are squares - 1)."""
+
+    name: str
+    type: str  # "charuco" | "chessboard"
+    square_length: float  # metres
+    squares: tuple[int, int]
+    dictionary: str | None = None
+    marker_length: float | None = None
+    first_marker_id: int = 0
+    legacy_pattern: bool = False
+
+    @property
+    def inner_corners(self) -> tuple[int, int]:
+        return (self.squares[0] - 1, self.squares[1] - 1)
+
+    @property
+    def n_corners(self) -> int:
+        nx, ny = self.inner_corners
+        return nx * ny
+
+    @property
+    def n_markers(self) -> int:
+        # ChArUco puts a marker in every white square: half of them, rounded down.
+        return (self.squares[0] * self.squares[1]) // 2 if self.type == "charuco" else 0
+
+    @property
+    def marker_ids(self) -> np.ndarray:
+        """(M,) int: first_marker_id .. first_marker_id + M - 1 (empty for a chessboard)."""
+        return np.arange(self.first_marker_id, self.first_marker_id + self.n_markers, dtype=int)
+
+    @property
+    def symmetric(self) -> bool:
+        """A chessboard that looks the same turned by 180 degrees (ambiguous corner order)."""
+        return self.type == "chessboard" and (self.squares[0] + self.squares[1]) % 2 == 0
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        """Outer width and height of the pattern in metres."""
+        return (self.squares[0] * self.square_length, self.squares[1] * self.square_length)
+
+    @cached_property
+    def corners(self) -> np.ndarray:
+        """(N, 3) board-frame corner positions in metres; row index == corner id.
+
+        Row-major over the inner corners, x fastest, starting next to the top-left
+        outer corner: exactly OpenCV's getChessboardCorners() for ChArUco."""
+        nx, ny = self.inner_corners
+        k = np.arange(nx * ny)
+        s = self.square_length
+        out = np.zeros((nx * ny, 3))
+        out[:, 0] = (k % nx + 1) * s
+        out[:, 1] = (k // nx + 1) * s
+        return out
+
+    def cv_board(self) -> "cv2.aruco.CharucoBoard":
+        """OpenCV's board with this board's ids and layout (built on call: not picklable)."""
+        if self.type != "charuco":
+            raise ValueError(f"board {self.name} is a chessboard; it has no ChArUco board")
+        d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        b = cv2.aruco.CharucoBoard(self.squares, self.square_length, self.marker_length, d,
+                                   self.marker_ids.astype(np.int32))
+        b.setLegacyPattern(self.legacy_pattern)
+        return b
+
+    @cached_property
+    def _design(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The printed face as a piecewise-constant grid: x breaks (Gx,), y breaks (Gy,) in
+        metres and black fraction (Gy-1, Gx-1) of each cell (1 black, 0 white)."""
+        return _board_design(self)
+
+    def image(self, px_per_m: float, margin_px: int = 0) -> np.ndarray:
+        """The printed face, uint8 (H, W), 0 black 255 white, white margin around it.
+
+        Pixel (i, j) covers board x in [(i - margin_px) / px_per_m, (i + 1 - margin_px) / px_per_m)
+        and likewise y, so board point (x, y) is at pixel x * px_per_m + margin_px - 0.5
+        in OpenCV's pixel-centre convention. Grey levels are exact area coverage."""
+        return np.clip(np.rint(self.coverage(px_per_m, margin_px) * 255.0), 0, 255).astype(np.uint8)
+
+    def coverage(self, px_per_m: float, margin_px: int = 0) -> np.ndarray:
+        """Float (H, W) in [0, 1]: the fraction of each pixel that is white (see `image`)."""
+        if not (px_per_m > 0 and math.isfinite(px_per_m)):
+            raise ValueError(f"px_per_m must be a positive number, got {px_per_m!r}")
+        w_m, h_m = self.size_m
+        width = int(math.ceil(w_m * px_per_m - 1e-9)) + 2 * margin_px
+        height = int(math.ceil(h_m * px_per_m - 1e-9)) + 2 * margin_px
+        xs, ys, black = self._design
+        Ax = _overlap(width, xs * px_per_m + margin_px)  # (W, Gx-1)
+        Ay = _overlap(height, ys * px_per_m + margin_px)  # (H, Gy-1)
+        return 1.0 - Ay @ black @ Ax.T
+
+
+@dataclass(frozen=True)
+class Target:
+    boards: tuple[Board, ...]
+
+    def board(self, name: str) -> Board:
+        for b in self.boards:
+            if b.name == name:
+                return b
+        raise KeyError(name)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(b.name for b in self.boards)
+
+
+# ----------------------------------------------------------------------------- rasterising
+
+
+def _overlap(n_px: int, breaks_px: np.ndarray) -> np.ndarray:
+    """Overlap length of pixel i = [i, i+1) with interval [b_j, b_j+1): (n_px, len(breaks) - 1)."""
+    lo = np.arange(n_px, dtype=float)[:, None]
+    return np.clip(np.minimum(lo + 1.0, breaks_px[None, 1:]) - np.maximum(lo, breaks_px[None, :-1]), 0.0, None)
+
+
+def _board_design(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    s = board.square_length
+    nx, ny = board.squares
+    square_breaks_x = np.arange(nx + 1) * s
+    square_breaks_y = np.arange(ny + 1) * s
+    if board.type == "chessboard":
+        jj, ii = np.mgrid[0:ny, 0:nx]
+        # OpenCV's chessboard convention: the top-left square is black.
+        return square_breaks_x, square_breaks_y, ((ii + jj) % 2 == 0).astype(float)
+
+    cvb = board.cv_board()
+    d = cvb.getDictionary()
+    cells = d.markerSize + 2  # marker bits plus the one-bit black border
+    m = board.marker_length
+    # Where each marker sits, taken from OpenCV's own layout (legacy or not); the
+    # float32 object points only pick the square, the offsets are recomputed in float64.
+    obj = np.array(cvb.getObjPoints(), dtype=float)  # (M, 4, 3)
+    sq_i = np.floor((obj[:, 0, 0] + 0.5 * s) / s).astype(int)
+    sq_j = np.floor((obj[:, 0, 1] + 0.5 * s) / s).astype(int)
+    ids = np.asarray(cvb.getIds()).reshape(-1)
+    bits = np.stack([cv2.aruco.generateImageMarker(d, int(i), cells, borderBits=1) for i in ids]) < 128
+
+    inset = np.linspace(0.0, m, cells + 1) + (s - m) / 2.0
+    xs = np.unique(np.concatenate([square_breaks_x, (np.arange(nx)[:, None] * s + inset).ravel()]))
+    ys = np.unique(np.concatenate([square_breaks_y, (np.arange(ny)[:, None] * s + inset).ravel()]))
+    cx = 0.5 * (xs[1:] + xs[:-1])
+    cy = 0.5 * (ys[1:] + ys[:-1])
+    gx, gy = np.meshgrid(cx, cy)
+    si = np.minimum((gx // s).astype(int), nx - 1)
+    sj = np.minimum((gy // s).astype(int), ny - 1)
+    marker_at = np.full((ny, nx), -1)
+    marker_at[sq_j, sq_i] = np.arange(len(ids))
+    k = marker_at[sj, si]
+    black = (k < 0).astype(float)  # squares without a marker are the black ones
+    cell = m / cells
+    u = np.floor((gx - si * s - (s - m) / 2.0) / cell).astype(int)
+    v = np.floor((gy - sj * s - (s - m) / 2.0) / cell).astype(int)
+    inside = (k >= 0) & (u >= 0) & (u < cells) & (v >= 0) & (v < cells)
+    black[inside] = bits[k[inside], v[inside], u[inside]]
+    return xs, ys, black
+
+
+# ----------------------------------------------------------------------------- loading
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that refuses a mapping with the same key twice (PyYAML keeps the last)."""
+
+
+def _construct_unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
+    seen = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        if key in seen:
+            mark = key_node.start_mark
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key {key!r} at line {mark.line + 1}", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_unique_mapping)
+
+
+def load_target(path: str | Path) -> Target:
+    """Read and validate target.yaml; raises TargetFileError `file: key: what was expected`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise TargetFileError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise TargetFileError(f"{path}: cannot read ({e.__class__.__name__}: {e})") from None
+    return parse_target(text, str(path))
+
+
+def parse_target(text: str, label: str = "<target>") -> Target:
+    try:
+        doc = yaml.load(text, Loader=_UniqueKeyLoader)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        raise TargetFileError(f"{label}: not valid YAML{where}: {getattr(e, 'problem', None) or e}") from None
+    return target_from_dict(doc, label)
+
+
+def target_from_dict(doc: Any, label: str = "<target>") -> Target:
+    def err(key: str, msg: str) -> TargetFileError:
+        return TargetFileError(f"{label}: {key}: {msg}" if key else f"{label}: {msg}")
+
+    if not isinstance(doc, dict):
+        raise err("", f"expected a mapping with `boards`, got {_kind(doc)}")
+    _unknown(doc, TOP_KEYS, "", err)
+    if "boards" not in doc:
+        raise err("boards", "missing (expected a list of boards)")
+    raw = doc["boards"]
+    if not isinstance(raw, list) or not raw:
+        raise err("boards", f"expected a non-empty list of boards, got {_kind(raw)}")
+    boards = tuple(_board_from_dict(b, f"boards[{i}]", err) for i, b in enumerate(raw))
+    _check_together(boards, err)
+    return Target(boards=boards)
+
+
+def _board_from_dict(d: Any, key: str, err) -> Board:
+    if not isinstance(d, dict):
+        raise err(key, f"expected a mapping, got {_kind(d)}")
+    if "type" not in d:
+        raise err(f"{key}.type", f"missing (expected one of {', '.join(TYPES)})")
+    typ = d["type"]
+    if typ not in TYPES:
+        raise err(f"{key}.type", f"expected one of {', '.join(TYPES)}, got {_kind(typ)}")
+    _unknown(d, CHARUCO_KEYS if typ == "charuco" else CHESSBOARD_KEYS, key, err)
+    if "name" not in d and typ == "charuco":
+        raise err(f"{key}.name", "missing (expected a board name)")
+    name = d.get("name", "chessboard")
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise err(f"{key}.name", f"expected a name of letters, digits, '_', '.', '-', got {_kind(name)}")
+    square = _positive(_required(d, "square_length", key, err, "a length in metres"), f"{key}.square_length", err)
+    if typ == "chessboard":
+        inner = _int_pair(_required(d, "inner_corners", key, err, "[nx, ny] inner corners"),
+                          f"{key}.inner_corners", 3, err)
+        return Board(name=name, type="chessboard", square_length=square, squares=(inner[0] + 1, inner[1] + 1))
+
+    dict_name = _required(d, "dictionary", key, err, "a cv2.aruco dictionary name such as DICT_5X5_1000")
+    if not isinstance(dict_name, str) or dict_name not in DICTIONARIES:
+        hint = difflib.get_close_matches(str(dict_name), DICTIONARIES, n=1, cutoff=0.6)
+        raise err(f"{key}.dictionary", f"expected a cv2.aruco dictionary name (e.g. DICT_5X5_1000), got {_kind(dict_name)}"
+                  + (f" (did you mean {hint[0]}?)" if hint else ""))
+    squares = _int_pair(_required(d, "squares", key, err, "[nx, ny] squares"), f"{key}.squares", 2, err)
+    marker = _positive(_required(d, "marker_length", key, err, "a length in metres"), f"{key}.marker_length", err)
+    if marker >= square:
+        raise err(f"{key}.marker_length", f"expected less than square_length ({square:g}), got {marker:g}")
+    first = d.get("first_marker_id", 0)
+    if isinstance(first, bool) or not isinstance(first, int) or first < 0:
+        raise err(f"{key}.first_marker_id", f"expected a non-negative integer, got {_kind(first)}")
+    legacy = d.get("legacy_pattern", False)
+    if not isinstance(legacy, bool):
+        raise err(f"{key}.legacy_pattern", f"expected true or false, got {_kind(legacy)}")
+    board = Board(name=name, type="charuco", square_length=square, squares=squares, dictionary=dict_name,
+                  marker_length=marker, first_marker_id=first, legacy_pattern=legacy)
+    size = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dict_name)).bytesList.shape[0]
+    if first + board.n_markers > size:
+        raise err(key, f"needs marker ids {first}..{first + board.n_markers - 1} ({board.n_markers} markers) "
+                       f"but {dict_name} holds ids 0..{size - 1}")
+    return board
+
+
+def _check_together(boards: tuple[Board, ...], err) -> None:
+    names = [b.name for b in boards]
+    for i, n in enumerate(names):
+        if n in names[:i]:
+            raise err(f"boards[{i}].name", f"board name {n!r} is already used by boards[{names.index(n)}]")
+    if any(b.type == "chessboard" for b in boards) and len(boards) > 1:
+        i = next(i for i, b in enumerate(boards) if b.type == "chessboard")
+        raise err(f"boards[{i}]", f"a chessboard must be the only board of a target, got {len(boards)} boards")
+    for i, a in enumerate(boards):
+        for j in range(i):
+            b = boards[j]
+            lo = max(a.first_marker_id, b.first_marker_id)
+            hi = min(a.first_marker_id + a.n_markers, b.first_marker_id + b.n_markers) - 1
+            if lo <= hi:
+                raise err(f"boards[{i}].first_marker_id",
+                          f"marker ids {lo}..{hi} of board {a.name!r} overlap those of board {b.name!r} "
+                          f"(ids {b.first_marker_id}..{b.first_marker_id + b.n_markers - 1}); ids must be disjoint")
+
+
+def _required(d: dict, k: str, key: str, err, what: str) -> Any:
+    if k not in d:
+        raise err(f"{key}.{k}", f"missing (expected {what})")
+    return d[k]
+
+
+def _kind(v: Any) -> str:
+    if v is None:
+        return "nothing"
+    return {dict: "a mapping", list: "a list", str: f"text {v!r}", bool: f"{v!r}"}.get(type(v), repr(v))
+
+
+def _unknown(d: dict, allowed: tuple[str, ...], key: str, err) -> None:
+    for k in d:
+        if k not in allowed:
+            hint = difflib.get_close_matches(str(k), allowed, n=1, cutoff=0.6)
+            at = f"{key}.{k}" if key else str(k)
+            raise err(at, "unknown key" + (f" (did you mean `{hint[0]}`?)" if hint else "")
+                      + f"; expected one of {', '.join(allowed)}")
+
+
+def _number(v: Any, key: str, err) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise err(key, f"expected a number, got {_kind(v)}")
+    if not math.isfinite(v):
+        raise err(key, f"expected a finite number, got {v!r}")
+    return float(v)
+
+
+def _positive(v: Any, key: str, err) -> float:
+    x = _number(v, key, err)
+    if x <= 0:
+        raise err(key, f"expected a positive number, got {v!r}")
+    return x
+
+
+def _int_pair(v: Any, key: str, least: int, err) -> tuple[int, int]:
+    if (not isinstance(v, (list, tuple)) or len(v) != 2
+            or not all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
+        raise err(key, f"expected two integers [nx, ny], got {_kind(v)}")
+    if min(v) < least:
+        raise err(key, f"expected at least {least} in each direction, got {list(v)}")
+    return (int(v[0]), int(v[1]))
+
+
+# ----------------------------------------------------------------------------- saving
+
+
+def target_to_dict(target: Target) -> dict:
+    boards = []
+    for b in target.boards:
+        if b.type == "chessboard":
+            boards.append({"name": b.name, "type": "chessboard", "inner_corners": list(b.inner_corners),
+                           "square_length": float(b.square_length)})
+        else:
+            boards.append({"name": b.name, "type": "charuco", "dictionary": b.dictionary,
+                           "squares": list(b.squares), "square_length": float(b.square_length),
+                           "marker_length": float(b.marker_length), "first_marker_id": int(b.first_marker_id),
+                           "legacy_pattern": bool(b.legacy_pattern)})
+    return {"boards": boards}
+
+
+def dump_target(target: Target) -> str:
+    return yaml.safe_dump(target_to_dict(target), sort_keys=False, default_flow_style=None, width=120)
+
+
+def save_target(target: Target, path: str | Path) -> None:
+    atomic_write_text(path, dump_target(target))
+
+
+# ----------------------------------------------------------------------------- printing
+
+
+def board_label(board: Board) -> str:
+    w, h = board.size_m
+    if board.type == "chessboard":
+        nx, ny = board.inner_corners
+        what = f"chessboard {nx}x{ny} inner corners, squares {board.square_length * 1000:g} mm"
+    else:
+        what = (f"ChArUco {board.squares[0]}x{board.squares[1]} squares {board.square_length * 1000:g} mm, "
+                f"markers {board.marker_length * 1000:g} mm, {board.dictionary} ids "
+                f"{board.first_marker_id}-{board.first_marker_id + board.n_markers - 1}"
+                + (", legacy pattern" if board.legacy_pattern else ""))
+    return f"{board.name}: {what}; {w * 1000:g} x {h * 1000:g} mm"
+
+
+def print_image(board: Board, dpi: float, margin_in: float = 0.5) -> np.ndarray:
+    """The board at exactly dpi / 0.0254 px per metre inside a white margin of margin_in
+    inches, with its name, size and dictionary written in the bottom margin. uint8 (H, W)."""
+    px_per_m = dpi / 0.0254
+    margin_px = max(1, int(round(margin_in * dpi)))
+    img = board.image(px_per_m, margin_px)
+    text = board_label(board) + f"; print at {dpi:g} dpi, 100% scale"
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    (tw, th), _ = cv2.getTextSize(text, font, 1.0, 2)
+    avail_w = img.shape[1] - 2 * max(1, margin_px // 4)
+    scale = min(0.35 * margin_px / th, avail_w / tw)
+    thick = max(1, int(round(scale * 1.5)))
+    (tw, th), base = cv2.getTextSize(text, font, scale, thick)
+    org = (max(1, margin_px // 4), img.shape[0] - margin_px // 2 + th // 2)
+    cv2.putText(img, text, org, font, scale, 0, thick, cv2.LINE_AA)
+    return img
+
+
+def png_bytes(img: np.ndarray, dpi: float) -> bytes:
+    """PNG of a grey image, with a pHYs chunk so viewers and printers know the scale."""
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise OutputError("cannot encode the board as PNG")
+    data = buf.tobytes()
+    ppm = int(round(dpi / 0.0254))
+    body = b"pHYs" + struct.pack(">IIB", ppm, ppm, 1)
+    chunk = struct.pack(">I", 9) + body + struct.pack(">I", zlib.crc32(body) & 0xFFFFFFFF)
+    ihdr_end = 8 + 4 + 4 + 13 + 4  # signature, IHDR length, type, data, crc
+    return data[:ihdr_end] + chunk + data[ihdr_end:]
+
+
+def pdf_bytes(images: list[np.ndarray], dpi: float) -> bytes:
+    """A PDF with one grey image per page, each page exactly the image's physical size
+    (width_px * 72 / dpi points), so printing at 100 % reproduces the board to scale."""
+    objs: list[bytes] = []
+
+    def add(body: bytes) -> int:
+        objs.append(body)
+        return len(objs)
+
+    catalog = add(b"")  # filled in once the page tree exists
+    pages = add(b"")
+    kids = []
+    for img in images:
+        h, w = img.shape
+        w_pt, h_pt = w * 72.0 / dpi, h * 72.0 / dpi
+        raw = zlib.compress(np.ascontiguousarray(img, dtype=np.uint8).tobytes(), 6)
+        im = add(b"<< /Type /XObject /Subtype /Image /Width %d /Height %d /ColorSpace /DeviceGray "
+                 b"/BitsPerComponent 8 /Filter /FlateDecode /Length %d >>\nstream\n" % (w, h, len(raw))
+                 + raw + b"\nendstream")
+        content = b"q %.6f 0 0 %.6f 0 0 cm /Im0 Do Q" % (w_pt, h_pt)
+        cs = add(b"<< /Length %d >>\nstream\n" % len(content) + content + b"\nendstream")
+        kids.append(add(b"<< /Type /Page /Parent %d 0 R /MediaBox [0 0 %.6f %.6f] /Resources << /XObject "
+                        b"<< /Im0 %d 0 R >> >> /Contents %d 0 R >>" % (pages, w_pt, h_pt, im, cs)))
+    objs[catalog - 1] = b"<< /Type /Catalog /Pages %d 0 R >>" % pages
+    objs[pages - 1] = (b"<< /Type /Pages /Kids [" + b" ".join(b"%d 0 R" % k for k in kids)
+                       + b"] /Count %d >>" % len(kids))
+    out = bytearray(b"%PDF-1.4\n%\xe2\xe3\xcf\xd3\n")
+    offsets = []
+    for i, body in enumerate(objs, start=1):
+        offsets.append(len(out))
+        out += b"%d 0 obj\n" % i + body + b"\nendobj\n"
+    xref = len(out)
+    out += b"xref\n0 %d\n0000000000 65535 f \n" % (len(objs) + 1)
+    out += b"".join(b"%010d 00000 n \n" % o for o in offsets)
+    out += b"trailer\n<< /Size %d /Root %d 0 R >>\nstartxref\n%d\n%%%%EOF\n" % (len(objs) + 1, catalog, xref)
+    return bytes(out)
+
+
+def run_board(target_path: str | Path, out_path: str | Path, dpi: int) -> str:
+    """`rigcal board`: write every board of a target to scale; returns the summary for stdout."""
+    target = load_target(target_path)
+    out_path = Path(out_path)
+    suffix = out_path.suffix.lower()
+    if suffix not in (".png", ".pdf"):
+        raise InputError(f"{out_path}: --out must end in .png or .pdf, got {out_path.suffix or 'no extension'!r}")
+    if not (isinstance(dpi, (int, float)) and math.isfinite(dpi) and dpi > 0):
+        raise InputError(f"--dpi: expected a positive number, got {dpi!r}")
+    for b in target.boards:
+        w_px, h_px = (int(math.ceil(x * dpi / 0.0254)) + 2 * int(round(0.5 * dpi)) for x in b.size_m)
+        if max(w_px, h_px) > MAX_PRINT_PX:
+            raise InputError(f"--dpi: board {b.name} would be {w_px} x {h_px} px at {dpi} dpi "
+                             f"(more than {MAX_PRINT_PX} px a side); lower --dpi")
+    images = [print_image(b, dpi) for b in target.boards]
+    lines = []
+    if suffix == ".pdf":
+        atomic_write_bytes(out_path, pdf_bytes(images, dpi))
+        files = [out_path] * len(images)
+    else:
+        files = ([out_path] if len(images) == 1 else
+                 [out_path.with_name(f"{out_path.stem}-{b.name}{out_path.suffix}") for b in target.boards])
+        for f, img in zip(files, images):
+            atomic_write_bytes(f, png_bytes(img, dpi))
+    for b, f, img in zip(target.boards, files, images):
+        lines.append(f"{f}: {board_label(b)}; {img.shape[1]} x {img.shape[0]} px at {dpi:g} dpi "
+                     f"({img.shape[1] / dpi * 25.4:.1f} x {img.shape[0] / dpi * 25.4:.1f} mm page)")
+    return "\n".join(lines)
