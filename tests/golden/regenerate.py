@@ -1,0 +1,51 @@
+"""Regenerate the golden export files under tests/golden/exports/.
+
+Run from the repository root:   make golden   (= python -m tests.golden.regenerate)
+
+Then review `git diff tests/golden/exports`: every changed byte is a change in what
+users' tools will read. tests/test_export.py checks that the current exports equal
+these files byte for byte.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rigcal import export
+from rigcal.io import atomic_dir
+from rigcal.rig import load_rig
+
+GOLDEN = Path(__file__).resolve().parent
+ROOT = GOLDEN.parent.parent
+EXPORTS = GOLDEN / "exports"
+
+# The spec's golden rig as declared (clean textbook numbers), and the same rig as a
+# calibrated file would hold it (small distortion, slightly turned cameras, statistics).
+INPUTS = {
+    "drone-stereo-back": ROOT / "rigs" / "drone-stereo-back.yaml",
+    "drone-stereo-back-calibrated": GOLDEN / "drone-stereo-back-calibrated.yaml",
+}
+# Output name of each format inside one rig's folder.
+OUTPUTS = {"kalibr": "camchain.yaml", "json": "rig.json", "opencv": "opencv", "ros": "ros"}
+
+
+def write_goldens(dest: Path) -> list[Path]:
+    """Write every export of every golden input under dest/<input>/<output>; returns the files."""
+    for stem, rig_path in INPUTS.items():
+        rig = load_rig(rig_path)
+        for fmt, name in OUTPUTS.items():
+            # A label without the machine's path keeps messages identical everywhere.
+            result = export.build(rig, fmt, f"{stem}.yaml")
+            export.write_export(result, fmt, dest / stem / name)
+    return sorted(p for p in dest.rglob("*") if p.is_file())
+
+
+def main() -> None:
+    with atomic_dir(EXPORTS, force=True) as tmp:
+        files = write_goldens(tmp)
+    for f in files:
+        print(EXPORTS / f.relative_to(tmp))
+
+
+if __name__ == "__main__":
+    main()
