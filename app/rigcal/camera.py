@@ -79,7 +79,9 @@ def max_valid_radius_pinhole(dist: np.ndarray, r_limit: float = 20.0) -> float:
     bad = np.nonzero(np.diff(rd) <= 0)[0]
     denom = 1 + d[5] * r**2 + d[6] * r**4 + d[7] * r**6
     bad_den = np.nonzero(denom <= 1e-9)[0]
-    cut = min([r_limit] + ([r[bad[0]]] if len(bad) else []) + ([r[bad_den[0]]] if len(bad_den) else []))
+    # The turning point lies within one sample of r[bad[0]]; stay on the safe side of it.
+    cut = min([r_limit] + ([r[max(bad[0] - 1, 0)]] if len(bad) else [])
+              + ([r[max(bad_den[0] - 1, 0)]] if len(bad_den) else []))
     return float(cut)
 
 
@@ -88,7 +90,7 @@ def max_valid_theta_fisheye(dist: np.ndarray, theta_limit: float = np.pi) -> flo
     th = np.linspace(0.0, theta_limit, 20001)[1:]
     td = fisheye_theta_d(th, np.asarray(dist, dtype=float))
     bad = np.nonzero(np.diff(td) <= 0)[0]
-    return float(th[bad[0]]) if len(bad) else float(theta_limit)
+    return float(th[max(bad[0] - 1, 0)]) if len(bad) else float(theta_limit)
 
 
 @dataclass(frozen=True)
@@ -160,34 +162,52 @@ class CameraModel:
             )
 
     def unproject(self, uv: np.ndarray, iters: int = 30) -> np.ndarray:
-        """Pixels (N, 2) -> unit rays (N, 3) in the camera frame (Newton on the distortion)."""
+        """Pixels (N, 2) -> unit rays (N, 3) in the camera frame (Newton on the distortion).
+
+        A pixel with no preimage inside the model's valid field (past the radius or
+        angle where the distortion folds back) gets a NaN ray, never a wrong one."""
         uv = np.atleast_2d(np.asarray(uv, dtype=float))
         xd = np.column_stack([(uv[:, 0] - self.cx) / self.fx, (uv[:, 1] - self.cy) / self.fy])
-        if self.model == "fisheye":
-            rays = _undistort_fisheye(xd, self.D, iters)
-        else:
-            xn = _undistort_pinhole(xd, self.D, iters)
-            rays = np.column_stack([xn, np.ones(len(xn))])
-        return rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        with np.errstate(all="ignore"):
+            if self.model == "fisheye":
+                rays, theta, resid = _undistort_fisheye(xd, self.D, iters)
+                ok = (resid < UNDISTORT_TOL) & (theta >= 0) & (theta < self._valid_limit)
+            else:
+                xn, resid = _undistort_pinhole(xd, self.D, iters)
+                rays = np.column_stack([xn, np.ones(len(xn))])
+                ok = (resid < UNDISTORT_TOL) & (np.hypot(xn[:, 0], xn[:, 1]) < self._valid_limit)
+            rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+        rays[~ok] = np.nan
+        return rays
 
 
-def _undistort_pinhole(xd: np.ndarray, dist: np.ndarray, iters: int) -> np.ndarray:
-    """Solve distort(x) = xd by Newton with a finite-difference 2x2 Jacobian, all points at once."""
+# Newton's residual (normalised image units) under which an undistortion counts as solved.
+UNDISTORT_TOL = 1e-10
+
+
+def _undistort_pinhole(xd: np.ndarray, dist: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray]:
+    """Solve distort(x) = xd (N, 2) by Newton with a finite-difference 2x2 Jacobian, all
+    points at once. Returns x (N, 2) and the final residual (N,)."""
     x = xd.copy()
     h = 1e-7
     for _ in range(iters):
         f = distort_pinhole(x, dist) - xd
-        if np.abs(f).max() < 1e-15:
+        if not (np.abs(f) >= 1e-15).any():  # NaN counts as done: it will fail the residual test
             break
         fx = (distort_pinhole(x + [h, 0.0], dist) - distort_pinhole(x - [h, 0.0], dist)) / (2 * h)
         fy = (distort_pinhole(x + [0.0, h], dist) - distort_pinhole(x - [0.0, h], dist)) / (2 * h)
-        J = np.stack([fx, fy], axis=-1)  # (N, 2, 2): J[:, i, j] = d f_i / d x_j
-        x = x - np.linalg.solve(J, f[..., None])[..., 0]
-    return x
+        # Explicit 2x2 inverse: a singular Jacobian at one point must not stop the others.
+        det = fx[:, 0] * fy[:, 1] - fy[:, 0] * fx[:, 1]
+        det = np.where(det != 0, det, np.nan)
+        x = x - np.column_stack([fy[:, 1] * f[:, 0] - fy[:, 0] * f[:, 1],
+                                 fx[:, 0] * f[:, 1] - fx[:, 1] * f[:, 0]]) / det[:, None]
+    resid = np.abs(distort_pinhole(x, dist) - xd).max(axis=1)
+    return x, np.where(np.isfinite(resid), resid, np.inf)
 
 
-def _undistort_fisheye(xd: np.ndarray, dist: np.ndarray, iters: int) -> np.ndarray:
-    """Invert theta_d(theta) by Newton, then rebuild the ray at angle theta from the axis."""
+def _undistort_fisheye(xd: np.ndarray, dist: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Invert theta_d(theta) by Newton, then rebuild the ray at angle theta from the axis.
+    Returns rays (N, 3) (not yet normalised), theta (N,) and the final residual (N,)."""
     theta_d = np.hypot(xd[:, 0], xd[:, 1])
     th = theta_d.copy()
     d = np.asarray(dist, dtype=float)
@@ -197,10 +217,12 @@ def _undistort_fisheye(xd: np.ndarray, dist: np.ndarray, iters: int) -> np.ndarr
         df = 1 + 3 * d[0] * t2 + 5 * d[1] * t2**2 + 7 * d[2] * t2**3 + 9 * d[3] * t2**4
         step = f / df
         th = th - step
-        if np.abs(step).max() < 1e-15:
+        if not (np.abs(step) >= 1e-15).any():
             break
+    resid = np.abs(fisheye_theta_d(th, d) - theta_d)
     safe = np.where(theta_d > 0, theta_d, 1.0)
     dirx = np.where(theta_d > 0, xd[:, 0] / safe, 0.0)
     diry = np.where(theta_d > 0, xd[:, 1] / safe, 0.0)
     s = np.sin(th)
-    return np.column_stack([dirx * s, diry * s, np.cos(th)])
+    rays = np.column_stack([dirx * s, diry * s, np.cos(th)])
+    return rays, th, np.where(np.isfinite(resid), resid, np.inf)

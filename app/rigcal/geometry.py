@@ -78,7 +78,10 @@ def token_vector(token: object, table: dict[str, tuple[float, float, float]]) ->
             allowed = ", ".join(s + k for k in table for s in ("", "-"))
             raise ValueError(f"{token!r} is not one of {allowed} or a 3-vector")
         return sign * np.array(table[name])
-    v = np.asarray(token, dtype=float) if _is_number_list(token) else None
+    try:
+        v = np.asarray(token, dtype=float) if _is_number_list(token) else None
+    except OverflowError:
+        v = None  # an integer too large for a float
     if v is None or v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"{token!r} is not an axis name or a finite 3-vector")
     n = np.linalg.norm(v)
@@ -196,7 +199,9 @@ def R_from_rotvec(r: np.ndarray) -> np.ndarray:
     small = th2 < 1e-12
     safe = np.where(small, 1.0, th)
     a = np.where(small, 1.0 - th2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - th2 / 24.0, (1.0 - np.cos(safe)) / (safe * safe))
+    # (1 - cos th) / th^2 written with the half angle: no cancellation for small th.
+    half = np.sin(0.5 * safe) / safe
+    b = np.where(small, 0.5 - th2 / 24.0, 2.0 * half * half)
     K = skew(r)
     return np.eye(3) + a * K + b * (K @ K)
 
