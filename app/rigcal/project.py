@@ -26,44 +26,48 @@ def body_pose(position: Sequence[float], heading: float | None, axes: Sequence[s
 
 
 def run(rig_path: Path, position, point, heading=None, axes=None) -> str:
+    """The report `rigcal project` prints: the point in the body frame, then per camera its
+    camera-frame coordinates and pixel (or why it has none), then per stereo pair the
+    rectified disparity and depth Z = B f / d."""
     for name, v in (("--position", position), ("--point", point)):
         if not np.all(np.isfinite(v)):
             raise InputError(f"project: {name}: expected finite numbers, got {list(v)}")
     rig = load_rig(rig_path)
     T_nav_body = body_pose(position, heading, axes)
     p_nav = np.array([point], dtype=float)
-    p_body = geo.transform(geo.inv_T(T_nav_body), p_nav)[0]
-    lines = [f"body frame (FLU): ({_f(p_body)})"]
-    seen = rig.project(p_nav, T_nav_body) if all(c.has_pose for c in rig.cameras) else None
+    p_body = geo.transform(geo.inv_T(T_nav_body), p_nav)
+    lines = [f"body frame (FLU): ({_f(p_body[0])})"]
+    seen: dict[str, bool] = {}
     for cam in rig.cameras:
         if not cam.has_pose:
-            lines.append(f"{cam.name}: no pose in the rig file")
+            lines.append(f"{cam.name}: no pose in the rig file (calibrate finds it); not projected")
             continue
-        pr = cam.project_body(p_body[None])
+        pr = cam.project_body(p_body)
+        seen[cam.name] = bool(pr.in_image[0])
         why = pr.reason(0)
         pc = f"camera frame ({_f(pr.p_cam[0])})"
         if why is None:
             lines.append(f"{cam.name}: {pc}  pixel ({pr.uv[0, 0]:.2f}, {pr.uv[0, 1]:.2f})")
         else:
             lines.append(f"{cam.name}: not visible ({why}); {pc}")
-    del seen
     for pair in rig.stereo_pairs:
-        l, r = rig.camera(pair.left), rig.camera(pair.right)
-        if not (l.has_pose and r.has_pose):
-            continue
-        sd = rig.stereo_depth(pair, p_nav, T_nav_body)
-        vis_l = l.project_body(p_body[None]).in_image[0]
-        vis_r = r.project_body(p_body[None]).in_image[0]
-        tag = f"stereo {pair.left}/{pair.right}"
-        if not (vis_l and vis_r) or not np.isfinite(sd.depth[0]):
-            lines.append(f"{tag}: not seen by both cameras; no disparity")
-            continue
-        from .stereo import rectify_pair
-
-        rect = rectify_pair(l, r)
-        lines.append(f"{tag}: disparity {sd.disparity[0]:.4f} px, depth {sd.depth[0]:.4g} m "
-                     f"(Z = B f / d with baseline {rect.baseline_m:.4f} m, f {rect.f:.2f} px)")
+        lines.append(_pair_line(rig, pair, seen, p_nav, T_nav_body))
     return "\n".join(lines)
+
+
+def _pair_line(rig, pair, seen: dict[str, bool], p_nav: np.ndarray, T_nav_body: np.ndarray) -> str:
+    tag = f"stereo {pair.left}/{pair.right}"
+    unposed = [n for n in (pair.left, pair.right) if n not in seen]
+    if unposed:
+        return f"{tag}: no disparity ({', '.join(unposed)} has no pose)"
+    if not (seen[pair.left] and seen[pair.right]):
+        return f"{tag}: not seen by both cameras; no disparity"
+    sd = rig.stereo_depth(pair, p_nav, T_nav_body)
+    if not np.isfinite(sd.depth[0]):
+        return (f"{tag}: disparity {sd.disparity[0]:.4f} px gives no depth "
+                f"(d <= 0: is the pair declared left, right?)")
+    return (f"{tag}: disparity {sd.disparity[0]:.4f} px, depth {sd.depth[0]:.4g} m "
+            f"(Z = B f / d with baseline {sd.baseline_m:.4f} m, f {sd.f:.2f} px)")
 
 
 def _f(v) -> str:
