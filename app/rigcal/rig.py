@@ -27,6 +27,7 @@ CAMERA_KEYS = ("model", "resolution", "intrinsics", "distortion", "position", "l
 ORIENTATION_KEYS = ("look", "axes", "rotation", "quaternion")
 INTRINSIC_KEYS = ("fx", "fy", "cx", "cy", "focal")
 PAIR_KEYS = ("left", "right", "baseline_m", "depth_check", "sanity_10m")
+MAX_PIXELS = 1 << 20  # per image side; OpenCV sizes are C ints
 
 
 @dataclass(frozen=True, eq=False)
@@ -148,28 +149,119 @@ def load_rig(path: str | Path) -> Rig:
 
 
 def parse_rig(text: str, label: str = "<rig>") -> Rig:
+    """Rig from YAML text; `label` (the file name) starts every error message."""
+    return rig_from_dict(load_yaml(text, label, RigFileError), label)
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """SafeLoader that leaves dates as text (a rig file has no dates, and PyYAML's date
+    constructor raises plain ValueErrors on text like 2001-13-01)."""
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:timestamp", lambda loader, node: loader.construct_scalar(node))
+
+# PyYAML's constructors leak plain Python errors on malformed tagged scalars
+# (`!!float abc` -> ValueError, `!!bool abc` -> KeyError); nesting too deep -> RecursionError.
+_YAML_FAILURES = (yaml.YAMLError, ValueError, TypeError, KeyError, AttributeError, RecursionError, OverflowError)
+# Nodes a document may expand to through aliases (a billion-laughs file is refused, not expanded).
+MAX_YAML_NODES = 1_000_000
+
+
+def load_yaml(text: str, label: str, error: type = RigFileError) -> Any:
+    """YAML text -> plain Python, refusing what safe_load would silently accept: duplicate
+    mapping keys (safe_load keeps the last), aliases that contain themselves, and alias
+    bombs. Every failure is one `error` line naming `label`, the key path and the line."""
+    loader = _StrictLoader(text)
     try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as e:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        problem = _check_nodes(node)
+        if problem is not None:
+            key, msg = problem
+            raise error(_one_line(f"{label}: {key}: {msg}" if key else f"{label}: {msg}"))
+        return loader.construct_document(node)
+    except _YAML_FAILURES as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise RigFileError(f"{label}: not valid YAML{where}: {getattr(e, 'problem', None) or e}") from None
-    return rig_from_dict(doc, label)
+        what = getattr(e, "problem", None) or f"{e.__class__.__name__}: {e}"
+        raise error(_one_line(f"{label}: not valid YAML{where}: {what}")) from None
+    finally:
+        loader.dispose()
+
+
+def _check_nodes(root: yaml.Node) -> tuple[str, str] | None:
+    """Walk the composed node graph once: (key path, message) of the first duplicate key,
+    self-containing alias or oversized expansion, else None."""
+    state: dict[int, int] = {}  # id(node) -> 1 while being walked, 2 when done
+    size: dict[int, int] = {}  # id(node) -> nodes it expands to
+
+    def walk(node: yaml.Node, path: str) -> tuple[str, str] | None:
+        state[id(node)] = 1
+        n = 1
+        children: list[tuple[yaml.Node, str]] = []
+        if isinstance(node, yaml.MappingNode):
+            seen: dict[tuple[str, str], None] = {}
+            for k, v in node.value:
+                if isinstance(k, yaml.ScalarNode):
+                    ident = (k.tag, k.value)
+                    if ident in seen:
+                        line = k.start_mark.line + 1
+                        if path == "cameras":
+                            return "cameras", f"duplicate camera name {k.value!r} (line {line})"
+                        return _join(path, k.value), f"duplicate key (line {line}); each key may appear once"
+                    seen[ident] = None
+                    children.append((v, _join(path, k.value)))
+                else:
+                    children += [(k, path), (v, path)]
+        elif isinstance(node, yaml.SequenceNode):
+            children = [(v, f"{path}[{i}]") for i, v in enumerate(node.value)]
+        for child, cpath in children:
+            st = state.get(id(child))
+            if st == 1:
+                return cpath, "a YAML alias that contains itself (recursive structure)"
+            if st is None:
+                problem = walk(child, cpath)
+                if problem is not None:
+                    return problem
+            n += size[id(child)]
+            if n > MAX_YAML_NODES:
+                return cpath, f"expands to more than {MAX_YAML_NODES} values through aliases"
+        state[id(node)] = 2
+        size[id(node)] = n
+        return None
+
+    return walk(root, "")
+
+
+def _join(path: str, key: str) -> str:
+    return f"{path}.{key}" if path else str(key)
+
+
+_LINE_BREAKS = re.compile(r"[\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
+
+
+def _one_line(message: str) -> str:
+    """Errors are one line on stderr, whatever text a file put in a key or value."""
+    return _LINE_BREAKS.sub(lambda m: repr(m.group())[1:-1], message)
 
 
 def rig_from_dict(doc: Any, label: str = "<rig>") -> Rig:
+    """Validate a parsed rig document (rig-yaml.md) into a Rig, or raise RigFileError."""
     def err(key: str, msg: str) -> RigFileError:
-        return RigFileError(f"{label}: {key}: {msg}" if key else f"{label}: {msg}")
+        return RigFileError(_one_line(f"{label}: {key}: {msg}" if key else f"{label}: {msg}"))
 
     if not isinstance(doc, dict):
         raise err("", f"expected a mapping with `cameras`, got {_kind(doc)}")
     _unknown(doc, TOP_KEYS, "", err)
     name = doc.get("rig", "rig")
+    if isinstance(name, float):
+        name = _number(name, "rig", err)
     if not isinstance(name, (str, int, float)) or isinstance(name, bool):
         raise err("rig", f"expected a name (text), got {_kind(name)}")
     body = doc.get("body_frame", "FLU")
     if body != "FLU":
-        raise err("body_frame", f"only FLU is defined, got {body!r}")
+        raise err("body_frame", f"only FLU is defined, got {_kind(body)}")
     if "cameras" not in doc:
         raise err("cameras", "missing (expected a mapping of camera name -> camera)")
     cams_doc = doc["cameras"]
@@ -178,10 +270,9 @@ def rig_from_dict(doc: Any, label: str = "<rig>") -> Rig:
     cameras = []
     for cname, cdoc in cams_doc.items():
         if not isinstance(cname, str) or not NAME_RE.match(cname):
-            raise err(f"cameras.{cname}", "camera names must match [a-z0-9_]+")
+            raise err(f"cameras.{cname}", f"camera names must match [a-z0-9_]+, got {_kind(cname)}")
         cameras.append(_camera_from_dict(cname, cdoc, f"cameras.{cname}", err))
-    names = [c.name for c in cameras]
-    pairs = _pairs_from_doc(doc.get("stereo_pairs"), names, err)
+    pairs = _pairs_from_doc(doc.get("stereo_pairs"), {c.name: c for c in cameras}, err)
     calib = doc.get("calibration")
     if calib is not None and not isinstance(calib, dict):
         raise err("calibration", f"expected a mapping, got {_kind(calib)}")
@@ -195,13 +286,13 @@ def _camera_from_dict(name: str, d: Any, key: str, err) -> Camera:
     _unknown(d, CAMERA_KEYS, key, err)
     model = d.get("model", "pinhole")
     if model not in MODELS:
-        raise err(f"{key}.model", f"expected one of {', '.join(MODELS)}, got {model!r}")
+        raise err(f"{key}.model", f"expected one of {', '.join(MODELS)}, got {_kind(model)}")
     if "resolution" not in d:
         raise err(f"{key}.resolution", "missing (expected [width, height] in pixels)")
     res = d["resolution"]
     if (not isinstance(res, (list, tuple)) or len(res) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in res)):
-        raise err(f"{key}.resolution", f"expected two positive integers [width, height], got {res!r}")
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= MAX_PIXELS for v in res)):
+        raise err(f"{key}.resolution", f"expected two positive integers [width, height], got {_kind(res)}")
     width, height = res
     fx, fy, cx, cy = _intrinsics(d.get("intrinsics"), width, height, f"{key}.intrinsics", err)
     dist = _distortion(d.get("distortion"), model, f"{key}.distortion", err)
@@ -276,7 +367,7 @@ def _rotation(d: dict, k: str, key: str, err) -> np.ndarray:
     try:
         if k == "look":
             if not isinstance(v, str):
-                raise ValueError(f"expected one of {', '.join(geo.LOOK_AXES)}, got {v!r}")
+                raise ValueError(f"expected one of {', '.join(geo.LOOK_AXES)}, got {_kind(v)}")
             return geo.R_from_look(v)
         if k == "axes":
             if isinstance(v, (list, tuple)):
@@ -287,7 +378,7 @@ def _rotation(d: dict, k: str, key: str, err) -> np.ndarray:
         if k == "rotation":
             if (not isinstance(v, (list, tuple)) or len(v) != 3
                     or not all(isinstance(r, (list, tuple)) and len(r) == 3 for r in v)):
-                raise ValueError(f"expected a 3x3 matrix [[r00, r01, r02], ...], got {v!r}")
+                raise ValueError(f"expected a 3x3 matrix [[r00, r01, r02], ...], got {_kind(v)}")
             rows = [[_number(x, f"{key}.rotation[{i}][{j}]", err) for j, x in enumerate(r)] for i, r in enumerate(v)]
             return geo.check_rotation(np.array(rows))
         q = _vector(v, 4, f"{key}.quaternion", err)
@@ -296,7 +387,7 @@ def _rotation(d: dict, k: str, key: str, err) -> np.ndarray:
         raise err(f"{key}.{k}", str(e)) from None
 
 
-def _pairs_from_doc(v: Any, names: list[str], err) -> tuple[StereoPair, ...]:
+def _pairs_from_doc(v: Any, cameras: dict[str, Camera], err) -> tuple[StereoPair, ...]:
     if v is None:
         return ()
     if not isinstance(v, list):
@@ -306,7 +397,7 @@ def _pairs_from_doc(v: Any, names: list[str], err) -> tuple[StereoPair, ...]:
         key = f"stereo_pairs[{i}]"
         if isinstance(p, (list, tuple)):
             if len(p) != 2:
-                raise err(key, f"expected [left, right], got {p!r}")
+                raise err(key, f"expected [left, right], got {_kind(p)}")
             left, right, extra = p[0], p[1], {}
         elif isinstance(p, dict):
             _unknown(p, PAIR_KEYS, key, err)
@@ -321,10 +412,13 @@ def _pairs_from_doc(v: Any, names: list[str], err) -> tuple[StereoPair, ...]:
         else:
             raise err(key, f"expected [left, right], got {_kind(p)}")
         for side, n in (("left", left), ("right", right)):
-            if n not in names:
-                raise err(key, f"{side} camera {n!r} is not declared under cameras ({', '.join(names)})")
+            if not isinstance(n, str) or n not in cameras:
+                raise err(key, f"{side} camera {_kind(n)} is not declared under cameras ({', '.join(cameras)})")
         if left == right:
             raise err(key, f"a pair needs two different cameras, got {left!r} twice")
+        T_l, T_r = cameras[left].T_body_cam, cameras[right].T_body_cam
+        if T_l is not None and T_r is not None and np.linalg.norm(T_l[:3, 3] - T_r[:3, 3]) < 1e-9:
+            raise err(key, f"{left} and {right} are at the same position; a stereo pair needs a baseline")
         pairs.append(StereoPair(left=left, right=right, **extra))
     return tuple(pairs)
 
@@ -332,17 +426,27 @@ def _pairs_from_doc(v: Any, names: list[str], err) -> tuple[StereoPair, ...]:
 # ----------------------------------------------------------------------------- validators
 
 
-def _kind(v: Any) -> str:
+def _kind(v: Any, limit: int = 60) -> str:
+    """A value, described briefly for an error line."""
     if v is None:
         return "nothing"
-    return {dict: "a mapping", list: "a list", str: f"text {v!r}", bool: f"{v!r}"}.get(type(v), repr(v))
+    if isinstance(v, dict):
+        return "a mapping"
+    if isinstance(v, str):
+        return "text " + _short(repr(v), limit)
+    return _short(repr(v), limit)
+
+
+def _short(text: str, limit: int) -> str:
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _unknown(d: dict, allowed: Sequence[str], key: str, err) -> None:
     for k in d:
         if k not in allowed:
             hint = _closest(str(k), allowed)
-            at = f"{key}.{k}" if key else str(k)
+            name = _short(str(k), 60)
+            at = f"{key}.{name}" if key else name
             raise err(at, f"unknown key" + (f" (did you mean `{hint}`?)" if hint else "")
                       + f"; expected one of {', '.join(allowed)}")
 
@@ -357,9 +461,13 @@ def _closest(word: str, options: Sequence[str]) -> str | None:
 def _number(v: Any, key: str, err) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise err(key, f"expected a number, got {_kind(v)}")
-    if not math.isfinite(v):
-        raise err(key, f"expected a finite number, got {v!r}")
-    return float(v)
+    try:
+        x = float(v)
+    except OverflowError:  # an integer beyond float range
+        x = math.inf
+    if not math.isfinite(x):
+        raise err(key, f"expected a finite number, got {_kind(v)}")
+    return x
 
 
 def _positive(v: Any, key: str, err) -> float:
@@ -371,20 +479,25 @@ def _positive(v: Any, key: str, err) -> float:
 
 def _vector(v: Any, n: int, key: str, err) -> np.ndarray:
     if not isinstance(v, (list, tuple)) or len(v) != n:
-        raise err(key, f"expected {n} numbers, got {v!r}")
+        raise err(key, f"expected {n} numbers, got {_kind(v)}")
     return np.array([_number(x, f"{key}[{i}]", err) for i, x in enumerate(v)])
 
 
 def _check_finite_tree(v: Any, key: str, err) -> None:
-    """Reject NaN / inf anywhere inside free-form stats blocks."""
+    """Free-form stats blocks (calibration, depth_check) hold mappings with text keys, lists,
+    text, booleans and finite numbers, which is what the writer can round-trip."""
     if isinstance(v, dict):
         for k, x in v.items():
+            if not isinstance(k, str):
+                raise err(key, f"expected text keys, got {_kind(k)}")
             _check_finite_tree(x, f"{key}.{k}", err)
     elif isinstance(v, list):
         for i, x in enumerate(v):
             _check_finite_tree(x, f"{key}[{i}]", err)
-    elif isinstance(v, float) and not math.isfinite(v):
-        raise err(key, f"expected a finite number, got {v!r}")
+    elif isinstance(v, (int, float)):  # bool is an int
+        _number(float(v) if isinstance(v, bool) else v, key, err)
+    elif v is not None and not isinstance(v, str):
+        raise err(key, f"expected numbers, text, lists or mappings, got {_kind(v)}")
 
 
 # ----------------------------------------------------------------------------- saving
