@@ -20,6 +20,13 @@ def _tmp_beside(path: Path, suffix: str = "") -> tuple[int, str]:
         raise OutputError(f"{path}: cannot write here ({e.strerror or e})") from None
 
 
+def _default_file_mode() -> int:
+    """What open() would give a new file: 0666 less the process umask."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
     path = Path(path)
     fd, tmp = _tmp_beside(path)
@@ -28,6 +35,7 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, _default_file_mode())  # mkstemp makes 0600; outputs are meant to be shared
         os.replace(tmp, path)
     except OSError as e:
         with contextlib.suppress(OSError):
