@@ -1,0 +1,390 @@
+"""Calibration from detections: intrinsics, pose graph, bundle adjustment, body frame.
+
+No image I/O here (that is detect.py) and no files (calibrate.py): views in, a
+calibrated Rig and its statistics out, so tests can drive it with synthetic corners.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.stats import chi2
+
+from . import geometry as geo
+from .camera import CameraModel, PINHOLE_MODEL_NAMES
+from .errors import CalibrationError, InputError
+from .initialise import (MAX_INIT_VIEWS, MonoFit, PosedView, _select_views, fit_pinhole, pnp, pose_graph,
+                         resolve_flips)
+from .rig import Camera, Rig
+from .solve import Intrinsics, Observations, Problem, State, bundle_adjust, camera_covariance
+
+DISTORTION_CHOICES = {"radial2": 2, "radtan4": 4, "radtan5": 5, "rational8": 8}
+AUTO_CHAIN = (2, 4, 5, 8)
+SIGNIFICANCE_P = 1e-4  # likelihood-ratio test level for adding coefficients
+COEF_Z = 3.0  # at least one added coefficient must be this many sigmas from zero
+MIN_VIEW_CORNERS = 4
+MIN_FRAMES = 3
+
+
+@dataclass(frozen=True)
+class ViewIn:
+    """A detected board view (plain data, see detect.View)."""
+
+    camera: str
+    frame: str
+    board: str
+    ids: np.ndarray
+    uv: np.ndarray
+    ambiguous: bool = False
+
+
+@dataclass
+class CameraStats:
+    name: str
+    rms_px: float
+    observations: int
+    frames: int
+    outliers: int
+    distortion_model: str
+    sigma_position_mm: np.ndarray | None = None
+    sigma_rotation_deg: np.ndarray | None = None
+    sigma_intrinsics: dict | None = None
+    model_selection: list = field(default_factory=list)
+
+
+@dataclass
+class Calibration:
+    rig: Rig  # calibrated (body frame per reference)
+    stats: dict[str, CameraStats]
+    reference: str
+    rms_px: float
+    sigma_px: float
+    state: State
+    problem: Problem
+    obs: Observations  # all observations fed to the solve
+    inliers: np.ndarray
+    frames: list[str]
+    boards: list[str]
+    cam_names: list[str]
+    T_body_solve: np.ndarray  # maps the solver's body (gauge camera) frame into the output body frame
+    cov_extrinsics: np.ndarray | None  # (6C, 6C) [rot about body axes (rad), position (m)] per camera
+    timings: dict
+    notes: list[str]
+    flips: int = 0
+
+
+# ----------------------------------------------------------------------------- intrinsics
+
+
+def _views_obj_img(views: list[ViewIn], corners: dict) -> tuple[list, list]:
+    return [corners[v.board][v.ids] for v in views], [v.uv for v in views]
+
+
+def select_distortion(fits: dict[int, MonoFit], n_params_views: int) -> tuple[int, list[str]]:
+    """Simplest model the data supports: walk 2 -> 4 -> 5 -> 8 coefficients, accepting a
+    richer model only when its likelihood-ratio statistic is significant at SIGNIFICANCE_P
+    AND at least one added coefficient is COEF_Z sigmas from zero."""
+    chosen = min(fits)
+    log = []
+    for n in sorted(fits):
+        if n <= chosen:
+            continue
+        base, rich = fits[chosen], fits[n]
+        N = rich.n_points
+        ssr_b = base.rms_px**2 * N
+        ssr_r = rich.rms_px**2 * N
+        dof = max(2 * N - (4 + n + n_params_views), 1)
+        s2 = ssr_r / dof
+        k = n - chosen
+        stat = (ssr_b - ssr_r) / s2
+        z = np.abs(rich.values[4 + chosen:4 + n] / np.maximum(rich.sigma[4 + chosen:4 + n], 1e-300))
+        ok = stat > chi2.ppf(1 - SIGNIFICANCE_P, k) and z.max() > COEF_Z
+        log.append(f"{PINHOLE_MODEL_NAMES[chosen]}->{PINHOLE_MODEL_NAMES[n]}: LR {stat:.1f} "
+                   f"(needs {chi2.ppf(1 - SIGNIFICANCE_P, k):.1f}), max |coef/sigma| {z.max():.1f} "
+                   f"-> {'accepted' if ok else 'rejected'}")
+        if ok:
+            chosen = n
+    return chosen, log
+
+
+def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, distortion: str,
+                fix_intrinsics: bool) -> tuple[np.ndarray, list, list[str]]:
+    """Initial intrinsics and per-view T_cam_board (None where PnP failed) for one camera."""
+    notes: list[str] = []
+    obj, img = _views_obj_img(views, corners)
+    if fix_intrinsics:
+        values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
+    elif declared.model == "fisheye":
+        values = _init_fisheye(obj, img, declared)
+    else:
+        sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
+        o_s, i_s = [obj[i] for i in sel], [img[i] for i in sel]
+        if distortion == "auto":
+            fits = {}
+            for n in AUTO_CHAIN:
+                try:
+                    fits[n] = fit_pinhole(o_s, i_s, declared, n)
+                except CalibrationError:
+                    continue
+            if not fits:
+                raise CalibrationError("cv2.calibrateCamera failed for every distortion model")
+            n, log = select_distortion(fits, 6 * len(sel))
+            notes.extend(log)
+        else:
+            n = DISTORTION_CHOICES[distortion]
+            fits = {n: fit_pinhole(o_s, i_s, declared, n)}
+        values = fits[n].values
+    Ts = []
+    for o, i in zip(obj, img):
+        r = pnp(o, i, values, declared.model)
+        Ts.append(r)
+    return values, Ts, notes
+
+
+def _init_fisheye(obj: list, img: list, declared: CameraModel) -> np.ndarray:
+    """One-camera bundle adjustment from the declared intrinsics and per-view PnP."""
+    values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
+    keep, Ts = [], []
+    for k, (o, i) in enumerate(zip(obj, img)):
+        r = pnp(o, i, values, "fisheye")
+        if r is not None:
+            keep.append(k)
+            Ts.append(r[0])
+    if len(keep) < 2:
+        raise CalibrationError("fisheye: fewer than 2 views could be posed from the declared intrinsics")
+    sel = [keep[j] for j in _select_views(np.array([len(obj[k]) for k in keep]), MAX_INIT_VIEWS)]
+    pos = {k: j for j, k in enumerate(keep)}
+    n_v = len(sel)
+    P = np.concatenate([obj[k] for k in sel])
+    uv = np.concatenate([img[k] for k in sel])
+    frame = np.concatenate([np.full(len(obj[k]), j) for j, k in enumerate(sel)])
+    obs = Observations(np.zeros(len(P), int), frame, np.zeros(len(P), int), P, uv, frame)
+    state = State([Intrinsics("fisheye", values.copy())], np.eye(4)[None],
+                  np.array([Ts[pos[k]] for k in sel]), np.eye(4)[None])
+    res = bundle_adjust(obs, state, gauge_cam=0, gauge_board=0)
+    del n_v
+    return res.state.intrinsics[0].values
+
+
+# ----------------------------------------------------------------------------- main entry
+
+
+def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndarray],
+                    distortion: str = "auto", fix_intrinsics: bool = False, reference: str = "aligned",
+                    progress=None) -> Calibration:
+    """The whole calibration from detected views. corners: board name -> (N, 3) object points."""
+    t0 = time.perf_counter()
+    timings = {}
+    notes: list[str] = []
+    cam_names = list(rig.names)
+    board_names = list(corners)
+    frames = sorted({v.frame for v in views_in})
+    ci = {n: i for i, n in enumerate(cam_names)}
+    bi = {n: i for i, n in enumerate(board_names)}
+    fi = {n: i for i, n in enumerate(frames)}
+    _check_reference(reference, rig)
+
+    by_cam = {n: [v for v in views_in if v.camera == n and len(v.ids) >= MIN_VIEW_CORNERS] for n in cam_names}
+    for n, vs in by_cam.items():
+        nf = len({v.frame for v in vs})
+        if nf == 0:
+            raise CalibrationError(f"{n}: no usable board views (no board detected in any image of this camera)")
+        if nf < MIN_FRAMES and not fix_intrinsics:
+            raise CalibrationError(f"{n}: boards detected in only {nf} frame(s); at least {MIN_FRAMES} are needed "
+                                   f"to calibrate its intrinsics (or use --fix-intrinsics to keep the declared ones)")
+
+    # 1. intrinsics + PnP per camera
+    intr, models, selection = [], [], {}
+    raw = []
+    for c, n in enumerate(cam_names):
+        declared = rig.camera(n).intrinsics
+        values, Ts, log = init_camera(by_cam[n], corners, declared, distortion, fix_intrinsics)
+        intr.append(values)
+        models.append(declared.model)
+        selection[n] = log
+        for v, T in zip(by_cam[n], Ts):
+            if T is None:
+                continue
+            raw.append(dict(cam=c, frame=fi[v.frame], board=bi[v.board], ids=np.asarray(v.ids).copy(),
+                            uv=v.uv, T=T[0], rms=T[1], ambiguous=v.ambiguous))
+    timings["intrinsics_s"] = time.perf_counter() - t0
+
+    # 2. symmetric chessboards: consistent corner order per frame
+    flips, flip_notes = resolve_flips(raw, len(cam_names), [corners[b] for b in board_names])
+    notes.extend(flip_notes)
+    posed = [PosedView(r["cam"], r["frame"], r["board"], r["ids"], r["uv"], r["T"], r["rms"]) for r in raw]
+
+    # 3. pose graph; the gauge camera is the one with the most views (best conditioned)
+    counts = np.bincount([p.cam for p in posed], minlength=len(cam_names))
+    gauge_cam = int(np.argmax(counts))
+    T_cam_body, T_body_world, T_world_board, frame_posed, gauge_board, missing_b = pose_graph(
+        posed, len(cam_names), len(frames), len(board_names), gauge_cam, cam_names, board_names)
+    for b in missing_b:
+        notes.append(f"board {board_names[b]}: could not be linked to the rig; its views are not used")
+    t1 = time.perf_counter()
+    timings["graph_s"] = t1 - t0 - timings["intrinsics_s"]
+
+    # 4. bundle adjustment over every corner of every usable view
+    use = [p for p in posed if frame_posed[p.frame] and p.board not in missing_b]
+    obs = _observations(use, corners, board_names)
+    state = State([Intrinsics(m, v.copy()) for m, v in zip(models, intr)], T_cam_body, T_body_world, T_world_board)
+    fix = np.full(len(cam_names), fix_intrinsics)
+    res = bundle_adjust(obs, state, gauge_cam, gauge_board, fix)
+    timings["solve_s"] = res.seconds
+    notes.extend(_unconverged(res))
+
+    # 5. body frame and outputs
+    T_body_cam_solve = np.array([geo.inv_T(T) for T in res.state.T_cam_body])
+    T_out_solve = reference_transform(T_body_cam_solve, rig, reference)
+    cov = _extrinsic_covariance(res, rig, reference, T_body_cam_solve)
+    cams = []
+    stats = {}
+    inl_obs = obs.subset(res.inliers)
+    r_all = res.problem.residuals(res.problem.x0()).reshape(-1, 2)
+    for c, n in enumerate(cam_names):
+        v = res.state.intrinsics[c].values
+        declared = rig.camera(n).intrinsics
+        model = CameraModel(declared.model, declared.width, declared.height, *map(float, v[:4]),
+                            dist=tuple(float(d) for d in v[4:]))
+        T_bc = T_out_solve @ T_body_cam_solve[c]
+        m = inl_obs.cam == c
+        rms = float(np.sqrt(np.mean(np.sum(r_all[m] ** 2, axis=1)))) if m.any() else float("nan")
+        st = CameraStats(
+            name=n, rms_px=rms, observations=int(m.sum()), frames=int(len(np.unique(inl_obs.frame[m]))),
+            outliers=int((~res.inliers & (obs.cam == c)).sum()),
+            distortion_model=("fisheye" if model.model == "fisheye" else PINHOLE_MODEL_NAMES[len(model.dist)]),
+            model_selection=selection[n])
+        if cov is not None:
+            blk = cov["extrinsics"][6 * c:6 * c + 6, 6 * c:6 * c + 6]
+            sd = np.sqrt(np.clip(np.diag(blk), 0, None))
+            st.sigma_rotation_deg = np.degrees(sd[:3])
+            st.sigma_position_mm = sd[3:] * 1000.0
+            st.sigma_intrinsics = cov["intrinsics"][c]
+        stats[n] = st
+        cams.append(Camera(n, model, T_bc, None))
+    out_rig = replace(rig, cameras=tuple(cams))
+    rms_all = float(np.sqrt(np.mean(np.sum(r_all**2, axis=1))))
+    timings["total_core_s"] = time.perf_counter() - t0
+    return Calibration(out_rig, stats, reference, rms_all, res.sigma_px, res.state, res.problem, obs, res.inliers,
+                       frames, board_names, cam_names, T_out_solve,
+                       cov["extrinsics"] if cov is not None else None, timings, notes, flips)
+
+
+def _observations(views: list[PosedView], corners: dict, board_names: list[str]) -> Observations:
+    cam = np.concatenate([np.full(len(v.ids), v.cam) for v in views])
+    frame = np.concatenate([np.full(len(v.ids), v.frame) for v in views])
+    board = np.concatenate([np.full(len(v.ids), v.board) for v in views])
+    P = np.concatenate([corners[board_names[v.board]][v.ids] for v in views])
+    uv = np.concatenate([np.asarray(v.uv, float).reshape(-1, 2) for v in views])
+    view = np.concatenate([np.full(len(v.ids), k) for k, v in enumerate(views)])
+    return Observations(cam, frame, board, P, uv, view)
+
+
+def _unconverged(res) -> list[str]:
+    return []
+
+
+# ----------------------------------------------------------------------------- body frame
+
+
+def _check_reference(reference: str, rig: Rig) -> None:
+    if reference == "aligned":
+        return
+    if reference.startswith("camera:"):
+        name = reference.split(":", 1)[1]
+        if name not in rig.names:
+            raise InputError(f"--reference: camera {name!r} is not in the rig ({', '.join(rig.names)})")
+        return
+    raise InputError(f"--reference: expected 'aligned' or 'camera:NAME', got {reference!r}")
+
+
+def reference_transform(T_body_cam_solve: np.ndarray, rig: Rig, reference: str) -> np.ndarray:
+    """T_out_solve: the rigid transform that places the solved rig in the output body frame.
+
+    aligned: least-squares fit of all declared cameras' orientations and positions
+    (rotation by the polar decomposition of sum R_decl R_solve^T + sum of centred
+    position outer products; translation from the centroids). camera:NAME: that
+    camera keeps its declared pose exactly. No declared pose at all: the first camera's
+    frame is the body frame (rig-yaml.md)."""
+    declared = {c.name: c.T_body_cam for c in rig.cameras if c.T_body_cam is not None}
+    names = list(rig.names)
+    if reference.startswith("camera:"):
+        n = reference.split(":", 1)[1]
+        T_decl = declared.get(n, np.eye(4))
+        return T_decl @ geo.inv_T(T_body_cam_solve[names.index(n)])
+    if not declared:
+        return geo.inv_T(T_body_cam_solve[0])
+    idx = [names.index(n) for n in declared]
+    D = np.array([declared[names[i]] for i in idx])
+    S = T_body_cam_solve[idx]
+    tD, tS = D[:, :3, 3], S[:, :3, 3]
+    cD, cS = tD.mean(0), tS.mean(0)
+    M = np.einsum("nij,nkj->ik", D[:, :3, :3], S[:, :3, :3]) + (tD - cD).T @ (tS - cS)
+    U, _, Vt = np.linalg.svd(M)
+    R = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt
+    return geo.make_T(R, cD - R @ cS)
+
+
+# ----------------------------------------------------------------------------- uncertainty
+
+
+def _pose_error_vector(T_body_cam: np.ndarray, T_ref: np.ndarray) -> np.ndarray:
+    """6-vector of a camera pose relative to a reference pose: rotation about body axes (rad), position (m)."""
+    return np.concatenate([geo.rotvec_from_R(T_body_cam[:3, :3] @ T_ref[:3, :3].T), T_body_cam[:3, 3]])
+
+
+def _extrinsic_covariance(res, rig: Rig, reference: str, T_body_cam_solve: np.ndarray):
+    """Covariance of every camera's output pose, propagated from the solver's gauge.
+
+    The solver fixes one camera; the output frame is a function of all cameras (aligned)
+    or of one (camera:NAME). Propagating the joint covariance through that function
+    (numerically, over the extrinsic parameters only) gives each camera's sigma in the
+    frame the user actually receives, so no camera gets a spurious zero."""
+    try:
+        cov, intr_sl, cam_sl = camera_covariance(res)
+    except np.linalg.LinAlgError:
+        return None
+    pb = res.problem
+    C = len(cam_sl)
+    T_out = reference_transform(T_body_cam_solve, rig, reference)
+    ref_poses = [T_out @ T for T in T_body_cam_solve]
+
+    def outputs(T_cam_body: np.ndarray) -> np.ndarray:
+        Tbc = np.array([geo.inv_T(T) for T in T_cam_body])
+        To = reference_transform(Tbc, rig, reference)
+        return np.concatenate([_pose_error_vector(To @ Tbc[c], ref_poses[c]) for c in range(C)])
+
+    # parameters: delta (left perturbation of R_cam_body) and t_cam_body per non-gauge camera
+    free = [c for c in range(C) if cam_sl[c] is not None]
+    base_T = res.state.T_cam_body
+    y0 = outputs(base_T)
+    G = np.zeros((6 * C, 6 * len(free)))
+    h = 1e-7
+    for j, c in enumerate(free):
+        for k in range(6):
+            Tp, Tm = base_T.copy(), base_T.copy()
+            d = np.zeros(6)
+            d[k] = h
+            for T, s in ((Tp, 1), (Tm, -1)):
+                if k < 3:
+                    T[c, :3, :3] = geo.R_from_rotvec(s * d[:3]) @ base_T[c, :3, :3]
+                else:
+                    T[c, :3, 3] = base_T[c, :3, 3] + s * d[3:]
+            G[:, 6 * j + k] = (outputs(Tp) - outputs(Tm)) / (2 * h)
+    del y0
+    idx = np.concatenate([np.arange(cam_sl[c].start, cam_sl[c].stop) for c in free]) if free else np.zeros(0, int)
+    Ce = cov[np.ix_(idx, idx)] if len(idx) else np.zeros((0, 0))
+    ext = G @ Ce @ G.T if len(idx) else np.zeros((6 * C, 6 * C))
+    names = ("fx", "fy", "cx", "cy")
+    intr = []
+    for c, s in enumerate(intr_sl):
+        if s is None:
+            intr.append(None)
+            continue
+        sd = np.sqrt(np.clip(np.diag(cov[s, s]), 0, None))
+        d = {k: float(sd[i]) for i, k in enumerate(names)}
+        d["distortion"] = [float(x) for x in sd[4:]]
+        intr.append(d)
+    return {"extrinsics": ext, "intrinsics": intr}

@@ -1,0 +1,330 @@
+"""Initial values for the rig bundle adjustment, robust to cameras that never share a view.
+
+1. Intrinsics per camera from its own views (cv2.calibrateCamera for pinhole, seeded
+   by the declared values; a one-camera bundle adjustment for fisheye), and a
+   `T_cam_board` per view by PnP.
+2. 180-degree symmetric chessboards: each view's corner order is made consistent
+   with the other cameras of its frame (the relative camera pose is the same in
+   every frame; only one of the two orders agrees with it).
+3. A pose graph over cameras, frames and boards. Each view links its camera,
+   frame and board through T_cam_board = T_cam_body T_body_world T_world_board.
+   Starting from one camera and one board, unknown poses are set from every
+   available observation at once by a robust average (chordal rotation mean with
+   outlier down-weighting, median translation), so the back camera joins the front
+   pair through the boards even when no frame shows one board to both.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from . import geometry as geo
+from .camera import CameraModel
+from .errors import CalibrationError
+
+MAX_INIT_VIEWS = 60  # views given to cv2.calibrateCamera; the rest get PnP (keeps init linear in frames)
+CHESS_FLIP_DEG = 20.0
+
+
+@dataclass(frozen=True, eq=False)
+class PosedView:
+    """A view with its initial pose. ids/uv as detected (ids possibly re-ordered for flips)."""
+
+    cam: int
+    frame: int
+    board: int
+    ids: np.ndarray
+    uv: np.ndarray
+    T_cam_board: np.ndarray
+    rms_px: float
+
+
+@dataclass
+class InitResult:
+    intrinsics: list[np.ndarray]  # per camera [fx, fy, cx, cy, dist...]
+    models: list[str]
+    views: list[PosedView]
+    T_cam_body: np.ndarray  # (C, 4, 4); body = gauge camera during the solve
+    T_body_world: np.ndarray  # (F, 4, 4)
+    T_world_board: np.ndarray  # (B, 4, 4)
+    frame_posed: np.ndarray  # (F,) bool
+    gauge_cam: int
+    gauge_board: int
+    flips: int = 0
+    notes: list[str] = field(default_factory=list)
+
+
+# ----------------------------------------------------------------------------- intrinsics
+
+PINHOLE_FLAGS = {
+    2: cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K3,
+    4: cv2.CALIB_FIX_K3,
+    5: 0,
+    8: cv2.CALIB_RATIONAL_MODEL,
+}
+
+
+@dataclass(frozen=True)
+class MonoFit:
+    values: np.ndarray  # [fx, fy, cx, cy, dist(n)]
+    sigma: np.ndarray  # 1-sigma of values (from OpenCV's covariance)
+    rms_px: float
+    n_points: int
+    T_cam_board: list  # per input view (4x4) or None
+    view_rms: np.ndarray
+
+
+def _select_views(n_corners: np.ndarray, limit: int, rng_seed: int = 0) -> np.ndarray:
+    """Indices of at most `limit` views, favouring many corners, spread over the sequence."""
+    n = len(n_corners)
+    if n <= limit:
+        return np.arange(n)
+    order = np.argsort(-n_corners, kind="stable")
+    # take the best half of the budget by corner count, the rest evenly over time
+    best = order[: limit // 2]
+    rest = np.setdiff1d(np.arange(n), best)
+    spread = rest[np.linspace(0, len(rest) - 1, limit - len(best)).round().astype(int)]
+    return np.sort(np.concatenate([best, spread]))
+
+
+def fit_pinhole(obj: list[np.ndarray], img: list[np.ndarray], model: CameraModel, n_dist: int) -> MonoFit:
+    """cv2.calibrateCameraExtended with the given distortion length; tries Zhang's closed-form
+    start and the declared intrinsics as a guess, keeps the better."""
+    size = (model.width, model.height)
+    objp = [o.astype(np.float32).reshape(-1, 1, 3) for o in obj]
+    imgp = [i.astype(np.float32).reshape(-1, 1, 2) for i in img]
+    crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    best = None
+    for guess in (False, True):
+        flags = PINHOLE_FLAGS[n_dist]
+        K0 = model.K.copy()
+        D0 = np.zeros(8 if n_dist == 8 else 5)
+        if guess:
+            flags |= cv2.CALIB_USE_INTRINSIC_GUESS
+            d = np.array(model.dist[: min(len(model.dist), len(D0))])
+            D0[: len(d)] = d
+        try:
+            out = cv2.calibrateCameraExtended(objp, imgp, size, K0, D0, flags=flags, criteria=crit)
+        except cv2.error:
+            continue
+        rms, K, D, rvecs, tvecs, std_intr, _, per_view = out
+        if not np.isfinite(rms) or K[0, 0] <= 0 or K[1, 1] <= 0:
+            continue
+        if best is None or rms < best[0] - 1e-9:
+            best = (rms, K, D.ravel(), rvecs, tvecs, std_intr.ravel(), per_view.ravel())
+    if best is None:
+        raise CalibrationError("cv2.calibrateCamera failed on every start")
+    rms, K, D, rvecs, tvecs, std, per_view = best
+    dist = D[:n_dist] if n_dist != 2 else D[:2]
+    values = np.concatenate([[K[0, 0], K[1, 1], K[0, 2], K[1, 2]], dist])
+    # OpenCV's std order: fx fy cx cy k1 k2 p1 p2 k3 k4 k5 k6 s1.. ; select the free ones.
+    idx = {2: [0, 1], 4: [0, 1, 2, 3], 5: [0, 1, 2, 3, 4], 8: [0, 1, 2, 3, 4, 5, 6, 7]}[n_dist]
+    sigma = np.concatenate([std[:4], std[4:][idx]])
+    Ts = [geo.make_T(cv2.Rodrigues(r)[0], t.ravel()) for r, t in zip(rvecs, tvecs)]
+    return MonoFit(values, sigma, float(rms), int(sum(len(o) for o in obj)), Ts, per_view)
+
+
+def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str) -> tuple[np.ndarray, float] | None:
+    """T_cam_board for one view with known intrinsics: rays -> normalised points -> IPPE + LM.
+    Works for fisheye too because it solves on exact unprojected rays."""
+    cm = _camera_model(model_values, model)
+    rays = cm.unproject(uv)
+    front = rays[:, 2] > 0.2  # within ~78 degrees of the axis, where x/z stays well conditioned
+    if front.sum() < 4:
+        return None
+    xn = rays[front, :2] / rays[front, 2:3]
+    o = obj[front].astype(np.float64)
+    best = None
+    try:
+        n, rvecs, tvecs, errs = cv2.solvePnPGeneric(o, xn, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+    except cv2.error:
+        return None
+    for r, t in zip(rvecs, tvecs):
+        r, t = cv2.solvePnPRefineLM(o, xn, np.eye(3), None, r.copy(), t.copy())
+        proj = cv2.projectPoints(o, r, t, np.eye(3), None)[0].reshape(-1, 2)
+        err = float(np.sqrt(np.mean(np.sum((proj - xn) ** 2, axis=1))))
+        if t.ravel()[2] > 0 and (best is None or err < best[1]):
+            best = (geo.make_T(cv2.Rodrigues(r)[0], t.ravel()), err)
+    if best is None:
+        return None
+    return best[0], best[1] * 0.5 * (model_values[0] + model_values[1])
+
+
+def _camera_model(values: np.ndarray, model: str, size=(1, 1)) -> CameraModel:
+    return CameraModel(model, size[0], size[1], float(values[0]), float(values[1]), float(values[2]),
+                       float(values[3]), tuple(float(v) for v in values[4:]))
+
+
+# ----------------------------------------------------------------------------- chessboard flips
+
+
+def board_flip(corners: np.ndarray) -> np.ndarray:
+    """4x4 rotation by 180 degrees about the board normal through the grid centre:
+    maps corner k onto corner N-1-k for a symmetric grid."""
+    c = 0.5 * (corners[0] + corners[-1])
+    R = np.diag([-1.0, -1.0, 1.0])
+    return geo.make_T(R, c - R @ c)
+
+
+def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    return geo.rotation_angle_deg(Ra.T @ Rb)
+
+
+def resolve_flips(views: list[dict], n_cams: int, corners_by_board: list[np.ndarray]) -> tuple[int, list[str]]:
+    """Make the corner order of ambiguous views consistent within each frame.
+
+    views: dicts with cam, frame, board, ids, T (T_cam_board), ambiguous; modified in place.
+    Returns (number of views re-ordered, notes)."""
+    amb = [v for v in views if v["ambiguous"]]
+    notes: list[str] = []
+    if not amb:
+        return 0, notes
+    by_frame = defaultdict(dict)
+    for v in amb:
+        by_frame[(v["frame"], v["board"])][v["cam"]] = v
+    # pairwise candidate relative poses T_a_c from every frame both see
+    pair_cands = defaultdict(list)
+    for group in by_frame.values():
+        cams = sorted(group)
+        for i, a in enumerate(cams):
+            for c in cams[i + 1:]:
+                va, vc = group[a], group[c]
+                F = board_flip(corners_by_board[va["board"]])
+                same = va["T"] @ geo.inv_T(vc["T"])
+                flip = va["T"] @ F @ geo.inv_T(vc["T"])
+                pair_cands[(a, c)].append((same, flip))
+    consensus = {}
+    for (a, c), cands in pair_cands.items():
+        allR = [T[:3, :3] for pair in cands for T in pair]
+        support = [sum(min(_angle_deg(R, s[:3, :3]), _angle_deg(R, f[:3, :3])) < CHESS_FLIP_DEG / 2
+                       for s, f in cands if True) for R in allR]
+        # the true relative rotation is supported by (nearly) every frame; its mirror by few
+        scores = [sum(_angle_deg(R, s[:3, :3]) < CHESS_FLIP_DEG or _angle_deg(R, f[:3, :3]) < CHESS_FLIP_DEG
+                      for s, f in cands) for R in allR]
+        del support
+        consensus[(a, c)] = allR[int(np.argmax(scores))]
+    # BFS over cameras from the most-seen one: relative orientation to a root
+    seen_count = np.bincount([v["cam"] for v in amb], minlength=n_cams)
+    root = int(np.argmax(seen_count))
+    R_root = {root: np.eye(3)}
+    frontier = [root]
+    while frontier:
+        a = frontier.pop(0)
+        for (x, y), R in consensus.items():
+            for p, q, Rpq in ((x, y, R), (y, x, R.T)):
+                if p == a and q not in R_root:
+                    R_root[q] = R_root[p] @ Rpq
+                    frontier.append(q)
+    flips = 0
+    for key, group in by_frame.items():
+        cams = sorted(group, key=lambda c: (c not in R_root, -seen_count[c]))
+        a = cams[0]
+        if a not in R_root:
+            continue
+        for c in cams[1:]:
+            if c not in R_root:
+                continue
+            va, vc = group[a], group[c]
+            expected = R_root[a].T @ R_root[c]
+            F = board_flip(corners_by_board[va["board"]])
+            same = (va["T"] @ geo.inv_T(vc["T"]))[:3, :3]
+            flip = (va["T"] @ F @ geo.inv_T(vc["T"]))[:3, :3]
+            if _angle_deg(expected, flip) < _angle_deg(expected, same):
+                n = len(corners_by_board[vc["board"]])
+                vc["ids"] = n - 1 - vc["ids"]
+                vc["T"] = vc["T"] @ F
+                flips += 1
+    if flips:
+        notes.append(f"symmetric chessboard: {flips} view(s) had their corner order reversed to agree with the other cameras")
+    return flips, notes
+
+
+# ----------------------------------------------------------------------------- pose graph
+
+
+def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int, gauge_cam: int,
+               cam_names: list[str], board_names: list[str], min_obs: int = 3):
+    """Chain poses through the camera-frame-board graph with robust averages per unknown.
+
+    Returns (T_cam_body, T_body_world, T_world_board, frame_posed, gauge_board)."""
+    T_bc = [None] * n_cams  # T_body_cam
+    T_wB = [None] * n_frames  # T_world_body
+    T_wb = [None] * n_boards  # T_world_board
+    T_bc[gauge_cam] = np.eye(4)
+    counts = np.bincount([v.board for v in views if v.cam == gauge_cam], minlength=n_boards)
+    if counts.max() == 0:
+        raise CalibrationError(f"{cam_names[gauge_cam]}: no board views to start from")
+    gauge_board = int(np.argmax(counts))
+    T_wb[gauge_board] = np.eye(4)
+    by_frame = defaultdict(list)
+    for v in views:
+        by_frame[v.frame].append(v)
+
+    def sweep(threshold: int) -> bool:
+        progress = False
+        # frames: T_world_body = T_world_board inv(T_cam_board) inv(T_body_cam)
+        for f, vs in by_frame.items():
+            if T_wB[f] is not None:
+                continue
+            est = [T_wb[v.board] @ geo.inv_T(v.T_cam_board) @ geo.inv_T(T_bc[v.cam])
+                   for v in vs if T_bc[v.cam] is not None and T_wb[v.board] is not None]
+            if est:
+                T_wB[f] = geo.robust_mean_pose(np.array(est))
+                progress = True
+        # boards: T_world_board = T_world_body T_body_cam T_cam_board
+        est_b = defaultdict(list)
+        est_c = defaultdict(list)
+        for v in views:
+            if T_wB[v.frame] is None:
+                continue
+            if T_wb[v.board] is None and T_bc[v.cam] is not None:
+                est_b[v.board].append(T_wB[v.frame] @ T_bc[v.cam] @ v.T_cam_board)
+            # cameras: T_body_cam = inv(T_world_body) T_world_board inv(T_cam_board)
+            if T_bc[v.cam] is None and T_wb[v.board] is not None:
+                est_c[v.cam].append(geo.inv_T(T_wB[v.frame]) @ T_wb[v.board] @ geo.inv_T(v.T_cam_board))
+        for b, est in est_b.items():
+            if len(est) >= threshold:
+                T_wb[b] = geo.robust_mean_pose(np.array(est))
+                progress = True
+        for c, est in est_c.items():
+            if len(est) >= threshold:
+                T_bc[c] = geo.robust_mean_pose(np.array(est))
+                progress = True
+        return progress
+
+    while True:
+        if sweep(min_obs):
+            continue
+        if not sweep(1):
+            break
+    missing_c = [c for c in range(n_cams) if T_bc[c] is None]
+    missing_b = [b for b in range(n_boards) if T_wb[b] is None and any(v.board == b for v in views)]
+    if missing_c:
+        raise CalibrationError(_disconnected_message(views, missing_c, gauge_cam, cam_names, board_names, by_frame))
+    posed = np.array([T is not None for T in T_wB])
+    T_cam_body = np.array([geo.inv_T(T) for T in T_bc])
+    T_body_world = np.array([geo.inv_T(T) if T is not None else np.eye(4) for T in T_wB])
+    T_world_board = np.array([T if T is not None else np.eye(4) for T in T_wb])
+    return T_cam_body, T_body_world, T_world_board, posed, gauge_board, missing_b
+
+
+def _disconnected_message(views, missing, gauge, cam_names, board_names, by_frame) -> str:
+    parts = []
+    connected = set(range(len(cam_names))) - set(missing)
+    for c in missing:
+        frames_c = {v.frame for v in views if v.cam == c}
+        if not frames_c:
+            parts.append(f"{cam_names[c]}: no usable board views")
+            continue
+        shared = [f for f in frames_c if any(v.cam in connected for v in by_frame[f])]
+        if not shared:
+            parts.append(f"{cam_names[c]}: never in a frame with another camera that sees a board")
+        else:
+            boards = sorted({board_names[v.board] for v in views if v.cam == c})
+            parts.append(f"{cam_names[c]}: its boards ({', '.join(boards)}) are never linked to the rest "
+                         f"of the rig (no posed frame shows them to a calibrated camera)")
+    return "cannot connect every camera to the rig: " + "; ".join(parts)

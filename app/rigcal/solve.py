@@ -1,0 +1,501 @@
+"""Joint bundle adjustment of a camera rig.
+
+Unknowns: every camera's intrinsics and distortion, `T_cam_body` for every camera
+but the gauge camera, `T_body_world` for every frame, `T_world_board` for every
+board but the gauge board. One corner observation predicts
+
+    p_cam = T_cam_body @ T_body_world(frame) @ T_world_board(board) @ p_board
+    uv    = project(intrinsics(cam), p_cam)
+
+A moving board seen by a static rig is the same model (only relative motion
+matters): the world is the board's frame and each frame's body pose moves.
+
+Rotations are parameterised locally, R = exp(delta) @ R0, so every rotation can
+be anywhere on SO(3) while the optimiser only sees small vectors. The Jacobian is
+analytic in the poses (with the SO(3) left Jacobian, so it is exact away from
+delta = 0 too) and central-differenced only through the per-point projection,
+which costs a handful of vectorised projections; it is assembled as a sparse
+matrix, so a solve is linear in the number of frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import geometry as geo
+from .camera import distort_fisheye, distort_pinhole, pad12
+
+POSE_DIM = 6
+
+
+@dataclass(frozen=True)
+class Observations:
+    """Corner observations, one row each. cam/frame/board index into the problem's lists;
+    p_board (M, 3) board-frame corner positions (metres); uv (M, 2) measured pixels."""
+
+    cam: np.ndarray
+    frame: np.ndarray
+    board: np.ndarray
+    p_board: np.ndarray
+    uv: np.ndarray
+    view: np.ndarray  # (M,) index of the (cam, frame, board) view the corner belongs to
+
+    def __len__(self) -> int:
+        return len(self.cam)
+
+    def subset(self, mask: np.ndarray) -> "Observations":
+        return Observations(*(a[mask] for a in (self.cam, self.frame, self.board, self.p_board, self.uv, self.view)))
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """One camera's intrinsics in optimiser form: model, [fx, fy, cx, cy, dist...]."""
+
+    model: str  # pinhole | fisheye
+    values: np.ndarray  # (4 + n_dist,)
+
+    @property
+    def n_dist(self) -> int:
+        return len(self.values) - 4
+
+
+@dataclass
+class State:
+    """The full unknown set (poses as 4x4)."""
+
+    intrinsics: list[Intrinsics]
+    T_cam_body: np.ndarray  # (C, 4, 4)
+    T_body_world: np.ndarray  # (F, 4, 4)
+    T_world_board: np.ndarray  # (B, 4, 4)
+
+    def copy(self) -> "State":
+        return State([Intrinsics(i.model, i.values.copy()) for i in self.intrinsics], self.T_cam_body.copy(),
+                     self.T_body_world.copy(), self.T_world_board.copy())
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where each unknown lives in the parameter vector. Fixed blocks have no slice."""
+
+    intr: tuple  # per camera slice or None
+    cam: tuple  # per camera slice or None (gauge camera)
+    frame: tuple  # per frame slice
+    board: tuple  # per board slice or None (gauge board)
+    size: int
+
+
+def make_layout(state: State, gauge_cam: int, gauge_board: int, fix_intrinsics: np.ndarray) -> Layout:
+    """Order: camera blocks (intrinsics, extrinsics), boards, then frames last so the
+    frame block is trailing and block-diagonal (for the Schur complement)."""
+    k = 0
+    intr, cam = [], []
+    for c, it in enumerate(state.intrinsics):
+        if fix_intrinsics[c]:
+            intr.append(None)
+        else:
+            intr.append(slice(k, k + len(it.values)))
+            k += len(it.values)
+        if c == gauge_cam:
+            cam.append(None)
+        else:
+            cam.append(slice(k, k + POSE_DIM))
+            k += POSE_DIM
+    board = []
+    for b in range(len(state.T_world_board)):
+        if b == gauge_board:
+            board.append(None)
+        else:
+            board.append(slice(k, k + POSE_DIM))
+            k += POSE_DIM
+    frame = []
+    for _ in range(len(state.T_body_world)):
+        frame.append(slice(k, k + POSE_DIM))
+        k += POSE_DIM
+    return Layout(tuple(intr), tuple(cam), tuple(frame), tuple(board), k)
+
+
+def _left_jacobian(phi: np.ndarray) -> np.ndarray:
+    """SO(3) left Jacobian J_l(phi) for (..., 3): d/d(phi) [exp(phi) v] = -[exp(phi) v]x J_l(phi)."""
+    th2 = np.sum(phi * phi, axis=-1)[..., None, None]
+    th = np.sqrt(th2)
+    small = th2 < 1e-10
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 0.5 - th2 / 24.0, (1 - np.cos(safe)) / (safe * safe))
+    b = np.where(small, 1.0 / 6.0 - th2 / 120.0, (safe - np.sin(safe)) / (safe**3))
+    K = geo.skew(phi)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+class Problem:
+    """Residuals and sparse Jacobian of the rig bundle adjustment around a reference state."""
+
+    def __init__(self, obs: Observations, state: State, gauge_cam: int = 0, gauge_board: int = 0,
+                 fix_intrinsics: np.ndarray | None = None):
+        self.obs = obs
+        self.ref = state.copy()
+        C = len(state.intrinsics)
+        self.fix_intr = np.zeros(C, bool) if fix_intrinsics is None else np.asarray(fix_intrinsics, bool)
+        self.layout = make_layout(state, gauge_cam, gauge_board, self.fix_intr)
+        self.gauge_cam, self.gauge_board = gauge_cam, gauge_board
+        self._sparsity = None
+
+    # -- parameter vector <-> state
+
+    def x0(self) -> np.ndarray:
+        x = np.zeros(self.layout.size)
+        for c, s in enumerate(self.layout.intr):
+            if s is not None:
+                x[s] = self.ref.intrinsics[c].values
+        for T, slices in ((self.ref.T_cam_body, self.layout.cam), (self.ref.T_body_world, self.layout.frame),
+                          (self.ref.T_world_board, self.layout.board)):
+            for i, s in enumerate(slices):
+                if s is not None:
+                    x[s.start + 3:s.stop] = T[i, :3, 3]
+        return x
+
+    def _poses(self, x: np.ndarray, T_ref: np.ndarray, slices) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """-> R (N,3,3), t (N,3), delta (N,3) for a pose group."""
+        n = len(T_ref)
+        delta = np.zeros((n, 3))
+        t = T_ref[:, :3, 3].copy()
+        idx = [i for i, s in enumerate(slices) if s is not None]
+        if idx:
+            starts = np.array([slices[i].start for i in idx])
+            delta[idx] = x[starts[:, None] + np.arange(3)]
+            t[idx] = x[starts[:, None] + np.arange(3, 6)]
+        R = geo.R_from_rotvec(delta) @ T_ref[:, :3, :3]
+        return R, t, delta
+
+    def state(self, x: np.ndarray) -> State:
+        intr = []
+        for c, s in enumerate(self.layout.intr):
+            it = self.ref.intrinsics[c]
+            intr.append(Intrinsics(it.model, x[s].copy() if s is not None else it.values.copy()))
+        out = []
+        for T_ref, slices in ((self.ref.T_cam_body, self.layout.cam), (self.ref.T_body_world, self.layout.frame),
+                              (self.ref.T_world_board, self.layout.board)):
+            R, t, _ = self._poses(x, T_ref, slices)
+            T = np.tile(np.eye(4), (len(T_ref), 1, 1))
+            T[:, :3, :3], T[:, :3, 3] = R, t
+            out.append(T)
+        return State(intr, *out)
+
+    # -- model
+
+    def _intrinsic_arrays(self, x: np.ndarray):
+        vals = []
+        for c, s in enumerate(self.layout.intr):
+            vals.append(x[s] if s is not None else self.ref.intrinsics[c].values)
+        return vals
+
+    def _chain(self, x: np.ndarray):
+        o = self.obs
+        Rc, tc, dc = self._poses(x, self.ref.T_cam_body, self.layout.cam)
+        Rf, tf, df = self._poses(x, self.ref.T_body_world, self.layout.frame)
+        Rb, tb, db = self._poses(x, self.ref.T_world_board, self.layout.board)
+        w_rot = np.einsum("mij,mj->mi", Rb[o.board], o.p_board)  # R_world_board p_board
+        q1 = w_rot + tb[o.board]  # world point
+        f_rot = np.einsum("mij,mj->mi", Rf[o.frame], q1)
+        q2 = f_rot + tf[o.frame]  # body point
+        c_rot = np.einsum("mij,mj->mi", Rc[o.cam], q2)
+        p = c_rot + tc[o.cam]  # camera point
+        return dict(Rc=Rc, Rf=Rf, dc=dc, df=df, db=db, w_rot=w_rot, f_rot=f_rot, c_rot=c_rot, p=p)
+
+    def _project(self, p: np.ndarray, vals: list[np.ndarray]) -> np.ndarray:
+        """Camera points (M, 3) of the observations -> pixels (M, 2)."""
+        return project_obs(p, self.obs.cam, vals, [it.model for it in self.ref.intrinsics])
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        ch = self._chain(x)
+        uv = self._project(ch["p"], self._intrinsic_arrays(x))
+        return (uv - self.obs.uv).ravel()
+
+    def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
+        o = self.obs
+        M = len(o)
+        ch = self._chain(x)
+        vals = self._intrinsic_arrays(x)
+        models = [it.model for it in self.ref.intrinsics]
+        J_p, J_intr = projection_jacobians(ch["p"], o.cam, vals, models)  # (M,2,3), list per cam (Mc,2,ni)
+        rows, cols, data = [], [], []
+        row2 = np.arange(M) * 2
+
+        def add_block(mask: np.ndarray, start: np.ndarray, D: np.ndarray):
+            """D (m, 2, k) for observations `mask` into columns start[m] + 0..k-1."""
+            m_idx = np.nonzero(mask)[0]
+            if len(m_idx) == 0:
+                return
+            k = D.shape[2]
+            r = (row2[m_idx][:, None, None] + np.arange(2)[None, :, None]) + np.zeros((1, 1, k), int)
+            c = (start[:, None, None] + np.arange(k)[None, None, :]) + np.zeros((1, 2, 1), int)
+            rows.append(r.ravel())
+            cols.append(c.ravel())
+            data.append(D.ravel())
+
+        # intrinsics
+        for c, s in enumerate(self.layout.intr):
+            if s is None:
+                continue
+            mask = o.cam == c
+            add_block(mask, np.full(mask.sum(), s.start), J_intr[c])
+        # camera extrinsics: p = exp(dc) Rc0 q2 + tc
+        Jl_c = _left_jacobian(ch["dc"])
+        D_rot_c = -geo.skew(ch["c_rot"]) @ Jl_c[o.cam]
+        self._add_pose(add_block, J_p, D_rot_c, np.broadcast_to(np.eye(3), (M, 3, 3)), o.cam, self.layout.cam)
+        # frames: q2 = exp(df) Rf0 q1 + tf, p = Rc q2 + ...
+        Rc_o = ch["Rc"][o.cam]
+        Jl_f = _left_jacobian(ch["df"])
+        D_rot_f = Rc_o @ (-geo.skew(ch["f_rot"])) @ Jl_f[o.frame]
+        self._add_pose(add_block, J_p, D_rot_f, Rc_o, o.frame, self.layout.frame)
+        # boards: q1 = exp(db) Rb0 P + tb
+        RcRf = Rc_o @ ch["Rf"][o.frame]
+        Jl_b = _left_jacobian(ch["db"])
+        D_rot_b = RcRf @ (-geo.skew(ch["w_rot"])) @ Jl_b[o.board]
+        self._add_pose(add_block, J_p, D_rot_b, RcRf, o.board, self.layout.board)
+        J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(2 * M, self.layout.size))
+        return J
+
+    @staticmethod
+    def _add_pose(add_block, J_p, D_rot, D_trans, idx, slices):
+        starts = np.array([s.start if s is not None else -1 for s in slices])[idx]
+        mask = starts >= 0
+        if not mask.any():
+            return
+        D = np.concatenate([J_p[mask] @ D_rot[mask], J_p[mask] @ D_trans[mask]], axis=2)  # (m, 2, 6)
+        add_block(mask, starts[mask], D)
+
+    def sparsity(self) -> sp.csr_matrix:
+        if self._sparsity is None:
+            J = self.jacobian(self.x0())
+            self._sparsity = (J != 0).astype(np.int8)
+        return self._sparsity
+
+
+# ----------------------------------------------------------------------------- projection
+
+
+def project_obs(p: np.ndarray, cam: np.ndarray, vals: list[np.ndarray], models: list[str]) -> np.ndarray:
+    """Project camera-frame points (M, 3) each through its own camera's intrinsics."""
+    uv = np.empty((len(p), 2))
+    for c, (v, model) in enumerate(zip(vals, models)):
+        m = cam == c
+        if not m.any():
+            continue
+        uv[m] = _project_one(p[m], v, model)
+    return uv
+
+
+def _project_one(p: np.ndarray, v: np.ndarray, model: str) -> np.ndarray:
+    if model == "fisheye":
+        xd = distort_fisheye(p, v[4:])
+    else:
+        z = np.where(np.abs(p[:, 2]) > 1e-12, p[:, 2], 1e-12)
+        xd = distort_pinhole(p[:, :2] / z[:, None], v[4:])
+    return np.column_stack([v[0] * xd[:, 0] + v[2], v[1] * xd[:, 1] + v[3]])
+
+
+def projection_jacobians(p: np.ndarray, cam: np.ndarray, vals: list[np.ndarray], models: list[str]):
+    """d uv / d p_cam (M, 2, 3), and per camera d uv / d intrinsics (M_c, 2, n_intr).
+
+    Central differences through the projection only (never through the pose chain):
+    a few vectorised projections, accurate to ~1e-9 relative, model-agnostic."""
+    J_p = np.empty((len(p), 2, 3))
+    J_intr = []
+    for c, (v, model) in enumerate(zip(vals, models)):
+        m = cam == c
+        pc = p[m]
+        if not m.any():
+            J_intr.append(np.zeros((0, 2, len(v))))
+            continue
+        h = 1e-6 * np.maximum(np.linalg.norm(pc, axis=1), 1e-3)
+        Jp = np.empty((len(pc), 2, 3))
+        for k in range(3):
+            dp = np.zeros_like(pc)
+            dp[:, k] = h
+            Jp[:, :, k] = (_project_one(pc + dp, v, model) - _project_one(pc - dp, v, model)) / (2 * h[:, None])
+        J_p[m] = Jp
+        Ji = np.empty((len(pc), 2, len(v)))
+        base = _project_one(pc, v, model)
+        # fx, fy, cx, cy enter linearly: exact derivatives.
+        Ji[:, 0, 0] = (base[:, 0] - v[2]) / v[0]
+        Ji[:, 1, 0] = 0.0
+        Ji[:, 0, 1] = 0.0
+        Ji[:, 1, 1] = (base[:, 1] - v[3]) / v[1]
+        Ji[:, :, 2] = [1.0, 0.0]
+        Ji[:, :, 3] = [0.0, 1.0]
+        for k in range(4, len(v)):
+            hk = 1e-6
+            vp, vm = v.copy(), v.copy()
+            vp[k] += hk
+            vm[k] -= hk
+            Ji[:, :, k] = (_project_one(pc, vp, model) - _project_one(pc, vm, model)) / (2 * hk)
+        J_intr.append(Ji)
+    return J_p, J_intr
+
+
+# ----------------------------------------------------------------------------- solving
+
+
+@dataclass
+class SolveResult:
+    state: State
+    problem: Problem  # linearised at the solution (reference = solution), inliers only
+    inliers: np.ndarray  # (M_all,) bool over the observations given to bundle_adjust()
+    residuals: np.ndarray  # (M_inliers, 2) px at the solution
+    sigma_px: float  # residual-based 1-sigma per coordinate (dof-corrected)
+    n_iterations: int
+    seconds: float
+    converged: bool = True
+    history: list = field(default_factory=list)
+
+
+def _frame_split(layout: Layout) -> int:
+    """Index of the first frame parameter: frames are the trailing 6x6 block-diagonal part."""
+    return layout.frame[0].start if layout.frame else layout.size
+
+
+def schur_solve(J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, lam: float, split: int):
+    """Solve (J^T W J + lam diag(J^T W J)) dx = -J^T W r, eliminating the block-diagonal
+    frame part by its Schur complement. Cost is linear in the number of frames."""
+    sw = np.sqrt(w)
+    Jw = sp.diags(sw) @ J
+    rw = sw * r
+    Ja = Jw[:, :split].tocsc()
+    Jd = Jw[:, split:].tocsc()
+    g_a = Ja.T @ rw
+    g_d = Jd.T @ rw
+    H_aa = (Ja.T @ Ja).toarray()
+    H_ad = (Ja.T @ Jd).toarray()
+    Hinv = _frame_block_inverse((Jd.T @ Jd), lam)
+    H_aa[np.diag_indices_from(H_aa)] *= 1.0 + lam
+    H_aa[np.diag_indices_from(H_aa)] += 1e-12
+    nF = Hinv.shape[0]
+    H_ad3 = H_ad.reshape(len(H_aa), nF, 6)
+    T = np.einsum("afi,fij->afj", H_ad3, Hinv).reshape(len(H_aa), 6 * nF)
+    S = H_aa - T @ H_ad.T
+    rhs = -(g_a - T @ g_d)
+    dx_a = np.linalg.solve(S, rhs) if len(S) else np.zeros(0)
+    g_d2 = -(g_d + H_ad.T @ dx_a)
+    dx_d = np.einsum("fij,fj->fi", Hinv, g_d2.reshape(nF, 6)).ravel()
+    return np.concatenate([dx_a, dx_d]), S
+
+
+def _frame_block_inverse(H_dd: sp.spmatrix, lam: float) -> np.ndarray:
+    """(F, 6, 6) inverses of the damped diagonal blocks of the frame-frame block."""
+    nF = H_dd.shape[0] // 6
+    blocks = np.zeros((nF, 6, 6))
+    coo = H_dd.tocoo()
+    same = (coo.row // 6) == (coo.col // 6)
+    np.add.at(blocks, (coo.row[same] // 6, coo.row[same] % 6, coo.col[same] % 6), coo.data[same])
+    diag = np.einsum("fii->fi", blocks)
+    diag *= 1.0 + lam
+    diag += 1e-12  # a frame left without observations stays put instead of blowing up
+    return np.linalg.inv(blocks)
+
+
+def _robust_weights(r: np.ndarray, scale: float | None) -> np.ndarray:
+    """Per-residual IRLS weights for the Cauchy loss on each corner's 2D error (1 = plain LS)."""
+    if scale is None:
+        return np.ones_like(r)
+    e2 = np.sum(r.reshape(-1, 2) ** 2, axis=1)
+    w = 1.0 / (1.0 + e2 / scale**2)
+    return np.repeat(w, 2)
+
+
+def _cost(r: np.ndarray, scale: float | None) -> float:
+    if scale is None:
+        return 0.5 * float(r @ r)
+    e2 = np.sum(r.reshape(-1, 2) ** 2, axis=1)
+    return 0.5 * float(np.sum(scale**2 * np.log1p(e2 / scale**2)))
+
+
+def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: int = 100,
+                        rtol: float = 1e-12) -> tuple[np.ndarray, int, bool]:
+    """LM with Marquardt scaling and a Schur-eliminated frame block; robust via IRLS when
+    `scale` is given (Cauchy). Returns (x, iterations, converged)."""
+    x = problem.x0()
+    split = _frame_split(problem.layout)
+    r = problem.residuals(x)
+    cost = _cost(r, scale)
+    lam = 1e-3
+    for it in range(1, max_iter + 1):
+        J = problem.jacobian(x)
+        w = _robust_weights(r, scale)
+        improved = False
+        for _ in range(12):
+            dx, _ = schur_solve(J, r, w, lam, split)
+            x_new = x + dx
+            r_new = problem.residuals(x_new)
+            cost_new = _cost(r_new, scale)
+            if np.isfinite(cost_new) and cost_new <= cost:
+                improved = True
+                break
+            lam *= 10.0
+        if not improved:
+            return x, it, True  # no descent left at any damping: at the minimum to precision
+        rel = (cost - cost_new) / max(cost, 1e-300)
+        x, r, cost = x_new, r_new, cost_new
+        lam = max(lam / 10.0, 1e-9)
+        step = np.linalg.norm(dx) / (np.linalg.norm(x) + 1e-12)
+        if rel < rtol or step < 1e-13:
+            return x, it, True
+    return x, max_iter, False
+
+
+def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: int,
+                  fix_intrinsics: np.ndarray | None = None, reject_sigma: float = 5.0,
+                  max_rounds: int = 5) -> SolveResult:
+    """Robust solve (Cauchy), then drop corners beyond `reject_sigma` robust sigmas and
+    re-solve with plain least squares on the inliers until the inlier set is stable."""
+    import time
+
+    t0 = time.perf_counter()
+    history = []
+    pb = Problem(obs, state, gauge_cam, gauge_board, fix_intrinsics)
+    r0 = pb.residuals(pb.x0()).reshape(-1, 2)
+    # Cauchy scale: generous at first so a rough start is not mistaken for outliers.
+    scale = max(3.0 * np.median(np.linalg.norm(r0, axis=1)), 1.0)
+    x, nit, conv = levenberg_marquardt(pb, scale=scale)
+    cur = pb.state(x)
+    history.append(("robust", nit))
+    inliers = np.ones(len(obs), bool)
+    for _ in range(max_rounds):
+        pb_all = Problem(obs, cur, gauge_cam, gauge_board, fix_intrinsics)
+        e = np.linalg.norm(pb_all.residuals(pb_all.x0()).reshape(-1, 2), axis=1)
+        # median |e| = sigma sqrt(2 ln 2) for isotropic Gaussian noise (Rayleigh)
+        sigma = np.median(e[inliers]) / np.sqrt(2 * np.log(2))
+        new_inliers = e < reject_sigma * max(sigma, 1e-4)
+        pb = Problem(obs.subset(new_inliers), cur, gauge_cam, gauge_board, fix_intrinsics)
+        x, k, conv = levenberg_marquardt(pb, scale=None)
+        nit += k
+        cur = pb.state(x)
+        changed = bool(np.any(new_inliers != inliers))
+        inliers = new_inliers
+        history.append(("inliers", k, int(inliers.sum())))
+        if not changed:
+            break
+    final = Problem(obs.subset(inliers), cur, gauge_cam, gauge_board, fix_intrinsics)
+    r = final.residuals(final.x0()).reshape(-1, 2)
+    dof = max(r.size - final.layout.size, 1)
+    sigma_px = float(np.sqrt(np.sum(r**2) / dof))
+    return SolveResult(cur, final, inliers, r, sigma_px, nit, time.perf_counter() - t0, conv, history)
+
+
+# ----------------------------------------------------------------------------- covariance
+
+
+def camera_covariance(result: SolveResult) -> tuple[np.ndarray, list, list]:
+    """Covariance of the camera and board parameters with the frames marginalised:
+    cov = sigma^2 S^-1, S the Schur complement of the frame block of J^T J (no dense
+    inverse of the whole problem). Returns (cov, intr_slices, cam_slices) indexing cov."""
+    pb = result.problem
+    x = pb.x0()
+    J = pb.jacobian(x)
+    split = _frame_split(pb.layout)
+    _, S = schur_solve(J, np.zeros(J.shape[0]), np.ones(J.shape[0]), 0.0, split)
+    cov = result.sigma_px**2 * np.linalg.inv(S)
+    return cov, list(pb.layout.intr), list(pb.layout.cam)
