@@ -220,6 +220,15 @@ def test_kalibr_import_matches_by_rostopic_when_names_are_missing(calibrated):
     assert_same_rig_geometry(swapped, back)
 
 
+def test_kalibr_import_reads_none_distortion_and_notes_dropped_imu_keys(calibrated):
+    doc = yaml.safe_load(export.kalibr_camchain(calibrated).files["camchain.yaml"])
+    doc["cam2"].update(distortion_model="none", distortion_coeffs=[])
+    doc["cam0"]["T_cam_imu"] = np.eye(4).tolist()
+    back, notes, _ = export.rig_from_camchain(export.parse_camchain(doc, "c.yaml"), "c.yaml", body_from="cam0")
+    assert back.camera("back").intrinsics.dist == (0.0,) * 5
+    assert any("T_cam_imu" in n for n in notes)
+
+
 def test_kalibr_import_body_from_cam0_gives_poses_relative_to_cam0(calibrated, tmp_path):
     camchain, imported = tmp_path / "camchain.yaml", tmp_path / "imported.yaml"
     assert cli("export", CALIBRATED, "--format", "kalibr", "--out", camchain).exit_code == 0

@@ -409,6 +409,7 @@ class KalibrCamera:
     T_cam0_cam: np.ndarray
     rigcal_name: str | None
     rostopic: str | None
+    has_imu: bool = False  # a camchain-imucam's T_cam_imu, which a rig file cannot hold
 
 
 def _kerr(label: str, key: str, msg: str) -> InputError:
@@ -489,7 +490,7 @@ def parse_camchain(doc: Any, label: str) -> list[KalibrCamera]:
         name = d.get("rigcal_name")
         topic = d.get("rostopic")
         cams.append(KalibrCamera(key, m, T_cam0_cam, name if isinstance(name, str) else None,
-                                 topic if isinstance(topic, str) else None))
+                                 topic if isinstance(topic, str) else None, "T_cam_imu" in d))
     return cams
 
 
@@ -551,6 +552,8 @@ def rig_from_camchain(cams: list[KalibrCamera], source: str, declared: Rig | Non
         notes.append(f"body frame = {cams[i0].key}'s camera frame (x right, y down, z forward): the rig file's "
                      f"'FLU' axes here are {names[i0]}'s axes, not the drone's forward, left, up")
         notes.append("no stereo pairs (a camchain does not name them): add them under stereo_pairs, or import with --rig")
+    if any(c.has_imu for c in cams):
+        notes.append("T_cam_imu and the other IMU keys were not imported (a rig file has no IMU)")
     cameras = {}
     for c, n in zip(cams, names):
         T = T_body_cam0 @ c.T_cam0_cam
