@@ -15,8 +15,8 @@ from scipy.stats import chi2
 from . import geometry as geo
 from .camera import CameraModel, PINHOLE_MODEL_NAMES
 from .errors import CalibrationError, InputError
-from .initialise import (MAX_INIT_VIEWS, MonoFit, PosedView, _select_views, fit_pinhole, pnp, pose_graph,
-                         resolve_flips)
+from .initialise import (MAX_INIT_VIEWS, MonoFit, PosedView, _select_views, corner_residuals, fit_pinhole,
+                         inlier_masks, pnp, pose_graph, resolve_flips)
 from .rig import Camera, Rig
 from .solve import Intrinsics, Observations, Problem, State, bundle_adjust, camera_covariance
 
@@ -73,6 +73,7 @@ class Calibration:
     timings: dict
     notes: list[str]
     flips: int = 0
+    declared: Rig | None = None  # the rig as declared (initial guess and body-frame reference)
 
 
 # ----------------------------------------------------------------------------- intrinsics
@@ -120,7 +121,7 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
         values = _init_fisheye(obj, img, declared)
     else:
         sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
-        o_s, i_s = [obj[i] for i in sel], [img[i] for i in sel]
+        o_s, i_s = _clean_views([obj[i] for i in sel], [img[i] for i in sel], declared)
         if distortion == "auto":
             fits = {}
             for n in AUTO_CHAIN:
@@ -143,6 +144,20 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
     return values, Ts, notes
 
 
+def _clean_views(obj: list, img: list, declared: CameraModel) -> tuple[list, list]:
+    """Drop gross outlier corners before the (non-robust) OpenCV fits that choose the
+    distortion model: a few wrong corners would otherwise decide the model. The
+    cleaning fit is a 5-coefficient model; corners beyond 5 robust sigmas go, and so do
+    views left with too few corners."""
+    try:
+        fit = fit_pinhole(obj, img, declared, 5)
+    except CalibrationError:
+        return obj, img
+    masks = inlier_masks(corner_residuals(obj, img, fit.values, "pinhole", fit.T_cam_board))
+    keep = [k for k, m in enumerate(masks) if m.sum() >= max(MIN_VIEW_CORNERS, 6)]
+    return [obj[k][masks[k]] for k in keep], [img[k][masks[k]] for k in keep]
+
+
 def _init_fisheye(obj: list, img: list, declared: CameraModel) -> np.ndarray:
     """One-camera bundle adjustment from the declared intrinsics and per-view PnP."""
     values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
@@ -156,7 +171,6 @@ def _init_fisheye(obj: list, img: list, declared: CameraModel) -> np.ndarray:
         raise CalibrationError("fisheye: fewer than 2 views could be posed from the declared intrinsics")
     sel = [keep[j] for j in _select_views(np.array([len(obj[k]) for k in keep]), MAX_INIT_VIEWS)]
     pos = {k: j for j, k in enumerate(keep)}
-    n_v = len(sel)
     P = np.concatenate([obj[k] for k in sel])
     uv = np.concatenate([img[k] for k in sel])
     frame = np.concatenate([np.full(len(obj[k]), j) for j, k in enumerate(sel)])
@@ -164,7 +178,6 @@ def _init_fisheye(obj: list, img: list, declared: CameraModel) -> np.ndarray:
     state = State([Intrinsics("fisheye", values.copy())], np.eye(4)[None],
                   np.array([Ts[pos[k]] for k in sel]), np.eye(4)[None])
     res = bundle_adjust(obs, state, gauge_cam=0, gauge_board=0)
-    del n_v
     return res.state.intrinsics[0].values
 
 
@@ -198,6 +211,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     # 1. intrinsics + PnP per camera
     intr, models, selection = [], [], {}
     raw = []
+    refused = np.zeros(len(cam_names), int)  # corners of views refused at PnP
     for c, n in enumerate(cam_names):
         declared = rig.camera(n).intrinsics
         values, Ts, log = init_camera(by_cam[n], corners, declared, distortion, fix_intrinsics)
@@ -205,7 +219,8 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         models.append(declared.model)
         selection[n] = log
         for v, T in zip(by_cam[n], Ts):
-            if T is None:
+            if T is None:  # no pose with the camera in front of the print: mirrored or garbage
+                refused[c] += len(v.ids)
                 continue
             raw.append(dict(cam=c, frame=fi[v.frame], board=bi[v.board], ids=np.asarray(v.ids).copy(),
                             uv=v.uv, T=T[0], rms=T[1], ambiguous=v.ambiguous))
@@ -233,7 +248,8 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     fix = np.full(len(cam_names), fix_intrinsics)
     res = bundle_adjust(obs, state, gauge_cam, gauge_board, fix)
     timings["solve_s"] = res.seconds
-    notes.extend(_unconverged(res))
+    if not res.converged:
+        notes.append("bundle adjustment stopped at its iteration limit before converging")
 
     # 5. body frame and outputs
     T_body_cam_solve = np.array([geo.inv_T(T) for T in res.state.T_cam_body])
@@ -253,7 +269,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         rms = float(np.sqrt(np.mean(np.sum(r_all[m] ** 2, axis=1)))) if m.any() else float("nan")
         st = CameraStats(
             name=n, rms_px=rms, observations=int(m.sum()), frames=int(len(np.unique(inl_obs.frame[m]))),
-            outliers=int((~res.inliers & (obs.cam == c)).sum()),
+            outliers=int((~res.inliers & (obs.cam == c)).sum()) + int(refused[c]),
             distortion_model=("fisheye" if model.model == "fisheye" else PINHOLE_MODEL_NAMES[len(model.dist)]),
             model_selection=selection[n])
         if cov is not None:
@@ -269,7 +285,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     timings["total_core_s"] = time.perf_counter() - t0
     return Calibration(out_rig, stats, reference, rms_all, res.sigma_px, res.state, res.problem, obs, res.inliers,
                        frames, board_names, cam_names, T_out_solve,
-                       cov["extrinsics"] if cov is not None else None, timings, notes, flips)
+                       cov["extrinsics"] if cov is not None else None, timings, notes, flips, rig)
 
 
 def _observations(views: list[PosedView], corners: dict, board_names: list[str]) -> Observations:
@@ -280,10 +296,6 @@ def _observations(views: list[PosedView], corners: dict, board_names: list[str])
     uv = np.concatenate([np.asarray(v.uv, float).reshape(-1, 2) for v in views])
     view = np.concatenate([np.full(len(v.ids), k) for k, v in enumerate(views)])
     return Observations(cam, frame, board, P, uv, view)
-
-
-def _unconverged(res) -> list[str]:
-    return []
 
 
 # ----------------------------------------------------------------------------- body frame
@@ -359,7 +371,6 @@ def _extrinsic_covariance(res, rig: Rig, reference: str, T_body_cam_solve: np.nd
     # parameters: delta (left perturbation of R_cam_body) and t_cam_body per non-gauge camera
     free = [c for c in range(C) if cam_sl[c] is not None]
     base_T = res.state.T_cam_body
-    y0 = outputs(base_T)
     G = np.zeros((6 * C, 6 * len(free)))
     h = 1e-7
     for j, c in enumerate(free):
@@ -373,7 +384,6 @@ def _extrinsic_covariance(res, rig: Rig, reference: str, T_body_cam_solve: np.nd
                 else:
                     T[c, :3, 3] = base_T[c, :3, 3] + s * d[3:]
             G[:, 6 * j + k] = (outputs(Tp) - outputs(Tm)) / (2 * h)
-    del y0
     idx = np.concatenate([np.arange(cam_sl[c].start, cam_sl[c].stop) for c in free]) if free else np.zeros(0, int)
     Ce = cov[np.ix_(idx, idx)] if len(idx) else np.zeros((0, 0))
     ext = G @ Ce @ G.T if len(idx) else np.zeros((6 * C, 6 * C))

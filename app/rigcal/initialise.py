@@ -100,6 +100,8 @@ def fit_pinhole(obj: list[np.ndarray], img: list[np.ndarray], model: CameraModel
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
     best = None
     for guess in (False, True):
+        if guess and best is not None and best[0] < 1.0:
+            break  # Zhang's closed-form start fitted well; the declared guess cannot do better
         flags = PINHOLE_FLAGS[n_dist]
         K0 = model.K.copy()
         D0 = np.zeros(8 if n_dist == 8 else 5)
@@ -147,11 +149,38 @@ def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str) -
         r, t = cv2.solvePnPRefineLM(o, xn, np.eye(3), None, r.copy(), t.copy())
         proj = cv2.projectPoints(o, r, t, np.eye(3), None)[0].reshape(-1, 2)
         err = float(np.sqrt(np.mean(np.sum((proj - xn) ** 2, axis=1))))
-        if t.ravel()[2] > 0 and (best is None or err < best[1]):
-            best = (geo.make_T(cv2.Rodrigues(r)[0], t.ravel()), err)
+        T = geo.make_T(cv2.Rodrigues(r)[0], t.ravel())
+        if t.ravel()[2] > 0 and camera_faces_print(T) and (best is None or err < best[1]):
+            best = (T, err)
     if best is None:
         return None
     return best[0], best[1] * 0.5 * (model_values[0] + model_values[1])
+
+
+def camera_faces_print(T_cam_board: np.ndarray) -> bool:
+    """True when the camera is on the printed side of the board (board z points into the
+    print, so the camera centre has z < 0 in board coordinates). A mirrored board (wrong
+    ids, a print seen through glass) fits PnP exactly but from behind: this rejects it."""
+    return float(geo.inv_T(T_cam_board)[2, 3]) < 0.0
+
+
+def corner_residuals(obj: list[np.ndarray], img: list[np.ndarray], values: np.ndarray, model: str,
+                     T_cam_board: list) -> list[np.ndarray]:
+    """Per view, per corner reprojection error norms (px) for a mono fit."""
+    cm = _camera_model(values, model)
+    out = []
+    for o, i, T in zip(obj, img, T_cam_board):
+        uv, valid = cm.project(geo.transform(T, o))
+        e = np.linalg.norm(uv - i, axis=1)
+        out.append(np.where(valid, e, np.inf))
+    return out
+
+
+def inlier_masks(errors: list[np.ndarray], k: float = 5.0) -> list[np.ndarray]:
+    """Corners within k robust sigmas (Rayleigh median) of the fit, per view."""
+    e = np.concatenate(errors)
+    sigma = np.median(e[np.isfinite(e)]) / np.sqrt(2 * np.log(2))
+    return [x < k * max(sigma, 1e-3) for x in errors]
 
 
 def _camera_model(values: np.ndarray, model: str, size=(1, 1)) -> CameraModel:
@@ -200,12 +229,9 @@ def resolve_flips(views: list[dict], n_cams: int, corners_by_board: list[np.ndar
     consensus = {}
     for (a, c), cands in pair_cands.items():
         allR = [T[:3, :3] for pair in cands for T in pair]
-        support = [sum(min(_angle_deg(R, s[:3, :3]), _angle_deg(R, f[:3, :3])) < CHESS_FLIP_DEG / 2
-                       for s, f in cands if True) for R in allR]
         # the true relative rotation is supported by (nearly) every frame; its mirror by few
         scores = [sum(_angle_deg(R, s[:3, :3]) < CHESS_FLIP_DEG or _angle_deg(R, f[:3, :3]) < CHESS_FLIP_DEG
                       for s, f in cands) for R in allR]
-        del support
         consensus[(a, c)] = allR[int(np.argmax(scores))]
     # BFS over cameras from the most-seen one: relative orientation to a root
     seen_count = np.bincount([v["cam"] for v in amb], minlength=n_cams)
@@ -301,6 +327,10 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
             continue
         if not sweep(1):
             break
+    # The search posed each unknown from whatever was known at that moment (a frame may
+    # rest on one view). Re-average everything from all views now that all is known.
+    for _ in range(3):
+        _refine_all(views, T_bc, T_wB, T_wb, gauge_cam, gauge_board)
     missing_c = [c for c in range(n_cams) if T_bc[c] is None]
     missing_b = [b for b in range(n_boards) if T_wb[b] is None and any(v.board == b for v in views)]
     if missing_c:
@@ -310,6 +340,28 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
     T_body_world = np.array([geo.inv_T(T) if T is not None else np.eye(4) for T in T_wB])
     T_world_board = np.array([T if T is not None else np.eye(4) for T in T_wb])
     return T_cam_body, T_body_world, T_world_board, posed, gauge_board, missing_b
+
+
+def _refine_all(views, T_bc, T_wB, T_wb, gauge_cam: int, gauge_board: int) -> None:
+    """One pass of robust re-averaging: frames, then boards, then cameras (gauges fixed)."""
+    est = defaultdict(list)
+    for v in views:
+        if T_bc[v.cam] is not None and T_wb[v.board] is not None and T_wB[v.frame] is not None:
+            est[v.frame].append(T_wb[v.board] @ geo.inv_T(v.T_cam_board) @ geo.inv_T(T_bc[v.cam]))
+    for f, e in est.items():
+        T_wB[f] = geo.robust_mean_pose(np.array(e))
+    est_b, est_c = defaultdict(list), defaultdict(list)
+    for v in views:
+        if T_wB[v.frame] is None or T_bc[v.cam] is None or T_wb[v.board] is None:
+            continue
+        est_b[v.board].append(T_wB[v.frame] @ T_bc[v.cam] @ v.T_cam_board)
+        est_c[v.cam].append(geo.inv_T(T_wB[v.frame]) @ T_wb[v.board] @ geo.inv_T(v.T_cam_board))
+    for b, e in est_b.items():
+        if b != gauge_board:
+            T_wb[b] = geo.robust_mean_pose(np.array(e))
+    for c, e in est_c.items():
+        if c != gauge_cam:
+            T_bc[c] = geo.robust_mean_pose(np.array(e))
 
 
 def _disconnected_message(views, missing, gauge, cam_names, board_names, by_frame) -> str:

@@ -1,0 +1,222 @@
+"""`rigcal calibrate`: dataset folder in, calibrated rig YAML (and optional HTML report) out."""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console, Group
+from rich.table import Table
+
+from . import __version__
+from .core import Calibration, ViewIn, calibrate_views
+from .errors import CalibrationError, DatasetError, OutputError
+from .rig import Camera, Rig, StereoPair, dump_rig, load_rig
+from .io import atomic_write_text
+
+SIGMA_WARN_MM = 2.0
+SIGMA_WARN_DEG = 0.1
+AXES = ("F", "L", "U")
+MOTION_HINT = {
+    "F": "move the rig (or board) towards and away from the cameras, and tilt the board",
+    "L": "move sideways and rotate about the vertical (yaw) more",
+    "U": "move up and down and pitch the rig more",
+}
+
+
+def _err() -> Console:
+    return Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+def check_output_path(path: Path) -> None:
+    """Fail before the long work when the output can never be written."""
+    path = Path(path)
+    if path.is_dir():
+        raise OutputError(f"{path}: is a directory; expected a file path for the calibrated rig YAML")
+    parent = path.parent if str(path.parent) else Path(".")
+    probe = parent
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise OutputError(f"{path}: cannot write here (directory {probe} is not writable)")
+
+
+def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
+        report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
+        distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False):
+    from .dataset import dataset_rig_path, dataset_target_path, list_dataset
+    from .detect import detect_dataset, diagnose_no_detection
+    from .target import load_target
+
+    t0 = time.perf_counter()
+    dataset = Path(dataset)
+    if not dataset.is_dir():
+        raise DatasetError(f"{dataset}: not a dataset folder (expected rig.yaml, target.yaml, images/<camera>/)")
+    check_output_path(out_path)
+    if report_path is not None:
+        check_output_path(report_path)
+    rig = load_rig(dataset_rig_path(dataset, rig_path))
+    target = load_target(dataset_target_path(dataset, target_path))
+    images = list_dataset(dataset, rig)
+    det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True)
+    console = _err()
+    for path, reason in det.unreadable:
+        console.print(f"warning: {path}: skipped ({reason})")
+    rig = _apply_image_sizes(rig, det, allow_resize)
+    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous)
+             for v in det.views]
+    for cam in rig.names:
+        n_img = det.n_images.get(cam, 0)
+        if n_img and not any(v.camera == cam for v in views):
+            files = list(images.frames[cam].values()) if hasattr(images, "frames") else []
+            hint = diagnose_no_detection(files[:4], target) if files else ""
+            raise CalibrationError(
+                f"no board detected in any of {n_img} images of camera {cam}; check target.yaml "
+                f"(dictionary, squares, legacy_pattern)" + (f": {hint}" if hint else ""))
+    corners = {b.name: b.corners for b in target.boards}
+    console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
+    cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
+                          reference=reference)
+    from .checks import stereo_checks
+
+    pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
+    out_rig = calibrated_rig(cal, pairs, dataset=str(dataset))
+    timings = dict(cal.timings, detection_s=det.seconds, total_s=time.perf_counter() - t0)
+    text = dump_rig(out_rig)
+    report_html = None
+    if report_path is not None:
+        from .report import build_report
+
+        report_html = build_report(cal, out_rig, det, pairs, timings)
+    atomic_write_text(out_path, text)
+    if report_html is not None:
+        atomic_write_text(report_path, report_html)
+    for w in warnings_for(cal):
+        console.print(f"warning: {w}")
+    for n in cal.notes:
+        console.print(f"note: {n}")
+    return console_summary(cal, out_rig, det, timings, out_path, report_path)
+
+
+def _apply_image_sizes(rig: Rig, det, allow_resize: bool) -> Rig:
+    """Refuse images whose size differs from the rig's resolution, or (--allow-resize)
+    scale that camera's declared intrinsics to the images."""
+    if not det.size_mismatch:
+        return rig
+    if not allow_resize:
+        cam, path, got, expected = det.size_mismatch[0]
+        more = f" (and {len(det.size_mismatch) - 1} more)" if len(det.size_mismatch) > 1 else ""
+        raise DatasetError(f"{path}: camera {cam}: image is {got[0]}x{got[1]} but the rig says "
+                           f"{expected[0]}x{expected[1]}{more}; fix resolution in rig.yaml or pass --allow-resize")
+    cams = []
+    sizes = {}
+    for cam, path, got, expected in det.size_mismatch:
+        prev = sizes.setdefault(cam, got)
+        if prev != got:
+            raise DatasetError(f"{path}: camera {cam}: images of two sizes ({prev[0]}x{prev[1]} and {got[0]}x{got[1]})")
+    for c in rig.cameras:
+        if c.name in sizes:
+            w, h = sizes[c.name]
+            m = c.intrinsics
+            sx, sy = w / m.width, h / m.height
+            m = m.with_(width=w, height=h, fx=m.fx * sx, fy=m.fy * sy, cx=(m.cx + 0.5) * sx - 0.5,
+                        cy=(m.cy + 0.5) * sy - 0.5)
+            c = replace(c, intrinsics=m)
+        cams.append(c)
+    return rig.with_cameras(cams)
+
+
+def calibrated_rig(cal: Calibration, pairs: dict, dataset: str) -> Rig:
+    """The calibrated rig in the schema of rig-yaml.md, with per camera and rig statistics."""
+    cams = []
+    for c in cal.rig.cameras:
+        st = cal.stats[c.name]
+        block = {
+            "reprojection_rms_px": _r(st.rms_px, 4),
+            "observations": st.observations,
+            "frames": st.frames,
+            "outliers": st.outliers,
+        }
+        if st.sigma_position_mm is not None:
+            sig = {"position_mm": [_r(x, 4) for x in st.sigma_position_mm],
+                   "rotation_deg": [_r(x, 5) for x in st.sigma_rotation_deg]}
+            if st.sigma_intrinsics is not None:
+                sig["intrinsics"] = {k: _r(st.sigma_intrinsics[k], 4) for k in ("fx", "fy", "cx", "cy")}
+            block["sigma"] = sig
+        cams.append(replace(c, calibration=block))
+    ref = "aligned-to-declared" if cal.reference == "aligned" else cal.reference
+    if cal.reference == "aligned" and not any(c.T_body_cam is not None for c in cal.declared.cameras):
+        ref = f"camera:{cal.rig.cameras[0].name}"
+    top = {"tool": f"rigcal {__version__}", "dataset": dataset, "reference": ref,
+           "reprojection_rms_px": _r(cal.rms_px, 4)}
+    stereo = []
+    for p in cal.rig.stereo_pairs:
+        chk = pairs.get((p.left, p.right))
+        if chk is None:
+            stereo.append(StereoPair(p.left, p.right))
+            continue
+        stereo.append(StereoPair(p.left, p.right, baseline_m=_r(chk["baseline_m"], 7),
+                                 depth_check=chk.get("depth_check"), sanity_10m=chk.get("sanity_10m")))
+    return replace(cal.rig, cameras=tuple(cams), stereo_pairs=tuple(stereo), calibration=top)
+
+
+def _r(x: float, nd: int) -> float:
+    return float(np.round(float(x), nd)) if np.isfinite(x) else float("nan")
+
+
+def warnings_for(cal: Calibration) -> list[str]:
+    """Poorly constrained extrinsics: name the axis and the motion that would fix it."""
+    out = []
+    for n, st in cal.stats.items():
+        if st.sigma_position_mm is None:
+            continue
+        for i, s in enumerate(st.sigma_position_mm):
+            if s > SIGMA_WARN_MM:
+                out.append(f"{n}: position along body {AXES[i]} is poorly constrained (1-sigma {s:.2f} mm > "
+                           f"{SIGMA_WARN_MM} mm); {MOTION_HINT[AXES[i]]}")
+        for i, s in enumerate(st.sigma_rotation_deg):
+            if s > SIGMA_WARN_DEG:
+                out.append(f"{n}: rotation about body {AXES[i]} is poorly constrained (1-sigma {s:.3f} deg > "
+                           f"{SIGMA_WARN_DEG} deg); rotate the rig about more than one axis and tilt the board")
+    return out
+
+
+def console_summary(cal: Calibration, out_rig: Rig, det, timings: dict, out_path, report_path):
+    cams = Table(title="cameras", show_lines=False)
+    for col in ("camera", "model", "rms px", "obs", "frames", "outliers", "sigma pos mm (F L U)",
+                "sigma rot deg (F L U)"):
+        cams.add_column(col, justify="right" if col not in ("camera", "model") else "left")
+    for c in out_rig.cameras:
+        st = cal.stats[c.name]
+        sp = " ".join(f"{x:.3f}" for x in st.sigma_position_mm) if st.sigma_position_mm is not None else "-"
+        sr = " ".join(f"{x:.4f}" for x in st.sigma_rotation_deg) if st.sigma_rotation_deg is not None else "-"
+        cams.add_row(c.name, st.distortion_model, f"{st.rms_px:.3f}", str(st.observations), str(st.frames),
+                     str(st.outliers), sp, sr)
+    parts = [det.summary() if hasattr(det, "summary") else "", cams]
+    if out_rig.stereo_pairs:
+        pt = Table(title="stereo pairs")
+        for col in ("pair", "baseline mm", "vert. disparity rms px", "depth err median %", "depth err p95 %",
+                    "10 m: disparity px"):
+            pt.add_column(col, justify="right" if col != "pair" else "left")
+        for p in out_rig.stereo_pairs:
+            dc = p.depth_check or {}
+            overall = dc.get("overall", {})
+            s10 = p.sanity_10m or {}
+            pt.add_row(f"{p.left}/{p.right}", f"{1000 * p.baseline_m:.3f}" if p.baseline_m else "-",
+                       _fmt(dc.get("vertical_disparity_rms_px"), 4), _fmt(overall.get("median_rel_error_pct"), 3),
+                       _fmt(overall.get("p95_rel_error_pct"), 3), _fmt(s10.get("disparity_px"), 3))
+        parts.append(pt)
+    parts.append(f"reprojection RMS {cal.rms_px:.3f} px over {int(cal.inliers.sum())} corners "
+                 f"({int((~cal.inliers).sum())} outliers rejected); reference {out_rig.calibration['reference']}")
+    parts.append(f"time: detection {timings.get('detection_s', 0):.1f} s, intrinsics {timings['intrinsics_s']:.1f} s, "
+                 f"solve {timings['solve_s']:.1f} s, total {timings['total_s']:.1f} s")
+    parts.append(f"wrote {out_path}" + (f" and {report_path}" if report_path else ""))
+    return Group(*[p for p in parts if p != ""])
+
+
+def _fmt(x, nd) -> str:
+    return "-" if x is None else f"{x:.{nd}f}"
