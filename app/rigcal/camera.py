@@ -136,8 +136,10 @@ class CameraModel:
         p = np.atleast_2d(np.asarray(p_cam, dtype=float))
         if self.model == "fisheye":
             xd = distort_fisheye(p, self.D)
-            theta = np.arctan2(np.hypot(p[:, 0], p[:, 1]), p[:, 2])
-            valid = theta < self._valid_limit
+            rho = np.hypot(p[:, 0], p[:, 1])
+            theta = np.arctan2(rho, p[:, 2])
+            # the pinhole itself has no direction, so no pixel
+            valid = (theta < self._valid_limit) & (np.hypot(rho, p[:, 2]) > 1e-12)
         else:
             z = p[:, 2]
             valid = z > 1e-12
