@@ -150,6 +150,20 @@ def test_unproject_inverts_project(m):
     np.testing.assert_allclose(rays, p_cam / np.linalg.norm(p_cam, axis=1, keepdims=True), atol=RAY_TOL, rtol=0)
 
 
+@pytest.mark.parametrize("n", sorted(PINHOLE_DIST))
+def test_unproject_far_off_axis(n):
+    # 60-80 degrees off the axis, far outside the image: the distorted radius is hundreds
+    # of times the true one, where Newton started at the pixel itself used to stall or
+    # land on another preimage
+    m = pinhole(n)
+    rng = np.random.default_rng(100 + n)
+    theta, phi = np.radians(rng.uniform(60, 80, 500)), rng.uniform(0, 2 * np.pi, 500)
+    rays = np.column_stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)])
+    uv, valid = m.project(rays)
+    assert valid.all() and not m.in_image(uv).any()
+    np.testing.assert_allclose(m.unproject(uv), rays, atol=RAY_TOL, rtol=0)
+
+
 def test_unproject_matches_opencv_undistort_points():
     m = pinhole(5)
     p_cam = points_in_view(np.random.default_rng(12), 500, 40.0)

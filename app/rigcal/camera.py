@@ -175,7 +175,7 @@ class CameraModel:
                 rays, theta, resid = _undistort_fisheye(xd, self.D, iters)
                 ok = (resid < UNDISTORT_TOL) & (theta >= 0) & (theta < self._valid_limit)
             else:
-                xn, resid = _undistort_pinhole(xd, self.D, iters)
+                xn, resid = _undistort_pinhole(xd, self.D, iters, self._valid_limit)
                 rays = np.column_stack([xn, np.ones(len(xn))])
                 ok = (resid < UNDISTORT_TOL) & (np.hypot(xn[:, 0], xn[:, 1]) < self._valid_limit)
             rays = rays / np.linalg.norm(rays, axis=1, keepdims=True)
@@ -187,22 +187,46 @@ class CameraModel:
 UNDISTORT_TOL = 1e-10
 
 
-def _undistort_pinhole(xd: np.ndarray, dist: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray]:
-    """Solve distort(x) = xd (N, 2) by Newton with a finite-difference 2x2 Jacobian, all
-    points at once. Returns x (N, 2) and the final residual (N,)."""
-    x = xd.copy()
+def _radial_start(xd: np.ndarray, dist: np.ndarray, r_max: float) -> np.ndarray:
+    """Starting points (N, 2) for Newton: invert the radial part alone by bisection on
+    [0, r_max], where it is increasing. Starting at xd itself, a point far off-axis can
+    take dozens of Newton steps or land on another preimage."""
+    d = pad12(dist)
+    rd = np.hypot(xd[:, 0], xd[:, 1])
+    lo, hi = np.zeros_like(rd), np.full_like(rd, r_max)
+    for _ in range(40):  # a bracket of r_max * 2^-40; Newton polishes the rest
+        r = 0.5 * (lo + hi)
+        r2 = r * r
+        g = r * (1 + r2 * (d[..., 0] + r2 * (d[..., 1] + r2 * d[..., 4]))) / (
+            1 + r2 * (d[..., 5] + r2 * (d[..., 6] + r2 * d[..., 7])))
+        below = g < rd
+        lo, hi = np.where(below, r, lo), np.where(below, hi, r)
+    scale = np.where(rd > 0, 0.5 * (lo + hi) / np.where(rd > 0, rd, 1.0), 1.0)
+    return xd * scale[:, None]
+
+
+def _undistort_pinhole(xd: np.ndarray, dist: np.ndarray, iters: int, r_max: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+    """Solve distort(x) = xd (N, 2) by Newton with a finite-difference 2x2 Jacobian,
+    vectorised over the points still moving. Returns x (N, 2) and the final residual (N,)."""
+    x = _radial_start(xd, dist, r_max)
     h = 1e-7
+    # Converged once the residual is at rounding level for the point's size.
+    tol = 1e-15 * (1.0 + np.abs(xd).max(axis=1))
+    active = np.arange(len(xd))
     for _ in range(iters):
-        f = distort_pinhole(x, dist) - xd
-        if not (np.abs(f) >= 1e-15).any():  # NaN counts as done: it will fail the residual test
+        f = distort_pinhole(x[active], dist) - xd[active]
+        moving = (np.abs(f) > tol[active, None]).any(axis=1)  # NaN stops: the residual test rejects it
+        active, f = active[moving], f[moving]
+        if not len(active):
             break
-        fx = (distort_pinhole(x + [h, 0.0], dist) - distort_pinhole(x - [h, 0.0], dist)) / (2 * h)
-        fy = (distort_pinhole(x + [0.0, h], dist) - distort_pinhole(x - [0.0, h], dist)) / (2 * h)
+        xa = x[active]
+        fx = (distort_pinhole(xa + [h, 0.0], dist) - distort_pinhole(xa - [h, 0.0], dist)) / (2 * h)
+        fy = (distort_pinhole(xa + [0.0, h], dist) - distort_pinhole(xa - [0.0, h], dist)) / (2 * h)
         # Explicit 2x2 inverse: a singular Jacobian at one point must not stop the others.
         det = fx[:, 0] * fy[:, 1] - fy[:, 0] * fx[:, 1]
         det = np.where(det != 0, det, np.nan)
-        x = x - np.column_stack([fy[:, 1] * f[:, 0] - fy[:, 0] * f[:, 1],
-                                 fx[:, 0] * f[:, 1] - fx[:, 1] * f[:, 0]]) / det[:, None]
+        x[active] = xa - np.column_stack([fy[:, 1] * f[:, 0] - fy[:, 0] * f[:, 1],
+                                          fx[:, 0] * f[:, 1] - fx[:, 1] * f[:, 0]]) / det[:, None]
     resid = np.abs(distort_pinhole(x, dist) - xd).max(axis=1)
     return x, np.where(np.isfinite(resid), resid, np.inf)
 
