@@ -328,3 +328,11 @@ def test_error_lines_stay_one_line_with_odd_keys():
     with pytest.raises(RigFileError) as e:
         parse_rig(text, "odd.yaml")
     assert "\n" not in str(e.value) and "mo\\ndel" in str(e.value)
+
+
+@pytest.mark.parametrize("depth", [1000, 100_000])
+def test_deep_nesting_is_refused_not_crashed(depth):
+    # (libyaml's C composer would overflow the C stack here and kill the interpreter)
+    text = BASE + "calibration: {x: " + "[" * depth + "]" * depth + "}\n"
+    with pytest.raises(RigFileError, match="deep.yaml: not valid YAML: nested too deeply"):
+        parse_rig(text, "deep.yaml")

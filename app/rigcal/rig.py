@@ -153,9 +153,12 @@ def parse_rig(text: str, label: str = "<rig>") -> Rig:
     return rig_from_dict(load_yaml(text, label, RigFileError), label)
 
 
-class _StrictLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):  # libyaml when present: 5x faster
+class _StrictLoader(yaml.SafeLoader):
     """SafeLoader that leaves dates as text (a rig file has no dates, and PyYAML's date
-    constructor raises plain ValueErrors on text like 2001-13-01)."""
+    constructor raises plain ValueErrors on text like 2001-13-01).
+
+    Deliberately the pure-Python loader: libyaml's composer recurses in C without a limit,
+    so a file nested 100000 deep crashes the interpreter instead of raising."""
 
 
 _StrictLoader.add_constructor("tag:yaml.org,2002:timestamp", lambda loader, node: loader.construct_scalar(node))
@@ -186,6 +189,8 @@ def load_yaml(text: str, label: str, error: type = RigFileError) -> Any:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         what = getattr(e, "problem", None) or f"{e.__class__.__name__}: {e}"
+        if isinstance(e, RecursionError):
+            what = "nested too deeply"
         raise error(_one_line(f"{label}: not valid YAML{where}: {what}")) from None
     finally:
         if loader is not None:
