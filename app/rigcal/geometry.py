@@ -84,10 +84,11 @@ def token_vector(token: object, table: dict[str, tuple[float, float, float]]) ->
         v = None  # an integer too large for a float
     if v is None or v.shape != (3,) or not np.all(np.isfinite(v)):
         raise ValueError(f"{token!r} is not an axis name or a finite 3-vector")
-    n = np.linalg.norm(v)
-    if n < 1e-12:
+    big = np.abs(v).max()
+    if big < 1e-12:
         raise ValueError(f"{token!r} is a zero vector")
-    return v / n
+    v = v / big  # first, so that squaring cannot overflow for huge entries
+    return v / np.linalg.norm(v)
 
 
 def _is_number_list(x: object) -> bool:

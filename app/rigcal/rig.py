@@ -427,7 +427,9 @@ def _pairs_from_doc(v: Any, cameras: dict[str, Camera], err) -> tuple[StereoPair
         if left == right:
             raise err(key, f"a pair needs two different cameras, got {left!r} twice")
         T_l, T_r = cameras[left].T_body_cam, cameras[right].T_body_cam
-        if T_l is not None and T_r is not None and np.linalg.norm(T_l[:3, 3] - T_r[:3, 3]) < 1e-9:
+        with np.errstate(over="ignore"):  # positions of +-1e308 differ by inf, which is fine
+            same_place = T_l is not None and T_r is not None and np.abs(T_l[:3, 3] - T_r[:3, 3]).max() < 1e-9
+        if same_place:
             raise err(key, f"{left} and {right} are at the same position; a stereo pair needs a baseline")
         pairs.append(StereoPair(left=left, right=right, **extra))
     return tuple(pairs)
