@@ -307,15 +307,16 @@ def camera_figure(cal: Calibration, c: int, e: np.ndarray) -> go.Figure:
     norm = np.linalg.norm(d, axis=1)
     limit = 1.1 * float(norm[inl].max()) if inl.any() else float(norm.max(initial=1.0))
     n_out = int((~inl).sum())
-    edge = f"; {n_out} rejected at the edge" if (norm[~inl] > limit).any() else ""
+    beyond = int((norm[~inl] > limit).sum())
     fig = make_subplots(rows=1, cols=3, column_widths=[0.42, 0.29, 0.29], horizontal_spacing=0.07, subplot_titles=(
-        f"coverage: {int(m.sum())} corners, {n_out} rejected",
-        f"residuals dx, dy (inlier RMS {_f(cal.stats[name].rms_px, 3)} px{edge})",
-        f"|residual| histogram{' (rejected beyond the axis in the last bin)' if edge else ''}"))
+        f"coverage: {int(m.sum())} corners<br>{n_out} rejected",
+        f"residuals dx, dy<br>inlier RMS {_f(cal.stats[name].rms_px, 3)} px"
+        + (f"; {beyond} rejected drawn at the edge" if beyond else ""),
+        "|residual| histogram" + (f"<br>{beyond} rejected beyond the axis: last bin" if beyond else "")))
     _coverage(fig, cal.rig.camera(name).intrinsics, uv, inl)
     _residual_scatter(fig, d, inl, limit, [cal.frames[f] for f in cal.obs.frame[m]])
     _residual_histogram(fig, norm, inl, limit)
-    fig.update_layout(title=f"camera {name}", height=420, margin={"l": 50, "r": 20, "t": 70, "b": 50},
+    fig.update_layout(title=f"camera {name}", height=440, margin={"l": 50, "r": 20, "t": 90, "b": 50},
                       legend={"orientation": "h", "y": -0.18}, bargap=0.05)
     return fig
 
