@@ -115,16 +115,15 @@ def _clip_radial(d: np.ndarray, limit: float) -> np.ndarray:
 
 def nearest_axes(R_body_cam: np.ndarray) -> tuple[str, float]:
     """The axis-aligned mounting closest to R_body_cam, as rig-yaml `axes` tokens for the
-    camera's x, y, z, and the angle (deg) between the two; ("-", nan) when no signed
-    permutation is a proper rotation near it."""
+    camera's x, y, z, and the angle (deg) between the two; ("-", nan) when two camera axes
+    are nearest the same body axis (exactly halfway between mountings). A proper rotation
+    whose columns pick distinct axes always gives a proper signed permutation."""
     idx = np.argmax(np.abs(R_body_cam), axis=0)
     if len(set(idx.tolist())) < 3:
         return "-", float("nan")
     sign = np.sign(R_body_cam[idx, np.arange(3)])
     R_near = np.zeros((3, 3))
     R_near[idx, np.arange(3)] = sign
-    if np.linalg.det(R_near) < 0:
-        return "-", float("nan")
     tokens = [("-" if s < 0 else "") + AXES[i] for i, s in zip(idx, sign)]
     return "[" + ", ".join(tokens) + "]", geo.rotation_angle_deg(R_near.T @ R_body_cam)
 
