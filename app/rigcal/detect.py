@@ -1,0 +1,767 @@
+"""Board detection: every image of a dataset -> board views (corner ids and pixels).
+
+Conventions: pixel coordinates are OpenCV's (integer = pixel centre); a view's `ids`
+index its board's `Board.corners` (ChArUco: getChessboardCorners order; chessboard:
+row-major inner corners, x fastest, from the corner next to the black top-left square).
+
+Pipeline per image:
+
+1. Read (any of png/jpg/bmp/tif, 8/16-bit, grey or colour) -> 8-bit grey. Unreadable
+   files are skipped and counted; flat (all-black/all-white) images skip detection.
+2. ChArUco: ArUco markers are found once per dictionary (not once per board), and
+   each board interpolates its corners from its own marker ids with its own
+   CharucoDetector (legacy layout respected). A board with no markers in the image is
+   looked for again in the inverted image (white markers on black), so inverted
+   prints need no key in target.yaml.
+   Chessboard: findChessboardCornersSB, falling back to findChessboardCorners; the
+   corner order is made right-handed and, for boards that are not 180-degree
+   symmetric, turned so the black top-left square is first. Views of symmetric boards
+   are flagged `ambiguous` (the solver resolves the order against the other cameras).
+3. Corner refinement (`refine`): "symmetric" (default) re-estimates every corner as the
+   centre of point symmetry of the image inside a cross around the corner's two edge
+   lines, kept narrower than the white gap between squares and markers; "subpix" is
+   cv2.cornerSubPix with a window fitted to that gap; "none" keeps OpenCV's corners.
+   Measured on exact renders (tests/test_detect.py, README): OpenCV's ChArUco corners
+   are off by ~0.06-0.14 px RMS (the detector's cornerSubPix window reaches the
+   markers), "subpix" ~0.04-0.14, "symmetric" ~0.008-0.015.
+4. Views with fewer than `min_corners` corners, or with (nearly) collinear corners,
+   are dropped and counted.
+
+Work is spread over processes (`jobs`); each worker builds its OpenCV detectors once
+from the plain Target. Output order does not depend on scheduling.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import cv2
+import numpy as np
+
+from .target import Board, Target
+
+REFINE_MODES = ("symmetric", "subpix", "none")
+SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+FLAT_STD = 2.0  # grey-level std below which an image cannot hold a board (all black / all white)
+COLLINEAR_RATIO = 0.02  # second / first singular value of centred corners below which a view is a line
+# Symmetric refinement: arm length in squares, blur margin kept off the markers, sampling.
+ARM_SQUARES = 0.6
+MARGIN_PX = 1.0
+STEP_PX = 0.6
+MAX_SAMPLES_PER_ARM = 24
+# A chessboard's cross half-width in squares: keeps clear of dot codes printed inside
+# white squares (BoofCV ECoCheck) while using most of a plain chessboard's edges.
+CHESS_HALF = 0.2
+
+DIAGNOSE_DICTIONARIES = (
+    "DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_4X4_1000",
+    "DICT_5X5_50", "DICT_5X5_100", "DICT_5X5_250", "DICT_5X5_1000",
+    "DICT_6X6_50", "DICT_6X6_100", "DICT_6X6_250", "DICT_6X6_1000",
+    "DICT_7X7_50", "DICT_7X7_100", "DICT_7X7_250", "DICT_7X7_1000",
+    "DICT_ARUCO_ORIGINAL", "DICT_APRILTAG_16h5", "DICT_APRILTAG_25h9", "DICT_APRILTAG_36h10",
+    "DICT_APRILTAG_36h11", "DICT_ARUCO_MIP_36h12",
+)
+
+
+@dataclass(frozen=True, eq=False)
+class View:
+    """One board seen by one camera in one frame."""
+
+    camera: str
+    frame: str
+    board: str
+    ids: np.ndarray  # (N,) int64 corner ids, rows of Board.corners
+    uv: np.ndarray  # (N, 2) float64 pixels, OpenCV pixel-centre convention
+    ambiguous: bool = False  # 180-degree-symmetric chessboard: the order may be reversed
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, View):
+            return NotImplemented
+        return ((self.camera, self.frame, self.board, self.ambiguous)
+                == (other.camera, other.frame, other.board, other.ambiguous)
+                and np.array_equal(self.ids, other.ids) and np.array_equal(self.uv, other.uv))
+
+
+@dataclass
+class DetectionResult:
+    views: list[View]
+    cameras: tuple[str, ...]
+    frames: tuple[str, ...]
+    image_size: dict[str, tuple[int, int]]  # per camera (w, h) as read (the first readable image)
+    n_images: dict[str, int]
+    unreadable: list[tuple[str, str]]  # (path, reason)
+    no_board: dict[str, int]  # images read fine with no usable board
+    dropped: dict[str, int]  # views dropped: too few corners or collinear
+    size_mismatch: list[tuple[str, str, tuple, tuple]]  # (camera, path, got (w, h), expected (w, h))
+    seconds: float
+    jobs: int = 1  # worker processes actually used
+    unreadable_by_camera: dict[str, int] = field(default_factory=dict)
+
+    def views_of(self, camera: str) -> list[View]:
+        return [v for v in self.views if v.camera == camera]
+
+    def summary(self) -> str:
+        """A few lines for the console: per camera images, views, corners and what was skipped."""
+        n = sum(self.n_images.values())
+        rate = n / self.seconds if self.seconds > 0 else float("inf")
+        lines = [f"detection: {n} images, {len(self.views)} board views in {self.seconds:.1f} s "
+                 f"({rate:.1f} images/s, {self.jobs} process{'es' if self.jobs > 1 else ''})"]
+        bad = self.unreadable_by_camera
+        for cam in self.cameras:
+            vs = self.views_of(cam)
+            frames = len({v.frame for v in vs})
+            corners = sum(len(v.ids) for v in vs)
+            amb = sum(v.ambiguous for v in vs)
+            extra = [f"{self.no_board.get(cam, 0)} without a board"]
+            if self.dropped.get(cam, 0):
+                extra.append(f"{self.dropped[cam]} views dropped (too few or collinear corners)")
+            if bad.get(cam):
+                extra.append(f"{bad[cam]} unreadable")
+            if amb:
+                extra.append(f"{amb} with a 180-degree ambiguous order")
+            size = self.image_size.get(cam)
+            size_s = f"{size[0]}x{size[1]}" if size else "-"
+            lines.append(f"  {cam}: {self.n_images.get(cam, 0)} images ({size_s}), {len(vs)} views in {frames} "
+                         f"frames, {corners} corners; " + ", ".join(extra))
+        for path, reason in self.unreadable:
+            lines.append(f"  skipped {path}: {reason}")
+        for cam, path, got, expected in self.size_mismatch:
+            lines.append(f"  {path}: camera {cam}: {got[0]}x{got[1]}, rig says {expected[0]}x{expected[1]}")
+        return "\n".join(lines)
+
+
+# ----------------------------------------------------------------------------- reading
+
+
+def read_gray(path: str | Path) -> tuple[np.ndarray | None, str | None]:
+    """8-bit grey image of a file, or (None, reason). Never raises for a bad file.
+
+    16-bit and float images are scaled by their maximum (a 12-bit sensor in a 16-bit
+    container keeps its contrast); colour is converted with OpenCV's luma weights."""
+    try:
+        buf = np.fromfile(str(path), dtype=np.uint8)
+    except FileNotFoundError:
+        return None, "file not found (broken link?)"
+    except OSError as e:
+        return None, f"cannot read ({e.strerror or e})"
+    if buf.size == 0:
+        return None, "empty file"
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        img = None
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+    if img is None or img.size == 0:
+        return None, "not a readable image (truncated or corrupt?)"
+    return to_gray8(img), None
+
+
+def to_gray8(img: np.ndarray) -> np.ndarray:
+    """Any decoded image (H, W[, C]) of any depth -> uint8 (H, W)."""
+    if img.ndim == 3:
+        if img.shape[2] == 1:
+            img = img[:, :, 0]
+        else:
+            code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+            img = cv2.cvtColor(img[:, :, :4] if img.shape[2] > 4 else img, code)
+    if img.dtype == np.uint8:
+        return np.ascontiguousarray(img)
+    f = img.astype(np.float32)
+    f[~np.isfinite(f)] = 0
+    top = float(f.max()) if f.size else 0.0
+    if top <= 0:
+        return np.zeros(img.shape[:2], np.uint8)
+    return np.clip(f * (255.0 / top) + 0.5, 0, 255).astype(np.uint8)
+
+
+# ----------------------------------------------------------------------------- corner geometry
+
+
+def grid_axes(ids: np.ndarray, uv: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Image vectors of one square along board x and y at each corner, from its grid neighbours.
+
+    ids: (N,) row-major ids on a grid of (nx, ny) corners; uv: (N, 2).
+    Returns ax, ay: (N, 2), central differences where both neighbours exist, one-sided
+    otherwise, the other axis turned 90 degrees where a corner has neighbours along one
+    axis only, NaN where it has none."""
+    nx, ny = grid
+    G = np.full((ny + 2, nx + 2, 2), np.nan)
+    r, c = ids // nx + 1, ids % nx + 1
+    G[r, c] = uv
+
+    def step(dr: int, dc: int) -> np.ndarray:
+        fwd = G[r + dr, c + dc] - G[r, c]
+        bwd = G[r, c] - G[r - dr, c - dc]
+        mid = 0.5 * (fwd + bwd)
+        return np.where(np.isnan(mid), np.where(np.isnan(fwd), bwd, fwd), mid)
+
+    ax, ay = step(0, 1), step(1, 0)
+    # Seen from the front, board y is board x turned +90 degrees in image axes (x right, y down).
+    ax = np.where(np.isnan(ax), np.column_stack([ay[:, 1], -ay[:, 0]]), ax)
+    ay = np.where(np.isnan(ay), np.column_stack([-ax[:, 1], ax[:, 0]]), ay)
+    return ax, ay
+
+
+def homography_axes(xy_board: np.ndarray, uv: np.ndarray, square: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """ax, ay (N, 2) from the Jacobian of the least-squares board->image homography (None if < 4 points)."""
+    if len(uv) < 4:
+        return None
+    H, _ = cv2.findHomography(xy_board.astype(np.float64), uv.astype(np.float64), 0)
+    if H is None:
+        return None
+    X = np.column_stack([xy_board, np.ones(len(xy_board))])
+    w = X @ H[2]
+    p = (X @ H[:2].T) / w[:, None]
+    # d(p)/d(x_board) = (H[:2, j] - p * H[2, j]) / w
+    ax = (H[:2, 0][None] - p * H[2, 0]) / w[:, None] * square
+    ay = (H[:2, 1][None] - p * H[2, 1]) / w[:, None] * square
+    return ax, ay
+
+
+def corner_axes(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """Grid-neighbour axes, filled from the view's homography where a corner has no neighbour."""
+    ax, ay = grid_axes(ids, uv, board.inner_corners)
+    missing = ~(np.isfinite(ax).all(1) & np.isfinite(ay).all(1))
+    if missing.any():
+        h = homography_axes(board.corners[ids, :2] / board.square_length, uv, 1.0)
+        if h is not None:
+            ax[missing], ay[missing] = h[0][missing], h[1][missing]
+    return ax, ay
+
+
+def symmetric_half_width(board: Board) -> float:
+    """Half-width, in squares, of the point-symmetric cross around a corner: the white gap
+    between a square's edge and its marker (ChArUco), CHESS_HALF for a chessboard."""
+    if board.type == "charuco":
+        return 0.5 * (board.square_length - board.marker_length) / board.square_length
+    return CHESS_HALF
+
+
+def _cross_offsets(half: float, arm: float, delta: float) -> np.ndarray:
+    """(P, 2) offsets (u, v) in squares on a delta grid inside the cross |u| <= half or
+    |v| <= half, |u|, |v| <= arm; one of each +-d pair (v > 0, or v == 0 and u > 0)."""
+    k = int(math.ceil(arm / delta))
+    t = np.arange(-k, k + 1) * delta
+    U, V = np.meshgrid(t, t)
+    U, V = U.ravel(), V.ravel()
+    keep = ((np.abs(U) <= half) | (np.abs(V) <= half)) & ((V > 0) | ((V == 0) & (U > 0)))
+    return np.column_stack([U[keep], V[keep]])
+
+
+def image_gradients(gray: np.ndarray) -> np.ndarray:
+    """(H, W, 3) float32: grey, d/dx, d/dy (Scharr, per pixel), stacked for one remap per sample set."""
+    f = gray.astype(np.float32)
+    gx = cv2.Scharr(f, cv2.CV_32F, 1, 0, scale=1.0 / 32.0)
+    gy = cv2.Scharr(f, cv2.CV_32F, 0, 1, scale=1.0 / 32.0)
+    return cv2.merge([f, gx, gy])
+
+
+def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, half: float,
+                     arm: float = ARM_SQUARES, margin_px: float = MARGIN_PX, iters: int = 12,
+                     tol: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+    """Corners as centres of point symmetry: q minimising sum_d (I(q + d) - I(q - d))^2.
+
+    A chessboard corner, and a ChArUco corner out to its markers, looks the same turned
+    by 180 degrees about itself; that holds under any affine view and any symmetric blur,
+    so the estimate needs no model of the edge profile, contrast or PSF. d runs over a
+    cross of half-width `half` squares (less `margin_px` of blur) around the two edge
+    lines, `arm` squares long, placed with the local axes ax, ay. Gauss-Newton on q.
+
+    stack: image_gradients(gray); uv, ax, ay: (N, 2). Returns (N, 2) corners and (N,)
+    bool: True where refined, False where the start was kept (too little room, no
+    convergence, moved too far, or the cross leaves the image)."""
+    n = len(uv)
+    out, ok = uv.astype(np.float64).copy(), np.zeros(n, bool)
+    if n == 0:
+        return out, ok
+    sq = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    good = np.isfinite(sq) & (sq > 4.0)
+    half_k = np.where(half >= arm, arm, half - margin_px / np.where(good, sq, 1.0))
+    good &= half_k * sq >= 0.5
+    if not good.any():
+        return out, ok
+    idx = np.flatnonzero(good)
+    sq_g, half_g = sq[idx], half_k[idx]
+    delta = max(STEP_PX / float(np.median(sq_g)), arm / MAX_SAMPLES_PER_ARM)
+    uvo = _cross_offsets(min(half, arm), arm, delta)  # (P, 2)
+    w = ((np.abs(uvo[None, :, 0]) <= half_g[:, None]) | (np.abs(uvo[None, :, 1]) <= half_g[:, None]))
+    w = w.astype(np.float64)  # (M, P)
+    dx = uvo[None, :, 0] * ax[idx, None, 0] + uvo[None, :, 1] * ay[idx, None, 0]  # (M, P)
+    dy = uvo[None, :, 0] * ax[idx, None, 1] + uvo[None, :, 1] * ay[idx, None, 1]
+    h, wid = stack.shape[:2]
+    q = uv[idx].astype(np.float64).copy()
+    done = np.zeros(len(idx), bool)
+    for _ in range(iters):
+        xp, yp = q[:, 0, None] + dx, q[:, 1, None] + dy
+        xm, ym = q[:, 0, None] - dx, q[:, 1, None] - dy
+        inside = ((np.minimum(xp, xm) >= 0) & (np.maximum(xp, xm) <= wid - 1)
+                  & (np.minimum(yp, ym) >= 0) & (np.maximum(yp, ym) <= h - 1))
+        sp = cv2.remap(stack, xp.astype(np.float32), yp.astype(np.float32), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        sm = cv2.remap(stack, xm.astype(np.float32), ym.astype(np.float32), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+        r = sp[..., 0] - sm[..., 0]
+        jx, jy = sp[..., 1] - sm[..., 1], sp[..., 2] - sm[..., 2]
+        wk = w * inside
+        a11, a12, a22 = (wk * jx * jx).sum(1), (wk * jx * jy).sum(1), (wk * jy * jy).sum(1)
+        b1, b2 = (wk * jx * r).sum(1), (wk * jy * r).sum(1)
+        det = a11 * a22 - a12 * a12
+        with np.errstate(divide="ignore", invalid="ignore"):
+            step = -np.column_stack([(a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det])
+        step = np.where(np.isfinite(step), np.clip(step, -0.5, 0.5), 0.0)
+        step[done] = 0.0
+        q += step
+        done |= np.abs(step).max(1) < tol
+        if done.all():
+            break
+    # A corner the cross leaves the image for, or that wandered off, keeps OpenCV's estimate.
+    full = inside.mean(1) > 0.999
+    moved = np.linalg.norm(q - uv[idx], axis=1)
+    accept = done & full & np.isfinite(q).all(1) & (moved < np.maximum(1.0, 0.15 * sq_g))
+    out[idx[accept]] = q[accept]
+    ok[idx[accept]] = True
+    return out, ok
+
+
+def refine_subpix(gray: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, half: float) -> np.ndarray:
+    """cv2.cornerSubPix with a half-window of `half` squares (>= 2 px) per corner, tight criteria."""
+    sq = np.minimum(np.linalg.norm(ax, axis=1), np.linalg.norm(ay, axis=1))
+    win = np.clip(np.floor(np.nan_to_num(half * sq, nan=2.0)), 2, 12).astype(int)
+    out = uv.astype(np.float64).copy()
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 100, 1e-3)
+    for w in np.unique(win):
+        k = win == w
+        r = cv2.cornerSubPix(gray, np.ascontiguousarray(uv[k], np.float32), (int(w), int(w)), (-1, -1), crit)
+        out[k] = np.asarray(r, np.float64).reshape(-1, 2)
+    return out
+
+
+def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarray, mode: str) -> np.ndarray:
+    """Re-estimate a view's corners (see the module docstring); returns (N, 2)."""
+    if mode == "none" or len(ids) == 0:
+        return uv
+    ax, ay = corner_axes(ids, uv, board)
+    half = symmetric_half_width(board)
+    if mode == "subpix":
+        return refine_subpix(gray, uv, ax, ay, half)
+    # Gradients only over the view's bounding box plus the reach of its crosses.
+    reach = ARM_SQUARES * (np.nanmax(np.abs(ax).sum(1)) + np.nanmax(np.abs(ay).sum(1))) + 4.0
+    if not np.isfinite(reach):
+        return uv
+    h, w = gray.shape
+    x0, y0 = (max(0, int(np.floor(uv[:, k].min() - reach))) for k in (0, 1))
+    x1, y1 = min(w, int(np.ceil(uv[:, 0].max() + reach)) + 1), min(h, int(np.ceil(uv[:, 1].max() + reach)) + 1)
+    stack = image_gradients(gray[y0:y1, x0:x1])
+    # The crop holds every cross with room for the gradient kernel: only true image edges cut one.
+    q, _ = refine_symmetric(stack, uv - (x0, y0), ax, ay, half)
+    return q + (x0, y0)
+
+
+def is_degenerate(ids: np.ndarray, uv: np.ndarray, board: Board) -> bool:
+    """True when a view's corners lie on one line: on the board (exactly) or in the image (nearly)."""
+    for pts, ratio in ((board.corners[ids, :2], 1e-9), (uv, COLLINEAR_RATIO)):
+        s = np.linalg.svd(pts - pts.mean(0), compute_uv=False)
+        if s[0] <= 0 or s[1] <= ratio * s[0]:
+            return True
+    return False
+
+
+# ----------------------------------------------------------------------------- detectors
+
+
+def _as_ids(x) -> np.ndarray:
+    return np.zeros(0, np.int64) if x is None else np.asarray(x, dtype=np.int64).reshape(-1)
+
+
+def _as_uv(x) -> np.ndarray:
+    return np.zeros((0, 2)) if x is None else np.asarray(x, dtype=np.float64).reshape(-1, 2)
+
+
+class _CharucoGroup:
+    """Boards sharing one ArUco dictionary: markers are found once for all of them."""
+
+    def __init__(self, dictionary: str, boards: Sequence[Board]):
+        params = cv2.aruco.DetectorParameters()
+        self.aruco = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)), params)
+        self.boards = list(boards)
+        self.detectors = [cv2.aruco.CharucoDetector(b.cv_board()) for b in self.boards]
+        self.ranges = [(b.first_marker_id, b.first_marker_id + b.n_markers) for b in self.boards]
+
+    def markers(self, gray: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+        corners, ids, _ = self.aruco.detectMarkers(gray)
+        ids = _as_ids(ids)
+        return [np.asarray(c, np.float32).reshape(1, 4, 2) for c in corners], ids
+
+    def detect(self, gray: np.ndarray) -> list[tuple[Board, np.ndarray, np.ndarray]]:
+        found = [self.markers(gray)]
+        per_board = [self._select(found[0], r) for r in self.ranges]
+        if any(len(ids) == 0 for _, ids in per_board):
+            # No marker of a board: maybe it is printed inverted (white markers on black).
+            inv = self.markers(cv2.bitwise_not(gray))
+            for k, r in enumerate(self.ranges):
+                alt = self._select(inv, r)
+                if len(alt[1]) > len(per_board[k][1]):
+                    per_board[k] = alt
+        out = []
+        for board, det, (mc, mi) in zip(self.boards, self.detectors, per_board):
+            if len(mi) < 2:  # a ChArUco corner needs its two neighbouring markers
+                continue
+            cc, ci, _, _ = det.detectBoard(gray, markerCorners=mc, markerIds=mi.astype(np.int32).reshape(-1, 1))
+            ids, uv = _as_ids(ci), _as_uv(cc)
+            if len(ids):
+                out.append((board, ids, uv))
+        return out
+
+    @staticmethod
+    def _select(found: tuple[list[np.ndarray], np.ndarray], rng: tuple[int, int]):
+        corners, ids = found
+        keep = np.flatnonzero((ids >= rng[0]) & (ids < rng[1]))
+        return tuple(corners[i] for i in keep), ids[keep]
+
+
+def find_chessboard(gray: np.ndarray, board: Board) -> np.ndarray | None:
+    """(N, 2) inner corners in OpenCV's order, or None.
+
+    The classic detector first: on the real sets it finds as many boards as the SB one
+    or more (81 of 90 ECoCheck images together, 78 alone, SB 76) at 20-70x the speed;
+    SB only where it fails. Both only seed the refinement, so their accuracy does not matter."""
+    pattern = board.inner_corners
+    ok, c = cv2.findChessboardCorners(gray, pattern, flags=CLASSIC_FLAGS)
+    if ok:
+        return _as_uv(c)
+    ok, c = cv2.findChessboardCornersSB(gray, pattern, flags=SB_FLAGS)
+    if ok:
+        return _as_uv(c)
+    return None
+
+
+def _sample_mean(gray: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Bilinear grey values at (..., 2) points."""
+    flat = pts.reshape(-1, 2).astype(np.float32)
+    v = cv2.remap(gray.astype(np.float32), flat[:, 0].reshape(1, -1), flat[:, 1].reshape(1, -1),
+                  cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return v.reshape(pts.shape[:-1])
+
+
+def chessboard_order(gray: np.ndarray, uv: np.ndarray, board: Board) -> np.ndarray:
+    """Reorder OpenCV's chessboard corners to Board.corners' ids: right-handed (board x then
+    y as seen from the front), and, unless the board is 180-degree symmetric, with the
+    black top-left square first (inner cell (i, j) is black when i + j is even)."""
+    nx, ny = board.inner_corners
+    G = uv.reshape(ny, nx, 2)
+    ex = (G[:, -1] - G[:, 0]).mean(0)
+    ey = (G[-1] - G[0]).mean(0)
+    if ex[0] * ey[1] - ex[1] * ey[0] < 0:
+        G = G[:, ::-1]
+    if not board.symmetric:
+        a, b, c, d = G[:-1, :-1], G[:-1, 1:], G[1:, :-1], G[1:, 1:]
+        centre = (a + b + c + d) / 4.0
+        # four points per cell, 30 % of the way in from each corner: clear of codes in the middle
+        pts = np.stack([centre + 0.4 * (p - centre) for p in (a, b, c, d)], axis=-2)
+        grey = _sample_mean(gray, pts).mean(-1)
+        jj, ii = np.mgrid[0:ny - 1, 0:nx - 1]
+        black = (ii + jj) % 2 == 0
+        if grey[black].mean() > grey[~black].mean():
+            G = G[::-1, ::-1]
+    return G.reshape(-1, 2)
+
+
+class BoardDetector:
+    """Every board of a target in one grey image. Build once per process (holds OpenCV objects)."""
+
+    def __init__(self, target: Target, min_corners: int = 6, refine: str = "symmetric"):
+        if refine not in REFINE_MODES:
+            raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
+        self.target = target
+        self.min_corners = int(min_corners)
+        self.refine = refine
+        by_dict: dict[str, list[Board]] = {}
+        for b in target.boards:
+            if b.type == "charuco":
+                by_dict.setdefault(b.dictionary, []).append(b)
+        self.groups = [_CharucoGroup(d, bs) for d, bs in by_dict.items()]
+        self.chessboards = [b for b in target.boards if b.type == "chessboard"]
+
+    def raw(self, gray: np.ndarray) -> list[tuple[Board, np.ndarray, np.ndarray, bool]]:
+        """(board, ids, uv, ambiguous) as OpenCV finds them (chessboards already reordered)."""
+        out = []
+        for g in self.groups:
+            out.extend((b, ids, uv, False) for b, ids, uv in g.detect(gray))
+        for b in self.chessboards:
+            uv = find_chessboard(gray, b)
+            if uv is not None:
+                out.append((b, np.arange(b.n_corners, dtype=np.int64), chessboard_order(gray, uv, b), b.symmetric))
+        return out
+
+    def detect(self, gray: np.ndarray) -> tuple[list[tuple[str, np.ndarray, np.ndarray, bool]], int]:
+        """Usable views (board name, ids (N,), uv (N, 2), ambiguous) and how many were dropped."""
+        if float(gray.std()) < FLAT_STD:
+            return [], 0
+        views, dropped = [], 0
+        for board, ids, uv, amb in self.raw(gray):
+            order = np.argsort(ids, kind="stable")
+            ids, uv = ids[order], uv[order]
+            if len(ids) < self.min_corners or is_degenerate(ids, uv, board):
+                dropped += 1
+                continue
+            uv = refine_corners(gray, board, ids, uv, self.refine)
+            views.append((board.name, ids, uv, amb))
+        return views, dropped
+
+
+def detect_image(gray: np.ndarray, target: Target, min_corners: int = 6, refine: str = "symmetric",
+                 detector: BoardDetector | None = None) -> list[tuple[str, np.ndarray, np.ndarray, bool]]:
+    """Boards in one grey (or colour, any depth) image: [(board name, ids, uv, ambiguous)]."""
+    detector = detector or BoardDetector(target, min_corners, refine)
+    return detector.detect(to_gray8(np.asarray(gray)))[0]
+
+
+# ----------------------------------------------------------------------------- datasets
+
+
+@dataclass
+class _ImageOut:
+    size: tuple[int, int] | None
+    reason: str | None
+    views: list
+    dropped: int
+
+
+_WORKER: BoardDetector | None = None
+
+
+def _init_worker(target: Target, min_corners: int, refine: str) -> None:
+    global _WORKER
+    cv2.setNumThreads(1)  # the processes are the parallelism
+    _WORKER = BoardDetector(target, min_corners, refine)
+
+
+def _work(path: str) -> _ImageOut:
+    gray, reason = read_gray(path)
+    if gray is None:
+        return _ImageOut(None, reason, [], 0)
+    views, dropped = _WORKER.detect(gray)
+    return _ImageOut((gray.shape[1], gray.shape[0]), None, views, dropped)
+
+
+def _pool_context():
+    import multiprocessing as mp
+
+    # fork where it is the platform's own default (Linux): workers start at once and the
+    # caller's main module is never re-imported. Forking after OpenCV has used its thread
+    # pool in this process was checked to work (the workers then run single-threaded).
+    if sys.platform.startswith("linux"):
+        return mp.get_context("fork")
+    return mp.get_context("spawn")
+
+
+def _detect_serial(paths: list[str], target: Target, min_corners: int, refine: str, bar) -> list[_ImageOut]:
+    global _WORKER
+    keep = _WORKER
+    _WORKER = BoardDetector(target, min_corners, refine)
+    try:
+        bar.start()
+        out = []
+        for p in paths:
+            out.append(_work(p))
+            bar.advance()
+        return out
+    finally:
+        _WORKER = keep
+
+
+def _detect_parallel(paths: list[str], target: Target, jobs: int, min_corners: int, refine: str,
+                     bar) -> list[_ImageOut]:
+    from concurrent.futures import ProcessPoolExecutor
+
+    chunk = max(1, min(8, len(paths) // (jobs * 6)))
+    ex = ProcessPoolExecutor(max_workers=jobs, mp_context=_pool_context(), initializer=_init_worker,
+                             initargs=(target, min_corners, refine))
+    try:
+        results = ex.map(_work, paths, chunksize=chunk)  # submits all, workers start now; yields in input order
+        bar.start()  # after the workers started: no progress-bar thread is copied into them
+        out = []
+        for r in results:
+            out.append(r)
+            bar.advance()
+    except BaseException:
+        ex.shutdown(wait=False, cancel_futures=True)
+        raise
+    ex.shutdown(wait=True)
+    return out
+
+
+class _Progress:
+    """rich progress bar on stderr with counts and rate, or nothing."""
+
+    def __init__(self, total: int, enabled: bool):
+        self.total, self.enabled = total, bool(enabled) and total > 0
+        self.bar = None
+
+    def start(self) -> None:
+        if not self.enabled or self.bar is not None:
+            return
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+        self.bar = Progress(TextColumn("detecting"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("{task.fields[rate]}"), TimeElapsedColumn(),
+                            console=Console(stderr=True), transient=False)
+        self.task = self.bar.add_task("detect", total=self.total, rate="")
+        self.t0, self.done = time.perf_counter(), 0
+        self.bar.start()
+
+    def advance(self) -> None:
+        if self.bar is not None:
+            self.done += 1
+            dt = time.perf_counter() - self.t0
+            self.bar.update(self.task, advance=1, rate=f"{self.done / dt:.1f} img/s" if dt > 0 else "")
+
+    def stop(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()
+
+
+def detect_dataset(images, target: Target, rig=None, jobs: int | None = None, progress: bool = True,
+                   min_corners: int = 6, refine: str = "symmetric") -> DetectionResult:
+    """Detect every board in every image of a dataset (dataset.DatasetImages).
+
+    rig: when given, each image's size is checked against the camera's resolution
+    (mismatches are listed in `size_mismatch`, not raised). jobs: worker processes
+    (default os.cpu_count()). The result is the same whatever `jobs` is."""
+    if refine not in REFINE_MODES:
+        raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
+    t0 = time.perf_counter()
+    jobs = max(1, int(jobs if jobs is not None else (os.cpu_count() or 1)))
+    items = images.items()
+    paths = [str(p) for _, _, p in items]
+    bar = _Progress(len(paths), progress)
+    try:
+        if jobs <= 1 or len(paths) < 2 * jobs:
+            jobs = 1
+            outs = _detect_serial(paths, target, min_corners, refine, bar)
+        else:
+            outs = _detect_parallel(paths, target, jobs, min_corners, refine, bar)
+    finally:
+        bar.stop()
+    expected = {}
+    if rig is not None:
+        for cam in images.cameras:
+            m = rig.camera(cam).intrinsics
+            expected[cam] = (int(m.width), int(m.height))
+    res = DetectionResult(views=[], cameras=tuple(images.cameras), frames=tuple(images.all_frames),
+                          image_size={}, n_images={c: 0 for c in images.cameras}, unreadable=[],
+                          no_board={c: 0 for c in images.cameras}, dropped={c: 0 for c in images.cameras},
+                          size_mismatch=[], seconds=0.0, jobs=jobs)
+    for (cam, frame, path), o in zip(items, outs):
+        res.n_images[cam] += 1
+        if o.size is None:
+            res.unreadable.append((str(path), o.reason))
+            res.unreadable_by_camera[cam] = res.unreadable_by_camera.get(cam, 0) + 1
+            continue
+        res.image_size.setdefault(cam, o.size)
+        if cam in expected and o.size != expected[cam]:
+            res.size_mismatch.append((cam, str(path), o.size, expected[cam]))
+        res.dropped[cam] += o.dropped
+        if not o.views:
+            res.no_board[cam] += 1
+        for name, ids, uv, amb in o.views:
+            res.views.append(View(cam, frame, name, ids, uv, amb))
+    res.seconds = time.perf_counter() - t0
+    return res
+
+
+# ----------------------------------------------------------------------------- diagnosis
+
+
+def _markers_of(gray: np.ndarray, dictionary: str) -> np.ndarray:
+    """Marker ids of a dictionary found in the image or in its inverse."""
+    det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)),
+                                  cv2.aruco.DetectorParameters())
+    best = np.zeros(0, np.int64)
+    for img in (gray, cv2.bitwise_not(gray)):
+        ids = _as_ids(det.detectMarkers(img)[1])
+        if len(ids) > len(best):
+            best = ids
+    return best
+
+
+def _corner_count(gray: np.ndarray, board: Board) -> int:
+    try:
+        return sum(len(ids) for _, ids, _ in _CharucoGroup(board.dictionary, [board]).detect(gray))
+    except (cv2.error, ValueError):
+        return 0
+
+
+def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_images: int = 4) -> str:
+    """The most likely reason no board of `target` shows in these images, in words.
+
+    Tries, on a few readable images: the target's dictionary (normal and inverted) and
+    whether its markers carry other ids; the other legacy_pattern; the squares swapped;
+    every other common dictionary; a plain chessboard. Slow (seconds): for error paths."""
+    from dataclasses import replace
+
+    grays = []
+    for p in paths:
+        g, _ = read_gray(p)
+        if g is not None and float(g.std()) >= FLAT_STD:
+            grays.append(g)
+        if len(grays) >= max_images:
+            break
+    if not grays:
+        return "none of the images tried could be read or shows anything (all flat)"
+    n = len(grays)
+    charuco = [b for b in target.boards if b.type == "charuco"]
+    hints = []
+    for b in charuco:
+        ids = np.concatenate([_markers_of(g, b.dictionary) for g in grays])
+        if len(ids) == 0:
+            continue
+        lo, hi = b.first_marker_id, b.first_marker_id + b.n_markers - 1
+        inside = ids[(ids >= lo) & (ids <= hi)]
+        if len(inside) == 0:
+            return (f"markers of {b.dictionary} found with ids {ids.min()}..{ids.max()}, but board {b.name} uses ids "
+                    f"{lo}..{hi}: check first_marker_id and squares")
+        for change, alt in ((f"legacy_pattern: {str(not b.legacy_pattern).lower()}",
+                             replace(b, legacy_pattern=not b.legacy_pattern)),
+                            (f"squares: [{b.squares[1]}, {b.squares[0]}]", replace(b, squares=b.squares[::-1]))):
+            if sum(_corner_count(g, alt) for g in grays):
+                return f"board {b.name}: its markers are found and corners appear with {change}"
+        hints.append(f"markers of board {b.name} ({b.dictionary}, ids {inside.min()}..{inside.max()}) are found "
+                     f"but no corners: check squares, marker_length and legacy_pattern")
+    if hints:
+        return "; ".join(hints)
+    wanted = {b.dictionary for b in charuco}
+    best = None
+    for d in DIAGNOSE_DICTIONARIES:
+        if d in wanted:
+            continue
+        ids = np.concatenate([_markers_of(g, d) for g in grays])
+        if len(ids) and (best is None or len(ids) > best[1]):
+            best = (d, len(ids), int(ids.max()))
+    says = ("target.yaml says " + ", ".join(sorted(wanted))) if wanted else "target.yaml describes a chessboard"
+    if best is not None:
+        return f"markers of {best[0]} found ({best[1]} in {n} images, ids up to {best[2]}); {says}"
+    for b in target.boards:
+        nx, ny = b.inner_corners
+        for pattern in {(nx, ny), (nx - 1, ny - 1), (nx + 1, ny + 1)}:
+            if b.type == "chessboard" and pattern == (nx, ny):
+                continue
+            if min(pattern) < 2:
+                continue
+            if any(cv2.findChessboardCorners(g, pattern, flags=CLASSIC_FLAGS)[0] for g in grays):
+                what = "squares" if b.type == "charuco" else "inner_corners"
+                return (f"a plain chessboard with {pattern[0]}x{pattern[1]} inner corners is found "
+                        f"(target.yaml: board {b.name}, {b.type}, {what} {list(b.squares if b.type == 'charuco' else b.inner_corners)})")
+    return (f"no ArUco markers of any common dictionary and no chessboard found in the {n} images tried "
+            "(blurred, too dark, or the board too small?)")
