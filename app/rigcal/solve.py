@@ -358,43 +358,57 @@ def _frame_split(layout: Layout) -> int:
     return layout.frame[0].start if layout.frame else layout.size
 
 
+class NormalEquations:
+    """J^T W J and J^T W r split into the camera/board part (a) and the block-diagonal
+    frame part (d), built once per iteration; solve() then costs one small dense solve
+    per damping value."""
+
+    def __init__(self, J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, split: int):
+        sw = np.sqrt(w)
+        Jw = (sp.diags(sw) @ J).tocsc()
+        rw = sw * r
+        Ja = Jw[:, :split]
+        Jd = Jw[:, split:]
+        self.g_a = Ja.T @ rw
+        self.g_d = Jd.T @ rw
+        self.H_aa = (Ja.T @ Ja).toarray()
+        self.H_ad = (Ja.T @ Jd).toarray()
+        self.H_dd = _frame_blocks(Jd.T @ Jd)
+
+    def solve(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
+        """Solve (H + lam diag(H)) dx = -g; returns (dx, Schur complement S)."""
+        H_aa = self.H_aa.copy()
+        d = np.diag_indices_from(H_aa)
+        H_aa[d] = H_aa[d] * (1.0 + lam) + 1e-12
+        blocks = self.H_dd.copy()
+        diag = np.einsum("fii->fi", blocks)
+        diag *= 1.0 + lam
+        diag += 1e-12  # a frame left without observations stays put instead of blowing up
+        Hinv = np.linalg.inv(blocks)
+        nF = len(Hinv)
+        n_a = len(H_aa)
+        T = np.einsum("afi,fij->afj", self.H_ad.reshape(n_a, nF, 6), Hinv).reshape(n_a, 6 * nF)
+        S = H_aa - T @ self.H_ad.T
+        rhs = -(self.g_a - T @ self.g_d)
+        dx_a = np.linalg.solve(S, rhs) if n_a else np.zeros(0)
+        g_d2 = -(self.g_d + self.H_ad.T @ dx_a)
+        dx_d = np.einsum("fij,fj->fi", Hinv, g_d2.reshape(nF, 6)).ravel()
+        return np.concatenate([dx_a, dx_d]), S
+
+
 def schur_solve(J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, lam: float, split: int):
-    """Solve (J^T W J + lam diag(J^T W J)) dx = -J^T W r, eliminating the block-diagonal
-    frame part by its Schur complement. Cost is linear in the number of frames."""
-    sw = np.sqrt(w)
-    Jw = sp.diags(sw) @ J
-    rw = sw * r
-    Ja = Jw[:, :split].tocsc()
-    Jd = Jw[:, split:].tocsc()
-    g_a = Ja.T @ rw
-    g_d = Jd.T @ rw
-    H_aa = (Ja.T @ Ja).toarray()
-    H_ad = (Ja.T @ Jd).toarray()
-    Hinv = _frame_block_inverse((Jd.T @ Jd), lam)
-    H_aa[np.diag_indices_from(H_aa)] *= 1.0 + lam
-    H_aa[np.diag_indices_from(H_aa)] += 1e-12
-    nF = Hinv.shape[0]
-    H_ad3 = H_ad.reshape(len(H_aa), nF, 6)
-    T = np.einsum("afi,fij->afj", H_ad3, Hinv).reshape(len(H_aa), 6 * nF)
-    S = H_aa - T @ H_ad.T
-    rhs = -(g_a - T @ g_d)
-    dx_a = np.linalg.solve(S, rhs) if len(S) else np.zeros(0)
-    g_d2 = -(g_d + H_ad.T @ dx_a)
-    dx_d = np.einsum("fij,fj->fi", Hinv, g_d2.reshape(nF, 6)).ravel()
-    return np.concatenate([dx_a, dx_d]), S
+    """One damped Gauss-Newton step with the frame block eliminated (see NormalEquations)."""
+    return NormalEquations(J, r, w, split).solve(lam)
 
 
-def _frame_block_inverse(H_dd: sp.spmatrix, lam: float) -> np.ndarray:
-    """(F, 6, 6) inverses of the damped diagonal blocks of the frame-frame block."""
+def _frame_blocks(H_dd: sp.spmatrix) -> np.ndarray:
+    """(F, 6, 6) diagonal blocks of the frame-frame part of J^T J."""
     nF = H_dd.shape[0] // 6
     blocks = np.zeros((nF, 6, 6))
     coo = H_dd.tocoo()
     same = (coo.row // 6) == (coo.col // 6)
     np.add.at(blocks, (coo.row[same] // 6, coo.row[same] % 6, coo.col[same] % 6), coo.data[same])
-    diag = np.einsum("fii->fi", blocks)
-    diag *= 1.0 + lam
-    diag += 1e-12  # a frame left without observations stays put instead of blowing up
-    return np.linalg.inv(blocks)
+    return blocks
 
 
 def _robust_weights(r: np.ndarray, scale: float | None) -> np.ndarray:
@@ -414,20 +428,23 @@ def _cost(r: np.ndarray, scale: float | None) -> float:
 
 
 def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: int = 100,
-                        rtol: float = 1e-12) -> tuple[np.ndarray, int, bool]:
+                        chi2_tol: float = 1e-6) -> tuple[np.ndarray, int, bool]:
     """LM with Marquardt scaling and a Schur-eliminated frame block; robust via IRLS when
-    `scale` is given (Cauchy). Returns (x, iterations, converged)."""
+    `scale` is given (Cauchy). Converged when an accepted step lowers the chi-square (cost
+    in units of the residual variance) by less than chi2_tol: past that, further digits
+    are far below what the data can tell. Returns (x, iterations, converged)."""
     x = problem.x0()
     split = _frame_split(problem.layout)
     r = problem.residuals(x)
     cost = _cost(r, scale)
+    dof = max(r.size - problem.layout.size, 1)
     lam = 1e-3
     for it in range(1, max_iter + 1):
         J = problem.jacobian(x)
-        w = _robust_weights(r, scale)
+        ne = NormalEquations(J, r, _robust_weights(r, scale), split)
         improved = False
         for _ in range(12):
-            dx, _ = schur_solve(J, r, w, lam, split)
+            dx, _ = ne.solve(lam)
             x_new = x + dx
             r_new = problem.residuals(x_new)
             cost_new = _cost(r_new, scale)
@@ -436,12 +453,12 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
                 break
             lam *= 10.0
         if not improved:
-            return x, it, True  # no descent left at any damping: at the minimum to precision
-        rel = (cost - cost_new) / max(cost, 1e-300)
+            return x, it, True  # no descent at any damping: at the minimum to precision
+        variance = max(2.0 * cost_new / dof, 1e-300)
+        drop_chi2 = 2.0 * (cost - cost_new) / variance
         x, r, cost = x_new, r_new, cost_new
         lam = max(lam / 10.0, 1e-9)
-        step = np.linalg.norm(dx) / (np.linalg.norm(x) + 1e-12)
-        if rel < rtol or step < 1e-13:
+        if drop_chi2 < chi2_tol:
             return x, it, True
     return x, max_iter, False
 
