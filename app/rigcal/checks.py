@@ -76,6 +76,13 @@ def depth_check(cal, left: str, right: str, truth=None) -> dict | None:
     rl = rectify_pixels(rect, rig.camera(left), uvl, "left")
     rr = rectify_pixels(rect, rig.camera(right), uvr, "right")
     ok = np.all(np.isfinite(rl), axis=1) & np.all(np.isfinite(rr), axis=1)
+    # Only corners a rectified-stereo pipeline would see: inside both rectified images.
+    # Far off-axis (fisheye) the rectified plane stretches without bound and 0.1 px of
+    # corner noise becomes metres of depth there, which says nothing about the calibration.
+    w, h = rect.size
+    with np.errstate(invalid="ignore"):
+        for q in (rl, rr):
+            ok &= (q[:, 0] >= -0.5) & (q[:, 0] <= w - 0.5) & (q[:, 1] >= -0.5) & (q[:, 1] <= h - 0.5)
     disp = rl[:, 0] - rr[:, 0]
     ok &= disp > 0
     z_disp = rect.baseline_m * rect.f / np.where(ok, disp, 1.0)
