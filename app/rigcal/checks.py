@@ -10,13 +10,14 @@ error in the relative pose or the distortion.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import geometry as geo
 from .errors import RigcalError
-from .stereo import rectify_pair, rectify_pixels
+from .stereo import StereoRectification, rectify_pair, rectify_pixels
 
 BANDS_M = (0.0, 1.0, 2.0, 4.0, 8.0, float("inf"))
 
@@ -65,13 +66,31 @@ def pair_correspondences(cal, left: str, right: str):
     return uvl[il], uvr[ir], p_left, fl[il], bl[il], pl[il]
 
 
-def depth_check(cal, left: str, right: str, truth=None) -> dict | None:
+@dataclass(frozen=True)
+class DepthSamples:
+    """Per shared corner inside both rectified images: depth from the calibrated board pose
+    along the rectified left axis (z_pose), from disparity (z_disp), vertical disparity (px)."""
+
+    rect: StereoRectification
+    z_pose: np.ndarray
+    z_disp: np.ndarray
+    v_disparity: np.ndarray
+    frames: np.ndarray
+    boards: np.ndarray
+    p_board: np.ndarray
+
+    @property
+    def rel(self) -> np.ndarray:
+        return (self.z_disp - self.z_pose) / self.z_pose
+
+
+def depth_samples(cal, left: str, right: str) -> DepthSamples | None:
+    """The per-corner data of the depth check; None when the pair shares no usable corner."""
     corr = pair_correspondences(cal, left, right)
+    if corr is None:
+        return None
     rig = cal.rig
     rect = rectify_pair(rig.camera(left), rig.camera(right))
-    out = {"baseline_m": rect.baseline_m, "sanity_10m": sanity_10m(rig, left, right, rect)}
-    if corr is None:
-        return out
     uvl, uvr, p_left, frames, boards, p_board = corr
     rl = rectify_pixels(rect, rig.camera(left), uvl, "left")
     rr = rectify_pixels(rect, rig.camera(right), uvr, "right")
@@ -83,25 +102,36 @@ def depth_check(cal, left: str, right: str, truth=None) -> dict | None:
     with np.errstate(invalid="ignore"):
         for q in (rl, rr):
             ok &= (q[:, 0] >= -0.5) & (q[:, 0] <= w - 0.5) & (q[:, 1] >= -0.5) & (q[:, 1] <= h - 0.5)
-    disp = rl[:, 0] - rr[:, 0]
-    ok &= disp > 0
-    z_disp = rect.baseline_m * rect.f / np.where(ok, disp, 1.0)
-    z_pose = (p_left @ rect.R1.T)[:, 2]
-    rel = (z_disp - z_pose) / z_pose
-    vdisp = rl[ok, 1] - rr[ok, 1]
+        ok &= rl[:, 0] - rr[:, 0] > 0
+    if not ok.any():
+        return None
+    disp = rl[ok, 0] - rr[ok, 0]
+    return DepthSamples(rect, (p_left[ok] @ rect.R1.T)[:, 2], rect.baseline_m * rect.f / disp,
+                        rl[ok, 1] - rr[ok, 1], frames[ok], boards[ok], p_board[ok])
+
+
+def depth_check(cal, left: str, right: str, truth=None) -> dict:
+    rig = cal.rig
+    rect = rectify_pair(rig.camera(left), rig.camera(right))
+    out = {"baseline_m": rect.baseline_m, "sanity_10m": sanity_10m(rig, left, right, rect)}
+    ds = depth_samples(cal, left, right)
+    if ds is None:
+        return out
+    rel = ds.rel
     dc = {
-        "corners": int(ok.sum()),
-        "frames": int(len(np.unique(frames[ok]))),
-        "vertical_disparity_rms_px": round(float(np.sqrt(np.mean(vdisp**2))), 5) if ok.any() else None,
-        "overall": _stats(rel[ok]) if ok.any() else None,
-        "bands": _band_stats(z_pose[ok], rel[ok]),
+        "corners": int(len(rel)),
+        "frames": int(len(np.unique(ds.frames))),
+        "vertical_disparity_rms_px": round(float(np.sqrt(np.mean(ds.v_disparity**2))), 5),
+        "overall": _stats(rel),
+        "bands": _band_stats(ds.z_pose, rel),
     }
     if truth is not None:
-        z_true = _true_rectified_depth(cal, truth, left, rect, frames, boards, p_board)
+        z_true = _true_rectified_depth(cal, truth, left, rect, ds.frames, ds.boards, ds.p_board)
         if z_true is not None:
-            m = ok & np.isfinite(z_true)
-            rel_t = (z_disp[m] - z_true[m]) / z_true[m]
-            dc["vs_truth"] = {"overall": _stats(rel_t), "bands": _band_stats(z_true[m], rel_t)}
+            m = np.isfinite(z_true)
+            if m.any():
+                rel_t = (ds.z_disp[m] - z_true[m]) / z_true[m]
+                dc["vs_truth"] = {"overall": _stats(rel_t), "bands": _band_stats(z_true[m], rel_t)}
     out["depth_check"] = dc
     return out
 

@@ -25,11 +25,10 @@ from plotly.subplots import make_subplots
 from . import __version__
 from . import geometry as geo
 from .calibrate import warnings_for
-from .checks import pair_correspondences
+from .checks import depth_samples as checks_depth_samples
 from .core import Calibration
 from .rig import Rig
 from .solve import Problem
-from .stereo import rectify_pair, rectify_pixels
 from .view import BODY_COLOURS, rig_figure
 
 MAX_POINTS = 5000  # drawn per scatter trace; beyond it a seeded subset (the page stays light)
@@ -78,26 +77,15 @@ def frame_rms(cal: Calibration, e: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
 
 
 def depth_samples(cal: Calibration, left: str, right: str):
-    """The per-corner data behind checks.depth_check: (z_pose (N,) m, the depth of each shared
-    inlier corner from the calibrated board pose along the rectified left axis; rel (N,),
-    (Z_disparity - z_pose) / z_pose; frame (N,) indices). None when the pair shares no corner
-    or cannot be rectified."""
-    corr = pair_correspondences(cal, left, right)
-    if corr is None:
-        return None
-    uv_l, uv_r, p_left, frames = corr[:4]
-    cam_l, cam_r = cal.rig.camera(left), cal.rig.camera(right)
+    """(z_pose, rel, frames) of the depth check's corners (checks.depth_samples); None when
+    the pair shares no usable corner or cannot be rectified."""
     try:
-        rect = rectify_pair(cam_l, cam_r)
+        ds = checks_depth_samples(cal, left, right)
     except ValueError:
         return None
-    r_l = rectify_pixels(rect, cam_l, uv_l, "left")
-    r_r = rectify_pixels(rect, cam_r, uv_r, "right")
-    disp = r_l[:, 0] - r_r[:, 0]
-    ok = np.all(np.isfinite(r_l), axis=1) & np.all(np.isfinite(r_r), axis=1) & (disp > 0)
-    z_pose = (p_left[ok] @ rect.R1.T)[:, 2]
-    z_disp = rect.baseline_m * rect.f / disp[ok]
-    return z_pose, (z_disp - z_pose) / z_pose, frames[ok]
+    if ds is None:
+        return None
+    return ds.z_pose, ds.rel, ds.frames
 
 
 def _subset(n: int, cap: int = MAX_POINTS, seed: int = 0) -> np.ndarray:
