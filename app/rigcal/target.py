@@ -26,9 +26,11 @@ from typing import Any
 import cv2
 import numpy as np
 import yaml
+from scipy.special import ndtr
 
 from .errors import InputError, OutputError, TargetFileError
 from .io import atomic_write_bytes, atomic_write_text
+from .rig import load_yaml
 
 TYPES = ("charuco", "chessboard")
 TOP_KEYS = ("boards",)
@@ -121,17 +123,27 @@ class Board:
         in OpenCV's pixel-centre convention. Grey levels are exact area coverage."""
         return np.clip(np.rint(self.coverage(px_per_m, margin_px) * 255.0), 0, 255).astype(np.uint8)
 
-    def coverage(self, px_per_m: float, margin_px: int = 0) -> np.ndarray:
-        """Float (H, W) in [0, 1]: the fraction of each pixel that is white (see `image`)."""
+    def coverage(self, px_per_m: float, margin_px: int = 0, blur_px: float = 0.0) -> np.ndarray:
+        """Float (H, W) in [0, 1]: the fraction of each pixel that is white (see `image`).
+
+        With blur_px > 0 the printed face is first convolved with a Gaussian of that sigma
+        (pixels), evaluated in closed form, so the result is still exact (no kernel
+        truncation or resampling). Everything outside the pattern counts as white."""
+        return 1.0 - self.black_fraction(px_per_m, margin_px, blur_px)
+
+    def black_fraction(self, px_per_m: float, margin_px: int = 0, blur_px: float = 0.0) -> np.ndarray:
+        """Float32 (H, W): 1 - coverage(...), the fraction of each pixel that is printed black."""
         if not (px_per_m > 0 and math.isfinite(px_per_m)):
             raise ValueError(f"px_per_m must be a positive number, got {px_per_m!r}")
         w_m, h_m = self.size_m
         width = int(math.ceil(w_m * px_per_m - 1e-9)) + 2 * margin_px
         height = int(math.ceil(h_m * px_per_m - 1e-9)) + 2 * margin_px
         xs, ys, black = self._design
-        Ax = _overlap(width, xs * px_per_m + margin_px)  # (W, Gx-1)
-        Ay = _overlap(height, ys * px_per_m + margin_px)  # (H, Gy-1)
-        return 1.0 - Ay @ black @ Ax.T
+        Ax = pixel_weights(width, xs * px_per_m + margin_px, blur_px)  # (W, Gx-1)
+        Ay = pixel_weights(height, ys * px_per_m + margin_px, blur_px)  # (H, Gy-1)
+        # contiguous float32 operands: numpy's matmul skips BLAS for a transposed view
+        black_x = black.astype(np.float32) @ np.ascontiguousarray(Ax.T, dtype=np.float32)
+        return np.ascontiguousarray(Ay, dtype=np.float32) @ black_x
 
 
 @dataclass(frozen=True)
@@ -152,10 +164,26 @@ class Target:
 # ----------------------------------------------------------------------------- rasterising
 
 
-def _overlap(n_px: int, breaks_px: np.ndarray) -> np.ndarray:
-    """Overlap length of pixel i = [i, i+1) with interval [b_j, b_j+1): (n_px, len(breaks) - 1)."""
+def pixel_weights(n_px: int, breaks_px: np.ndarray, blur_px: float = 0.0) -> np.ndarray:
+    """(n_px, len(breaks) - 1): how much of interval [b_j, b_j+1) pixel i = [i, i+1) sees.
+
+    Without blur, the overlap length. With a Gaussian blur of sigma blur_px, the mean over
+    the pixel of the blurred interval indicator, in closed form: with
+    G(t) = t Phi(t / s) + s phi(t / s) (the integral of the Gaussian CDF), it is
+    G(i+1-a) - G(i-a) - G(i+1-b) + G(i-b) for the interval [a, b)."""
     lo = np.arange(n_px, dtype=float)[:, None]
-    return np.clip(np.minimum(lo + 1.0, breaks_px[None, 1:]) - np.maximum(lo, breaks_px[None, :-1]), 0.0, None)
+    if blur_px <= 0:
+        return np.clip(np.minimum(lo + 1.0, breaks_px[None, 1:]) - np.maximum(lo, breaks_px[None, :-1]), 0.0, None)
+    s = float(blur_px)
+    # G at every pixel edge k = 0..n_px for every break; G(t) = max(t, 0) to double precision
+    # beyond 9 sigma, so the Gaussian terms are only evaluated near the breaks.
+    t = np.arange(n_px + 1, dtype=float)[:, None] - breaks_px[None, :]
+    g = np.maximum(t, 0.0)
+    near = np.abs(t) < 9.0 * s
+    tn = t[near] / s
+    g[near] = s * (tn * ndtr(tn) + np.exp(-0.5 * tn * tn) / math.sqrt(2 * math.pi))
+    edge = g[1:] - g[:-1]  # (n_px, n_breaks): mean over pixel i of Phi((x - b) / s)
+    return edge[:, :-1] - edge[:, 1:]
 
 
 def _board_design(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -203,25 +231,6 @@ def _board_design(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 # ----------------------------------------------------------------------------- loading
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """SafeLoader that refuses a mapping with the same key twice (PyYAML keeps the last)."""
-
-
-def _construct_unique_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False):
-    seen = set()
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)
-        if key in seen:
-            mark = key_node.start_mark
-            raise yaml.constructor.ConstructorError(
-                None, None, f"duplicate key {key!r} at line {mark.line + 1}", key_node.start_mark)
-        seen.add(key)
-    return loader.construct_mapping(node, deep=deep)
-
-
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_unique_mapping)
-
-
 def load_target(path: str | Path) -> Target:
     """Read and validate target.yaml; raises TargetFileError `file: key: what was expected`."""
     path = Path(path)
@@ -235,13 +244,8 @@ def load_target(path: str | Path) -> Target:
 
 
 def parse_target(text: str, label: str = "<target>") -> Target:
-    try:
-        doc = yaml.load(text, Loader=_UniqueKeyLoader)
-    except yaml.YAMLError as e:
-        mark = getattr(e, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        raise TargetFileError(f"{label}: not valid YAML{where}: {getattr(e, 'problem', None) or e}") from None
-    return target_from_dict(doc, label)
+    # rig.load_yaml refuses duplicate keys, alias bombs and PyYAML's leaked errors.
+    return target_from_dict(load_yaml(text, label, TargetFileError), label)
 
 
 def target_from_dict(doc: Any, label: str = "<target>") -> Target:
