@@ -57,9 +57,13 @@ def out(text) -> None:
     if isinstance(text, str):
         typer.echo(text)
     else:
+        import shutil
+
         from rich.console import Console
 
-        Console(soft_wrap=True).print(text)
+        # Tables must not be cut to 80 columns when piped to a file or a log.
+        width = None if sys.stdout.isatty() else max(shutil.get_terminal_size((160, 24)).columns, 160)
+        Console(soft_wrap=True, width=width).print(text)
 
 
 class Scene(str, Enum):

@@ -353,8 +353,13 @@ def reference_transform(T_body_cam_solve: np.ndarray, rig: Rig, reference: str) 
     if not declared:
         return geo.inv_T(T_body_cam_solve[0])
     idx = [names.index(n) for n in declared]
-    D = np.array([declared[names[i]] for i in idx])
-    S = T_body_cam_solve[idx]
+    return fit_rigid_to(T_body_cam_solve[idx], np.array([declared[names[i]] for i in idx]))
+
+
+def fit_rigid_to(S: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """The rigid T minimising sum ||R R_S - R_D||^2 + ||R (t_S - c_S) - (t_D - c_D)||^2 over
+    poses S, D (N, 4, 4): rotation by the polar decomposition of the summed rotation and
+    centred-position correlations, translation from the centroids. T @ S_i ~ D_i."""
     tD, tS = D[:, :3, 3], S[:, :3, 3]
     cD, cS = tD.mean(0), tS.mean(0)
     M = np.einsum("nij,nkj->ik", D[:, :3, :3], S[:, :3, :3]) + (tD - cD).T @ (tS - cS)
