@@ -649,11 +649,14 @@ def _work(path: str) -> _ImageOut:
 def _pool_context():
     import multiprocessing as mp
 
-    # fork where it is the platform's own default (Linux): workers start at once and the
-    # caller's main module is never re-imported. Forking after OpenCV has used its thread
-    # pool in this process was checked to work (the workers then run single-threaded).
-    if sys.platform.startswith("linux"):
-        return mp.get_context("fork")
+    # Not fork: a forked worker inherits locks held by the parent's threads (OpenBLAS,
+    # OpenCV) and was seen to hang. forkserver forks workers from a clean process that
+    # has imported rigcal.detect once, so they start in milliseconds. Like any
+    # multiprocessing code, a script calling this needs `if __name__ == "__main__":`.
+    if "forkserver" in mp.get_all_start_methods():
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["rigcal.detect"])
+        return ctx
     return mp.get_context("spawn")
 
 
