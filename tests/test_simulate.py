@@ -19,7 +19,7 @@ from rigcal import render
 from rigcal.camera import CameraModel
 from rigcal.cli import app
 from rigcal.errors import InputError, OutputError
-from rigcal.rig import load_rig, parse_rig, rig_from_dict
+from rigcal.rig import load_rig, rig_from_dict
 from rigcal.simulate import (board_visibility, default_scene, make_target_for_rig, perturb_rig,
                              simulate_dataset)
 from rigcal.target import load_target, parse_target

@@ -5,18 +5,23 @@ How a pixel gets its value:
 1. Once per camera, every sub-pixel sample gets the unit ray through the *true*
    camera model (`ray_map`): an ss x ss grid per pixel at offsets (k + 0.5) / ss - 0.5
    around the pixel centre (OpenCV's convention: integer pixel = pixel centre).
+   For a pinhole camera the rays are kept as normalised (x/z, y/z) (`sample_rays`).
 2. Per image and board, the ray d meets the board plane where
    (x_board, y_board, 1) / s = G^-1 d, with G = [r1 r2 t] of T_cam_board and s the
-   distance along the ray; one 3x3 matrix per board (`cv2.transform`) maps every ray
-   to texture coordinates and 1 / s (the depth test: nearest board wins; s <= 0 is
-   behind the camera and never renders).
-3. The texture is the board rasterised by exact area coverage at a scale matched to
-   the sample footprint on the board (`BoardTexture`, half-octave levels), read
-   with `cv2.remap`; the ss x ss samples are then averaged. Each pixel is thus the
-   pixel-area average of the printed face, blurred by under one sample: symmetric
-   about the pixel centre, so corners are not biased.
-4. Nuisances on top: cluttered background, board brightness and contrast per image,
-   vignetting, optional linear motion blur, Gaussian noise, 8-bit rounding.
+   distance along the ray: one 3x3 matrix per board maps every sample to texture
+   coordinates (`cv2.perspectiveTransform`), and its last row gives 1 / s for the
+   depth test (nearest board wins; s <= 0 is behind the camera and never renders).
+   Only the board's bounding box in the image is computed (the board clipped to the
+   part in front of the camera, its outline projected through the model).
+3. The texture is the printed face's exact area-coverage raster convolved with a
+   Gaussian in closed form (`Board.black_fraction`), at a half-octave level whose
+   texel is a third of the sample footprint, read with `cv2.remap`. Each sample thus
+   sees the print through a smooth symmetric filter of half its footprint, the
+   ss x ss samples are averaged (the pixel's area), and nothing depends on where an
+   edge falls between texels or pixels: corners are not biased.
+4. Nuisances on top (`finish`): cluttered background, lens blur, vignetting, optional
+   linear motion blur, Gaussian noise, 8-bit rounding; brightness and contrast per
+   image and board come in through the grey levels given to `render_boards`.
 """
 
 from __future__ import annotations

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
@@ -42,7 +41,7 @@ import yaml
 from . import geometry as geo
 from . import render
 from .camera import CameraModel
-from .errors import InputError, OutputError, RigcalError
+from .errors import InputError, OutputError
 from .io import atomic_dir
 from .rig import Camera, Rig, load_rig, rig_to_dict
 from .target import Board, Target, dump_target, load_target
