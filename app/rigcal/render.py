@@ -38,7 +38,7 @@ from .target import Board, pixel_weights
 
 SS = 2  # sub-samples per pixel side
 PAPER_SQUARES = 0.5  # white paper around the printed pattern, in squares
-MAX_TEXTURE_PX = 3072  # finest texture level, longest side (closer boards get a little extra blur)
+MAX_TEXTURE_PX = 2048  # finest texture level, longest side (closer boards get a little extra blur)
 TEXELS_PER_SAMPLE = 3.0  # texels across one sample's footprint on the board
 BLUR_TEXELS = 1.5  # Gaussian pre-filter of every texture level, sigma in texels (half a sample)
 FOOTPRINT_PERCENTILE = 75.0  # which sample footprint over a board picks its texture level
@@ -275,12 +275,20 @@ class SampleRays:
     def shape(self) -> tuple[int, int]:
         return self.grid.shape[:2]
 
+    @classmethod
+    def from_grid(cls, grid: np.ndarray) -> "SampleRays":
+        return cls(grid=grid, chans=tuple(np.ascontiguousarray(grid[..., i]) for i in range(grid.shape[-1])))
+
+    def __reduce__(self):
+        # the planes are a copy of the grid: ship the grid only (to worker processes)
+        return (SampleRays.from_grid, (self.grid,))
+
 
 def sample_rays(rays: np.ndarray) -> SampleRays:
     """SampleRays from ray_map's output."""
     z = rays[..., 2]
     grid = np.ascontiguousarray(rays[..., :2] / z[..., None], dtype=np.float32) if np.all(z > 1e-6) else rays
-    return SampleRays(grid=grid, chans=tuple(np.ascontiguousarray(grid[..., i]) for i in range(grid.shape[-1])))
+    return SampleRays.from_grid(grid)
 
 
 def field_mask(rays: SampleRays, ss: int = SS) -> np.ndarray:

@@ -453,15 +453,16 @@ class RenderSettings:
     optics_sigma_px: float = OPTICS_SIGMA_PX
 
 
-# Per process: what every image of a run needs (set before the worker pool forks, or
-# by the pool's initializer where processes are spawned).
+# Per process: what every image of a run needs (set by the pool's initializer in each
+# worker, or in this process when rendering serially).
 _STATE: dict[str, Any] = {}
 
 
-def _set_state(state: dict[str, Any]) -> None:
+def _set_state(state: dict[str, Any], worker: bool = True) -> None:
     _STATE.clear()
     _STATE.update(state)
-    cv2.setNumThreads(1)
+    if worker:  # one process per core already
+        cv2.setNumThreads(1)
 
 
 def render_image(ci: int, fi: int) -> np.ndarray:
@@ -487,11 +488,13 @@ def render_image(ci: int, fi: int) -> np.ndarray:
     return render.finish(fg, alpha, bg, _STATE["vignettes"][ci], look, rng)
 
 
-def _render_and_write(ci: int, fi: int, path: str) -> tuple[int, int]:
+def _render_and_write(ci: int, fi: int, path: str) -> float:
+    """Render and write one image; returns the CPU seconds it took (for the benchmark)."""
+    t0 = time.process_time()
     img = render_image(ci, fi)
     if not cv2.imwrite(path, img, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION]):
         raise OutputError(f"{path}: cannot write the image")
-    return ci, fi
+    return time.process_time() - t0
 
 
 def _prepare_state(true_rig: Rig, scene: Scene, settings: RenderSettings, threads: int) -> dict[str, Any]:
@@ -555,7 +558,8 @@ class SimResult:
     scene_poses: Scene
     image_paths: Mapping[str, tuple[Path, ...]]  # camera -> images in frame order
     coverage: Mapping[str, CameraCoverage]
-    seconds: float = field(default=0.0)
+    seconds: float = field(default=0.0)  # wall time
+    image_cpu_seconds: float = field(default=0.0)  # CPU time spent rendering and writing images, all workers
 
 
 def _check_settings(scene: str | None, frames: int | None, noise: float, blur: float, mount_error_mm: float,
@@ -605,7 +609,7 @@ def simulate_dataset(rig: Rig, out_dir: str | Path, *, scene: str | None = None,
     cover = coverage(true_rig, plan)
     settings = RenderSettings(seed=seed, noise=float(noise), blur=float(blur))
     with atomic_dir(out_dir, force=force) as tmp:
-        paths = _render_all(true_rig, plan, settings, tmp, jobs, progress)
+        paths, image_cpu = _render_all(true_rig, plan, settings, tmp, jobs, progress)
         (tmp / "rig.yaml").write_text(rig_text if rig_text is not None else _dump_declared(rig), encoding="utf-8")
         (tmp / "target.yaml").write_text(target_text if target_text is not None else dump_target(target),
                                          encoding="utf-8")
@@ -615,7 +619,7 @@ def simulate_dataset(rig: Rig, out_dir: str | Path, *, scene: str | None = None,
     image_paths = {c: tuple(out_dir / p.relative_to(tmp) for p in ps) for c, ps in paths.items()}
     return SimResult(out_dir=out_dir, scene=scene, frames=plan.frames, declared=rig, truth=true_rig,
                      target=plan.target if scene == "board" else target, scene_poses=plan, image_paths=image_paths,
-                     coverage=cover, seconds=time.perf_counter() - t0)
+                     coverage=cover, seconds=time.perf_counter() - t0, image_cpu_seconds=image_cpu)
 
 
 def _dump_declared(rig: Rig) -> str:
@@ -623,7 +627,8 @@ def _dump_declared(rig: Rig) -> str:
 
 
 def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path, jobs: int,
-                progress: bool) -> dict[str, list[Path]]:
+                progress: bool) -> tuple[dict[str, list[Path]], float]:
+    """Write every image; returns the paths per camera and the CPU seconds spent on images."""
     paths: dict[str, list[Path]] = {}
     tasks = []
     for ci, cam in enumerate(true_rig.cameras):
@@ -636,43 +641,48 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
             tasks.append((ci, fi, str(p)))
     state = _prepare_state(true_rig, scene, settings, jobs)
     bar = _progress(len(tasks)) if progress else None
+    cpu = 0.0
     try:
         if jobs == 1 or len(tasks) == 1:
-            _set_state(state)
+            _set_state(state, worker=False)
             for t in tasks:
-                _render_and_write(*t)
+                cpu += _render_and_write(*t)
                 if bar:
                     bar.advance()
         else:
-            _run_pool(state, tasks, jobs, bar)
+            cpu += _run_pool(state, tasks, jobs, bar)
     finally:
         if bar:
             bar.close()
         _STATE.clear()
-    return paths
+    return paths, cpu
 
 
-def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> None:
+def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> float:
     import multiprocessing as mp
 
-    if "fork" in mp.get_all_start_methods():
-        # fork: workers inherit the ray maps instead of unpickling them
-        _set_state(state)
-        ctx, init, initargs = mp.get_context("fork"), cv2.setNumThreads, (1,)
-    else:  # pragma: no cover - spawn platforms
-        ctx, init, initargs = mp.get_context(), _set_state, (state,)
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx, initializer=init,
-                               initargs=initargs)
+    # Not fork: a forked worker inherits locks held by the parent's threads (OpenBLAS,
+    # OpenCV) and can hang. forkserver starts workers from a clean process that has
+    # imported rigcal.simulate once; each receives the ray maps once, pickled.
+    if "forkserver" in mp.get_all_start_methods():
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["rigcal.simulate"])
+    else:  # pragma: no cover - platforms without forkserver
+        ctx = mp.get_context("spawn")
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx, initializer=_set_state,
+                               initargs=(state,))
+    cpu = 0.0
     try:
         futures = [pool.submit(_render_and_write, *t) for t in tasks]
         for fut in as_completed(futures):
-            fut.result()
+            cpu += fut.result()
             if bar:
                 bar.advance()
     except BaseException:
         pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+    return cpu
 
 
 class _progress:
