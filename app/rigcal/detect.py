@@ -37,6 +37,7 @@ import math
 import os
 import sys
 import time
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -59,7 +60,17 @@ MAX_SAMPLES_PER_ARM = 24
 # A chessboard's cross half-width in squares: keeps clear of dot codes printed inside
 # white squares (BoofCV ECoCheck) while using most of a plain chessboard's edges.
 CHESS_HALF = 0.2
-BEND_SIGMA = 0.1  # prior spread of an arm's bend about the grid's, px per square^2
+SYMMETRIC_PASSES = 2  # the second takes the grid's axes and bends from the first's corners
+# Edge bends (lens distortion): arms end where the bend displaces them by this much ...
+BEND_REACH_PX = 0.3
+# ... and each arm's bend is fitted with the corner, held to the grid's by a prior of
+# spread BEND_SIGMA + BEND_REL * |bend| px per square^2 (BEND_UNKNOWN + ... where the
+# grid shows none). Chosen on exact renders (pinhole, strong radial, fisheye): a
+# tighter prior biases fisheye corners (the grid's bend spans +-1..2 squares, the
+# cross +-0.6), none at all is noisier.
+BEND_REL = 1.0
+BEND_SIGMA = 1.0
+BEND_UNKNOWN = 1.0
 
 DIAGNOSE_DICTIONARIES = (
     "DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_4X4_1000",
@@ -154,6 +165,10 @@ def read_gray(path: str | Path) -> tuple[np.ndarray | None, str | None]:
         return None, f"cannot read ({e.strerror or e})"
     if buf.size == 0:
         return None, "empty file"
+    if buf[:8].tobytes() == PNG_SIGNATURE:
+        problem = png_problem(buf.data)
+        if problem is not None:
+            return None, problem
     level = cv2.utils.logging.getLogLevel()
     cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
     try:
@@ -165,6 +180,33 @@ def read_gray(path: str | Path) -> tuple[np.ndarray | None, str | None]:
     if img is None or img.size == 0:
         return None, "not a readable image (truncated or corrupt?)"
     return to_gray8(img), None
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_problem(data: memoryview | bytes) -> str | None:
+    """Why libpng would refuse this PNG file, or None. Checked before decoding because
+    libpng reports a truncated or damaged file on the process's stderr by itself (one
+    'libpng error' line per image, past any logging setting), and the file is skipped
+    with a warning anyway. Walks the chunks up to IEND: each must be whole, and a
+    critical one (upper-case first letter) must match its CRC; libpng only warns about
+    and drops a damaged ancillary chunk."""
+    data = memoryview(data).cast("B")
+    pos, n = len(PNG_SIGNATURE), len(data)
+    while pos + 12 <= n:
+        length = int.from_bytes(data[pos:pos + 4], "big")
+        end = pos + 12 + length
+        if end > n:
+            break
+        kind = bytes(data[pos + 4:pos + 8])
+        critical = not kind[0] & 0x20
+        if critical and zlib.crc32(data[pos + 4:end - 4]) != int.from_bytes(data[end - 4:end], "big"):
+            return f"corrupt PNG (the {kind.decode('latin-1')!r} chunk fails its CRC check)"
+        if kind == b"IEND":
+            return None
+        pos = end
+    return "truncated PNG (the file ends before its IEND chunk)"
 
 
 def to_gray8(img: np.ndarray) -> np.ndarray:
@@ -188,7 +230,7 @@ def to_gray8(img: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------- corner geometry
 
 
-def local_grid(ids: np.ndarray, uv: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def local_grid(ids: np.ndarray, uv: np.ndarray, grid: tuple[int, int]) -> tuple[np.ndarray, ...]:
     """The local image of the board grid at each corner, by finite differences along the
     corner grid.
 
@@ -200,31 +242,39 @@ def local_grid(ids: np.ndarray, uv: np.ndarray, grid: tuple[int, int]) -> tuple[
     so perspective gives none), borrowed from the next corner on the line at an edge.
 
     ids: (N,) row-major ids on a grid of (nx, ny) corners; uv: (N, 2). Returns ax, ay
-    (N, 2), NaN where the corner has no neighbour along that axis, and bend_u, bend_v
-    (N,), 0 where the line shows no curvature."""
+    (N, 2), NaN where the corner has no neighbour along that axis; bend_u, bend_v (N,),
+    0 where the line shows no curvature; and bend_spread (N, 2), how far each bend may
+    be off (px per square^2)."""
     nx, ny = grid
-    G = np.full((ny + 4, nx + 4, 2), np.nan)
+    G = np.full((ny + 4, nx + 4, 2), np.nan)  # two rings of padding: at(+-2) never leaves the array
     r, c = ids // nx + 2, ids % nx + 2
     G[r, c] = uv
 
-    def along(dr: int, dc: int) -> tuple[np.ndarray, np.ndarray]:
+    def along(dr: int, dc: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         at = lambda k: G[r + k * dr, c + k * dc]  # noqa: E731 - the k-th neighbour along the axis
-        central = 0.5 * (at(1) - at(-1))
-        fwd2, bwd2 = -0.5 * at(2) + 2.0 * at(1) - 1.5 * at(0), 1.5 * at(0) - 2.0 * at(-1) + 0.5 * at(-2)
-        fwd1, bwd1 = at(1) - at(0), at(0) - at(-1)
-        axis = central
-        for alt in (fwd2, bwd2, fwd1, bwd1):
+        # fourth-order central differences where two neighbours each side exist (a
+        # fisheye's lines change curvature within a square), then lower orders
+        axis = (8.0 * (at(1) - at(-1)) - (at(2) - at(-2))) / 12.0
+        for alt in (0.5 * (at(1) - at(-1)), -0.5 * at(2) + 2.0 * at(1) - 1.5 * at(0),
+                    1.5 * at(0) - 2.0 * at(-1) + 0.5 * at(-2), at(1) - at(0), at(0) - at(-1)):
             axis = np.where(np.isnan(axis), alt, axis)
-        second = at(1) - 2.0 * at(0) + at(-1)
-        for alt in (at(2) - 2.0 * at(1) + at(0), at(0) - 2.0 * at(-1) + at(-2)):
-            second = np.where(np.isnan(second), alt, second)
         normal = _unit(np.column_stack([-axis[:, 1], axis[:, 0]]))
-        bend = 0.5 * np.einsum("nk,nk->n", np.nan_to_num(second), normal)
-        return axis, bend
+        bend_of = lambda second: 0.5 * np.einsum("nk,nk->n", second, normal)  # noqa: E731
+        b5 = bend_of((16.0 * (at(1) + at(-1)) - (at(2) + at(-2)) - 30.0 * at(0)) / 12.0)
+        b3 = bend_of(at(1) - 2.0 * at(0) + at(-1))
+        b_side = bend_of(at(2) - 2.0 * at(1) + at(0))
+        b_side = np.where(np.isnan(b_side), bend_of(at(0) - 2.0 * at(-1) + at(-2)), b_side)
+        bend = np.where(np.isfinite(b5), b5, np.where(np.isfinite(b3), b3, b_side))
+        # How far to trust it: differences over +-1..2 squares miss how the curvature
+        # changes within them, which grows with the curvature itself (fisheye); one-sided
+        # differences are twice as far off.
+        spread = BEND_REL * np.abs(np.where(np.isfinite(b3) | np.isfinite(b5), bend, 2.0 * bend))
+        spread = np.where(np.isfinite(spread), spread, BEND_UNKNOWN) + BEND_SIGMA
+        return axis, np.nan_to_num(bend), spread
 
-    ax, bend_u = along(0, 1)
-    ay, bend_v = along(1, 0)
-    return ax, ay, np.nan_to_num(bend_u), np.nan_to_num(bend_v)
+    ax, bend_u, spread_u = along(0, 1)
+    ay, bend_v, spread_v = along(1, 0)
+    return ax, ay, bend_u, bend_v, np.column_stack([spread_u, spread_v])
 
 
 def homography_axes(xy_board: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -244,16 +294,16 @@ def homography_axes(xy_board: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, n
     return ax, ay
 
 
-def corner_grid(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def corner_grid(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, ...]:
     """local_grid, with axes from the view's homography (and no bend) where a corner has
     too few neighbours."""
-    ax, ay, bu, bv = local_grid(ids, uv, board.inner_corners)
+    ax, ay, bu, bv, spread = local_grid(ids, uv, board.inner_corners)
     missing = ~(np.isfinite(ax).all(1) & np.isfinite(ay).all(1))
     if missing.any():
         h = homography_axes(board.corners[ids, :2] / board.square_length, uv)
         if h is not None:
             ax[missing], ay[missing] = h[0][missing], h[1][missing]
-    return ax, ay, bu, bv
+    return ax, ay, bu, bv, spread
 
 
 def symmetric_half_width(board: Board) -> float:
@@ -290,7 +340,7 @@ def image_gradients(gray: np.ndarray) -> np.ndarray:
 
 def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, bend_u: np.ndarray,
                      bend_v: np.ndarray, half: float, arm: float = ARM_SQUARES, margin_px: float = MARGIN_PX,
-                     iters: int = 12, tol: float = 1e-3, bend_sigma: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     iters: int = 12, tol: float = 1e-3, bend_spread: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corners as centres of point symmetry: q minimising sum_d (I(q + b(d) + d) - I(q + b(d) - d))^2.
 
     A chessboard corner, and a ChArUco corner out to its markers, looks the same turned
@@ -322,7 +372,12 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     delta = max(STEP_PX / float(np.median(sq_g)), arm / MAX_SAMPLES_PER_ARM)
     uvo = _cross_offsets(min(half, arm), arm, delta)  # (P, 2)
     u, v = uvo[None, :, 0], uvo[None, :, 1]
-    w = ((np.abs(u) <= half_g[:, None]) | (np.abs(v) <= half_g[:, None])).astype(np.float32)  # (M, P)
+    w = ((np.abs(u) <= half_g[:, None]) | (np.abs(v) <= half_g[:, None]))  # (M, P)
+    # strongly bent lines (fisheye): shorter arms, so the bend's own error matters less
+    bend_max = np.maximum(np.abs(bend_u[idx]), np.abs(bend_v[idx]))
+    arm_k = np.minimum(arm, np.sqrt(BEND_REACH_PX / np.maximum(bend_max, 1e-9)))
+    w &= np.maximum(np.abs(u), np.abs(v)) <= arm_k[:, None]
+    w = w.astype(np.float32)
     dx = u * ax[idx, None, 0] + v * ay[idx, None, 0]  # (M, P) pixel offsets of the samples
     dy = u * ax[idx, None, 1] + v * ay[idx, None, 1]
     n_u = _unit(np.column_stack([-ax[idx, 1], ax[idx, 0]]))
@@ -330,11 +385,12 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     u2, v2 = (u ** 2).astype(np.float32), (v ** 2).astype(np.float32)
     uf, vf = u.astype(np.float32), v.astype(np.float32)
     h, wid = stack.shape[:2]
-    fit_bend = bend_sigma is not None
+    fit_bend = bend_spread is not None
     n_par = 6 if fit_bend else 4
     p = np.zeros((len(idx), n_par))  # q_x, q_y, shading gradient s_u, s_v[, bend_u, bend_v]
     p[:, :2] = uv[idx]
     prior = np.column_stack([bend_u[idx], bend_v[idx]])
+    sig2 = np.maximum(bend_spread[idx], 1e-6) ** 2 if fit_bend else None
     bends = prior.copy()
     if fit_bend:
         p[:, 4:] = prior
@@ -367,12 +423,12 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         g = np.einsum("apk,ap->ak", Jw, r).astype(np.float64)
         H += 1e-9 * np.eye(n_par)
         if fit_bend:
-            # prior bend_* +- bend_sigma, weighed against the residual variance of the samples
+            # prior bend_* +- bend_spread, weighed against the residual variance of the samples
             var = (wa * r * r).sum(1) / np.maximum(wa.sum(1), 1.0)
-            lam = var / max(bend_sigma, 1e-12) ** 2
-            H[:, 4, 4] += lam
-            H[:, 5, 5] += lam
-            g[:, 4:] += lam[:, None] * (pa[:, 4:] - prior[act])
+            lam = var[:, None] / sig2[act]
+            H[:, 4, 4] += lam[:, 0]
+            H[:, 5, 5] += lam[:, 1]
+            g[:, 4:] += lam * (pa[:, 4:] - prior[act])
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
             try:
                 step = -np.linalg.solve(H, g[..., None])[..., 0]
@@ -424,12 +480,12 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
         return uv, all_ok
     half = symmetric_half_width(board)
     if mode == "subpix":
-        ax, ay, _, _ = corner_grid(ids, uv, board)
+        ax, ay = corner_grid(ids, uv, board)[:2]
         return refine_subpix(gray, uv, ax, ay, half), all_ok
     q, ok = uv, ~all_ok
     stack, origin = None, None
-    for _ in range(2):
-        ax, ay, bu, bv = corner_grid(ids, q, board)
+    for _ in range(SYMMETRIC_PASSES):
+        ax, ay, bu, bv, spread = corner_grid(ids, q, board)
         if stack is None:
             # Gradients only over the view's bounding box plus the reach of its crosses.
             reach = ARM_SQUARES * (np.nanmax(np.abs(ax).sum(1)) + np.nanmax(np.abs(ay).sum(1))) + 4.0
@@ -441,7 +497,7 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
             y1 = min(h, int(np.ceil(uv[:, 1].max() + reach)) + 1)
             # The crop holds every cross with room for the gradient kernel: only true image edges cut one.
             stack, origin = image_gradients(gray[y0:y1, x0:x1]), np.array([x0, y0], float)
-        q, ok = refine_symmetric(stack, q - origin, ax, ay, bu, bv, half, bend_sigma=BEND_SIGMA)
+        q, ok = refine_symmetric(stack, q - origin, ax, ay, bu, bv, half, bend_spread=spread)
         q = q + origin
     return q, ok
 
@@ -779,13 +835,13 @@ def detect_dataset(images, target: Target, rig=None, jobs: int | None = None, pr
 # ----------------------------------------------------------------------------- diagnosis
 
 
-def _markers_of(gray: np.ndarray, dictionary: str) -> np.ndarray:
-    """Marker ids of a dictionary found in the image or in its inverse."""
+def _markers_of(gray: np.ndarray, dictionary: str, polarities: tuple[bool, ...] = (False, True)) -> np.ndarray:
+    """Marker ids of a dictionary found in the image or (polarity True) in its inverse."""
     det = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary)),
                                   cv2.aruco.DetectorParameters())
     best = np.zeros(0, np.int64)
-    for img in (gray, cv2.bitwise_not(gray)):
-        ids = _as_ids(det.detectMarkers(img)[1])
+    for inverted in polarities:
+        ids = _as_ids(det.detectMarkers(cv2.bitwise_not(gray) if inverted else gray)[1])
         if len(ids) > len(best):
             best = ids
     return best
@@ -796,6 +852,33 @@ def _corner_count(gray: np.ndarray, board: Board) -> int:
         return sum(len(ids) for _, ids, _ in _CharucoGroup(board.dictionary, [board]).detect(gray))
     except (cv2.error, ValueError):
         return 0
+
+
+def _best_other_dictionary(grays: list[np.ndarray], wanted: set[str]) -> tuple[str, int, int] | None:
+    """The common dictionary, other than `wanted`, with the most markers in these images:
+    (name, markers found, highest id), or None. A big dictionary costs 0.2-0.8 s an image,
+    so all are tried on the first image showing any marker (as printed, else inverted),
+    and only those that found some on the rest, in that polarity. On a tie the later,
+    bigger dictionary of a family wins (the smaller ones are its first codes, so both
+    read the print)."""
+    others = [d for d in DIAGNOSE_DICTIONARIES if d not in wanted]
+    hits: list[str] = []
+    for k, g in enumerate(grays):
+        for polarity in ((False,), (True,)):
+            first = {d: _markers_of(g, d, polarity) for d in others}
+            hits = [d for d in others if len(first[d])]
+            if hits:
+                break
+        if hits:
+            break
+    else:
+        return None
+    best = None
+    for d in hits:
+        ids = np.concatenate([first[d]] + [_markers_of(g, d, polarity) for g in grays[k + 1:]])
+        if best is None or len(ids) >= best[1]:
+            best = (d, len(ids), int(ids.max()))
+    return best
 
 
 def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_images: int = 4) -> str:
@@ -817,9 +900,19 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
         return "none of the images tried could be read or shows anything (all flat)"
     n = len(grays)
     charuco = [b for b in target.boards if b.type == "charuco"]
+    wanted = {b.dictionary for b in charuco}
+    found = {d: np.concatenate([_markers_of(g, d) for g in grays]) for d in wanted}
+    in_range = sum(int(np.isin(found[b.dictionary], b.marker_ids).sum()) for b in charuco)
+    # markers of the boards in every image: the dictionary is right (scanning the others takes seconds)
+    best = _best_other_dictionary(grays, wanted) if in_range < 3 * n else None
+    says = ("target.yaml says " + ", ".join(sorted(wanted))) if wanted else "target.yaml describes a chessboard"
+    # A wrong dictionary still decodes a few stray markers in the real ones' bit patterns
+    # (DICT_4X4_1000 read in DICT_5X5_1000 prints): judge it by how many more the other finds.
+    if best is not None and best[1] > 2 * max((len(v) for v in found.values()), default=0):
+        return f"markers of {best[0]} found ({best[1]} in {n} images, ids up to {best[2]}); {says}"
     hints = []
     for b in charuco:
-        ids = np.concatenate([_markers_of(g, b.dictionary) for g in grays])
+        ids = found[b.dictionary]
         if len(ids) == 0:
             continue
         lo, hi = b.first_marker_id, b.first_marker_id + b.n_markers - 1
@@ -836,17 +929,6 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
                      f"but no corners: check squares, marker_length and legacy_pattern")
     if hints:
         return "; ".join(hints)
-    wanted = {b.dictionary for b in charuco}
-    best = None
-    for d in DIAGNOSE_DICTIONARIES:
-        if d in wanted:
-            continue
-        ids = np.concatenate([_markers_of(g, d) for g in grays])
-        if len(ids) and (best is None or len(ids) > best[1]):
-            best = (d, len(ids), int(ids.max()))
-    says = ("target.yaml says " + ", ".join(sorted(wanted))) if wanted else "target.yaml describes a chessboard"
-    if best is not None:
-        return f"markers of {best[0]} found ({best[1]} in {n} images, ids up to {best[2]}); {says}"
     for b in target.boards:
         nx, ny = b.inner_corners
         for pattern in {(nx, ny), (nx - 1, ny - 1), (nx + 1, ny + 1)}:
