@@ -430,3 +430,26 @@ def test_library_errors_are_rigcal_errors(tmp_path):
     (tmp_path / "y" / "f").write_text("")
     with pytest.raises(OutputError):
         simulate_dataset(rig, tmp_path / "y", frames=1)
+
+
+def test_chessboard_target_is_planned_whole_and_rendered_in_opencvs_corner_order(tmp_path):
+    rig = parse_rig_text("cameras:\n  cam:\n    resolution: [640, 480]\n    intrinsics: {focal: 500}\n"
+                         "    position: [0, 0, 0]\n    look: forward\n")
+    target = parse_target("boards:\n  - {name: chess, type: chessboard, inner_corners: [9, 6], square_length: 0.04}\n")
+    res = simulate_dataset(rig, tmp_path / "d", frames=3, noise=0.0, target=target, jobs=1, seed=4)
+    cam = res.truth.cameras[0]
+    board = target.boards[0]
+    for fi, stem in enumerate(res.frames):
+        img = cv2.imread(str(tmp_path / "d" / "images" / "cam" / f"{stem}.png"), cv2.IMREAD_GRAYSCALE)
+        ok, found = cv2.findChessboardCorners(img, board.inner_corners)
+        assert ok, stem
+        T_cam_board = geo.inv_T(cam.T_body_cam) @ res.scene_poses.T_world_board[fi, 0]
+        uv, _ = cam.intrinsics.project(geo.transform(T_cam_board, board.corners))
+        err = np.linalg.norm(found.reshape(-1, 2) - uv, axis=1)
+        assert np.sqrt(np.mean(err**2)) < 0.15, stem  # row index == corner id, as Board.corners says
+
+
+def parse_rig_text(text: str):
+    from rigcal.rig import parse_rig
+
+    return parse_rig(text, "r.yaml")

@@ -53,7 +53,7 @@ MARKER_RATIO = 0.7  # marker / square: leaves a white margin round each corner f
 ROOM_HALF_M = 1.5  # walls, floor and ceiling this far from the room's centre
 BOARD_RANGE_M = (0.5, 3.0)  # board scene distances
 MIN_SQUARE_PX = 18.0  # generated boards keep squares at least this big at the far end of a scene
-SEEN_MIN_CORNERS = 6  # a board counts as seen by a camera with this many corners in view
+SEEN_MIN_CORNERS = 6  # a ChArUco board counts as seen with this many corners in view (a chessboard: all)
 MIN_CORNER_SCALE_PX = 10.0  # ... each on a square at least this big, ...
 MAX_VIEW_ANGLE_DEG = 75.0  # ... and seen less obliquely than this
 GRID = 4  # image coverage cells per side
@@ -204,23 +204,30 @@ def _round_mm(x: float) -> float:
 # ----------------------------------------------------------------------------- visibility
 
 
+def seen_min(boards: Sequence[Board]) -> np.ndarray:
+    """(B,) corners a camera must see for each board to count as seen: a chessboard is only
+    found whole (OpenCV's detectors need every corner), a ChArUco board in part."""
+    return np.array([b.n_corners if b.type == "chessboard" else min(SEEN_MIN_CORNERS, b.n_corners) for b in boards])
+
+
 @dataclass(frozen=True)
 class Visibility:
     """Corners of one board seen by one camera in one pose."""
 
     count: int  # corners in view
     cells: np.ndarray  # (GRID*GRID,) bool: image cells holding a seen corner
+    needed: int = SEEN_MIN_CORNERS  # corners in view for the board to count as seen
 
     @property
     def seen(self) -> bool:
-        return self.count >= SEEN_MIN_CORNERS
+        return self.count >= self.needed
 
 
 def board_visibility(cam: Camera, T_body_board: np.ndarray, board: Board, margin_px: float = 3.0) -> Visibility:
     """Which of the board's corners this camera sees: in the image (less a margin), on the
     printed side, not too oblique, on squares big enough to detect. Occlusion ignored."""
     count, cells = visibility_batch(cam, T_body_board[None, None], [board], margin_px)
-    return Visibility(int(count[0, 0]), cells[0, 0])
+    return Visibility(int(count[0, 0]), cells[0, 0], int(seen_min([board])[0]))
 
 
 def visibility_batch(cam: Camera, T_body_boards: np.ndarray, boards: Sequence[Board], margin_px: float = 3.0
@@ -294,7 +301,7 @@ def plan_board_scene(rig: Rig, target: Target, n_frames: int, rng: np.random.Gen
     frame takes the best of `candidates` random poses, scored by how many cameras see
     the board and how many still-empty image cells it fills."""
     board = target.boards[0]
-    w, h = board.size_m
+    need = int(seen_min([board])[0])
     cams = rig.cameras
     hits = np.zeros((len(cams), GRID * GRID))
     poses = []
@@ -304,13 +311,13 @@ def plan_board_scene(rig: Rig, target: Target, n_frames: int, rng: np.random.Gen
         seen_all = np.ones(candidates, bool)
         vis = [visibility_batch(cam, cand[:, None], [board]) for cam in cams]
         for ci, (count, cells) in enumerate(vis):
-            seen = count[:, 0] >= SEEN_MIN_CORNERS
+            seen = count[:, 0] >= need
             seen_all &= seen
             score += seen * (3.0 + (cells[:, 0] / (1.0 + hits[ci])).sum(axis=1))
         score += 3.0 * seen_all
         best = int(np.argmax(score))
         for ci, (count, cells) in enumerate(vis):
-            if count[best, 0] >= SEEN_MIN_CORNERS:
+            if count[best, 0] >= need:
                 hits[ci] += cells[best, 0]
         poses.append(cand[best])
     F = n_frames
@@ -382,6 +389,7 @@ def plan_room_scene(rig: Rig, target: Target, n_frames: int, rng: np.random.Gene
         T_world_board.append(T)
     T_world_board = np.stack(T_world_board)
     cams = rig.cameras
+    need = seen_min(boards)
     count_seen = np.zeros((len(cams), len(boards)))
     hits = np.zeros((len(cams), GRID * GRID))
     bodies = []
@@ -398,7 +406,7 @@ def plan_room_scene(rig: Rig, target: Target, n_frames: int, rng: np.random.Gene
         vis = []
         for ci, cam in enumerate(cams):
             count, cells = visibility_batch(cam, T_body_world[:, None] @ T_world_board[None], boards)
-            seen = count >= SEEN_MIN_CORNERS  # (K, B)
+            seen = count >= need  # (K, B)
             vis.append((seen, cells))
             score += (seen / (1.0 + count_seen[ci])).sum(axis=1)
             score += 0.1 * (seen[..., None] * cells / (1.0 + hits[ci])).sum(axis=(1, 2))
@@ -433,7 +441,7 @@ def coverage(rig: Rig, scene: Scene) -> dict[str, CameraCoverage]:
     T_body_world = geo.inv_T(scene.T_world_body)  # (F, 4, 4)
     for cam in rig.cameras:
         count, c = visibility_batch(cam, T_body_world[:, None] @ scene.T_world_board, scene.target.boards)
-        seen = count >= SEEN_MIN_CORNERS  # (F, B)
+        seen = count >= seen_min(scene.target.boards)  # (F, B)
         per_board = {b.name: int(seen[:, bi].sum()) for bi, b in enumerate(scene.target.boards)}
         seen_any = seen.any(axis=1)
         cells = (seen[..., None] & c).any(axis=(0, 1))
