@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import sys
 import time
 import zlib
@@ -340,7 +341,7 @@ def image_gradients(gray: np.ndarray) -> np.ndarray:
 
 def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, bend_u: np.ndarray,
                      bend_v: np.ndarray, half: float, arm: float = ARM_SQUARES, margin_px: float = MARGIN_PX,
-                     iters: int = 12, tol: float = 1e-3, bend_spread: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     iters: int = 25, tol: float = 2e-3, bend_spread: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Corners as centres of point symmetry: q minimising sum_d (I(q + b(d) + d) - I(q + b(d) - d))^2.
 
     A chessboard corner, and a ChArUco corner out to its markers, looks the same turned
@@ -712,8 +713,27 @@ def _pool_context():
     if "forkserver" in mp.get_all_start_methods():
         ctx = mp.get_context("forkserver")
         ctx.set_forkserver_preload(["rigcal.detect"])
+        _start_forkserver_deaf_to_ctrl_c()
         return ctx
     return mp.get_context("spawn")
+
+
+def _start_forkserver_deaf_to_ctrl_c() -> None:
+    """Start this process's forkserver with SIGINT ignored, which it and every worker it
+    forks keep. Ctrl-C signals the whole process group: the server or a worker still
+    importing would print its own KeyboardInterrupt traceback, and a worker would die
+    mid-task; this way only the main process sees it and stops the pool in order."""
+    from multiprocessing import forkserver
+
+    try:
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    except ValueError:  # not the main thread: signals are not ours to change
+        forkserver.ensure_running()
+        return
+    try:
+        forkserver.ensure_running()
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _detect_serial(paths: list[str], target: Target, min_corners: int, refine: str, bar) -> list[_ImageOut]:
