@@ -12,7 +12,7 @@ evaluates every observation at once.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 
@@ -73,7 +73,13 @@ def distort_fisheye(p_cam: np.ndarray, dist: np.ndarray) -> np.ndarray:
 def max_valid_radius_pinhole(dist: np.ndarray, r_limit: float = 20.0) -> float:
     """Largest undistorted normalised radius over which the radial map r -> r*radial(r)
     is still increasing. Past it the model folds back and a pixel would be a lie."""
-    d = pad12(dist)
+    return _max_valid_radius_pinhole(tuple(float(x) for x in np.ravel(dist)), float(r_limit))
+
+
+@lru_cache(maxsize=256)
+def _max_valid_radius_pinhole(dist: tuple, r_limit: float) -> float:
+    # Cached: the calibration asks this of the same coefficients once per view.
+    d = pad12(np.array(dist))
     r = np.linspace(0.0, r_limit, 20001)[1:]
     rd = r * (1 + d[0] * r**2 + d[1] * r**4 + d[4] * r**6) / (1 + d[5] * r**2 + d[6] * r**4 + d[7] * r**6)
     bad = np.nonzero(np.diff(rd) <= 0)[0]
@@ -87,8 +93,13 @@ def max_valid_radius_pinhole(dist: np.ndarray, r_limit: float = 20.0) -> float:
 
 def max_valid_theta_fisheye(dist: np.ndarray, theta_limit: float = np.pi) -> float:
     """Largest angle from the optical axis over which theta_d(theta) is increasing."""
+    return _max_valid_theta_fisheye(tuple(float(x) for x in np.ravel(dist)), float(theta_limit))
+
+
+@lru_cache(maxsize=256)
+def _max_valid_theta_fisheye(dist: tuple, theta_limit: float) -> float:
     th = np.linspace(0.0, theta_limit, 20001)[1:]
-    td = fisheye_theta_d(th, np.asarray(dist, dtype=float))
+    td = fisheye_theta_d(th, np.array(dist))
     bad = np.nonzero(np.diff(td) <= 0)[0]
     return float(th[max(bad[0] - 1, 0)]) if len(bad) else float(theta_limit)
 

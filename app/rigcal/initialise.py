@@ -26,7 +26,7 @@ from . import geometry as geo
 from .camera import CameraModel
 from .errors import CalibrationError
 
-MAX_INIT_VIEWS = 60  # views given to cv2.calibrateCamera; the rest get PnP (keeps init linear in frames)
+MAX_INIT_VIEWS = 40  # views given to cv2.calibrateCamera; the rest get PnP (keeps init linear in frames)
 CHESS_FLIP_DEG = 20.0
 
 
