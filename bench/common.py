@@ -1,0 +1,418 @@
+"""Shared pieces of the benchmarks: scenarios, the render + detect cache, calibration
+runs, synthetic corner observations, table printing and JSON output.
+
+Every random draw is seeded. Renders and detections are cached per (scenario, frames,
+seed) under bench/out/cache, keyed by a hash of the code that produces them
+(simulate, render, detect, target, camera), so reruns are fast and a change in that
+code re-renders instead of reusing stale corners.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import pickle
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import rigcal
+from rigcal import geometry as geo
+from rigcal.compare import Truth, compare_rigs, load_truth
+from rigcal.core import Calibration, ViewIn, calibrate_views, reference_transform
+from rigcal.rig import Rig
+
+ROOT = Path(__file__).resolve().parents[1]
+OUT = ROOT / "bench" / "out"
+CACHE = OUT / "cache"
+RIGS = ROOT / "rigs"
+JOBS = 2  # the machine the figures are quoted for has 2 cores
+CODE_FILES = ("simulate.py", "render.py", "detect.py", "target.py", "camera.py")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A simulated scene: rig file, scene kind and number of frames."""
+
+    name: str
+    rig: str  # file under rigs/
+    scene: str  # room | board
+    frames: int
+
+    @property
+    def rig_path(self) -> Path:
+        return RIGS / self.rig
+
+    def with_frames(self, frames: int) -> "Scenario":
+        return Scenario(self.name, self.rig, self.scene, frames)
+
+
+SCENARIOS = (
+    Scenario("drone-stereo-back", "drone-stereo-back.yaml", "room", 60),
+    Scenario("stereo-forward", "stereo-forward.yaml", "board", 40),
+    Scenario("surround-6", "surround-6.yaml", "room", 60),
+    Scenario("fisheye-stereo", "fisheye-stereo.yaml", "board", 40),
+)
+
+
+def scenario(name: str) -> Scenario:
+    for s in SCENARIOS:
+        if s.name == name:
+            return s
+    raise KeyError(name)
+
+
+# ----------------------------------------------------------------------------- render + detect cache
+
+
+@dataclass
+class Dataset:
+    """One simulated dataset with its detections (from the cache or freshly made)."""
+
+    scenario: Scenario
+    seed: int
+    path: Path  # the dataset folder (images may have been removed)
+    rig: Rig  # declared
+    truth: Truth
+    corners: dict[str, np.ndarray]  # board name -> (N, 3)
+    views: list[ViewIn]
+    n_images: int
+    sim_s: float  # wall seconds to render (when it was made)
+    det_s: float  # wall seconds to detect (when it was made)
+    cached: bool = False
+    images_kept: bool = False
+
+    @property
+    def det_rate(self) -> float:
+        return self.n_images / self.det_s if self.det_s > 0 else float("nan")
+
+
+def code_hash() -> str:
+    """Short hash of the code whose output the cache holds."""
+    h = hashlib.sha256(rigcal.__version__.encode())
+    src = Path(rigcal.__file__).parent
+    for name in CODE_FILES:
+        h.update((src / name).read_bytes())
+    return h.hexdigest()[:10]
+
+
+def dataset_dir(scn: Scenario, seed: int) -> Path:
+    return CACHE / f"{scn.name}-f{scn.frames}-s{seed}-{code_hash()}"
+
+
+def get_dataset(scn: Scenario, seed: int, keep_images: bool = False, log=None, jobs: int = JOBS) -> Dataset:
+    """Render (seeded) and detect one scenario, or load both from the cache.
+
+    keep_images: leave the PNGs on disk (needed to time `rigcal calibrate` on them);
+    otherwise only rig.yaml, target.yaml, truth.yaml and the detections are kept."""
+    from rigcal.dataset import list_dataset
+    from rigcal.detect import detect_dataset
+    from rigcal.simulate import simulate_dataset
+    from rigcal.target import load_target
+
+    d = dataset_dir(scn, seed)
+    meta_path = d / "detections.pkl"
+    has_images = (d / "images").is_dir()
+    if meta_path.is_file() and (has_images or not keep_images):
+        with open(meta_path, "rb") as f:
+            meta = pickle.load(f)
+        return _dataset_from(scn, seed, d, meta, cached=True, images_kept=has_images)
+    if log:
+        log(f"  rendering {scn.name} ({scn.frames} frames, seed {seed}) ...")
+    rig = rigcal.load_rig(scn.rig_path)
+    d.parent.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    simulate_dataset(rig, d, scene=scn.scene, frames=scn.frames, seed=seed, jobs=jobs, force=True,
+                     rig_text=scn.rig_path.read_text(encoding="utf-8"), label=str(scn.rig_path))
+    sim_s = time.perf_counter() - t0
+    target = load_target(d / "target.yaml")
+    images = list_dataset(d, rig)
+    det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=False)
+    views = [(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), bool(v.ambiguous))
+             for v in det.views]
+    meta = {"views": views, "n_images": images.n_images, "sim_s": sim_s, "det_s": det.seconds}
+    tmp = meta_path.with_suffix(".tmp")
+    with open(tmp, "wb") as f:
+        pickle.dump(meta, f)
+    os.replace(tmp, meta_path)
+    if not keep_images:
+        shutil.rmtree(d / "images", ignore_errors=True)
+    return _dataset_from(scn, seed, d, meta, cached=False, images_kept=keep_images)
+
+
+def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, images_kept: bool) -> Dataset:
+    from rigcal.target import load_target
+
+    rig = rigcal.load_rig(d / "rig.yaml")
+    target = load_target(d / "target.yaml")
+    views = [ViewIn(*v) for v in meta["views"]]
+    return Dataset(scn, seed, d, rig, load_truth(d / "truth.yaml"), {b.name: b.corners for b in target.boards},
+                   views, meta["n_images"], meta["sim_s"], meta["det_s"], cached, images_kept)
+
+
+# ----------------------------------------------------------------------------- calibration + errors
+
+
+def calibrate(views: list[ViewIn], rig: Rig, corners: dict, distortion: str = "auto") -> Calibration:
+    return calibrate_views(views, rig, corners, distortion=distortion)
+
+
+def truth_in_output_frame(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:
+    """The true T_body_cam of every camera re-expressed in the frame the calibration
+    reports in: the true rig aligned to the DECLARED rig by the same rule
+    (core.reference_transform), not truth.yaml's own body frame."""
+    T_true = np.array([truth_rig.camera(n).T_body_cam for n in cal.cam_names])
+    T_out_true = reference_transform(T_true, cal.declared, cal.reference)
+    return {n: T_out_true @ T for n, T in zip(cal.cam_names, T_true)}
+
+
+def pose_errors_body(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:
+    """Per camera 6-vector [rotation error about body F, L, U (deg), position error along
+    F, L, U (mm)], calibrated minus truth, both in the output body frame; the same
+    parameterisation as the solver's covariance (core._pose_error_vector)."""
+    ref = truth_in_output_frame(cal, truth_rig)
+    out = {}
+    for c in cal.rig.cameras:
+        T_t = ref[c.name]
+        rot = geo.rotvec_from_R(c.T_body_cam[:3, :3] @ T_t[:3, :3].T)
+        out[c.name] = np.concatenate([np.degrees(rot), 1000.0 * (c.T_body_cam[:3, 3] - T_t[:3, 3])])
+    return out
+
+
+def true_projections(cal: Calibration, truth: Truth) -> np.ndarray | None:
+    """(M, 2) exact projections of every observation the calibration was given,
+    through the true rig and true board/frame poses (None when truth has no poses)."""
+    from rigcal.bounds import true_state
+    from rigcal.solve import Problem
+
+    st = true_state(cal, truth)
+    if st is None:
+        return None
+    pb = Problem(cal.obs, st, cal.problem.gauge_cam, cal.problem.gauge_board)
+    r = pb.residuals(pb.x0()).reshape(-1, 2)
+    return cal.obs.uv + r
+
+
+def gaussian_views(cal: Calibration, uv_true: np.ndarray, corners: dict, sigma: float,
+                   rng: np.random.Generator) -> list[ViewIn]:
+    """The calibration's views with the detected corners replaced by their true
+    projections plus isotropic Gaussian noise of `sigma` px (ids recovered by matching
+    board points, so the views are the same corners the detector found)."""
+    o = cal.obs
+    uv = uv_true + rng.normal(0.0, sigma, uv_true.shape)
+    out = []
+    for k in np.unique(o.view):
+        m = np.nonzero(o.view == k)[0]
+        board = cal.boards[int(o.board[m[0]])]
+        P = corners[board]
+        # row of the board's corner table for each observation's board point
+        d = np.linalg.norm(P[None, :, :] - o.p_board[m][:, None, :], axis=2)
+        ids = np.argmin(d, axis=1)
+        out.append(ViewIn(cal.cam_names[int(o.cam[m[0]])], cal.frames[int(o.frame[m[0]])], board, ids, uv[m]))
+    return out
+
+
+def pair_key(a: str, b: str) -> str:
+    return f"{a}/{b}"
+
+
+def rig_errors(est: Rig, truth_rig: Rig) -> dict:
+    """compare_rigs with string keys (JSON-ready)."""
+    r = compare_rigs(est, truth_rig)
+    return {"cameras": r["cameras"], "pairs": {pair_key(*k): v for k, v in r["pairs"].items()},
+            "stereo": {pair_key(*k): v for k, v in r["stereo"].items()}}
+
+
+# ----------------------------------------------------------------------------- synthetic observations
+
+
+def grid_corners(nx: int, ny: int, s: float) -> np.ndarray:
+    """(nx*ny, 3) board-frame corners on an s-metre grid, ids row-major."""
+    k = np.arange(nx * ny)
+    return np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(len(k))])
+
+
+@dataclass
+class SyntheticScene:
+    """Exact projections of wall boards around a rig that turns through every heading."""
+
+    views: list[ViewIn]  # noise-free
+    corners: dict[str, np.ndarray]
+    truth: Truth
+
+
+def synthetic_room(truth_rig: Rig, rng: np.random.Generator, n_frames: int, n_boards: int = 4,
+                   board=(10, 7, 0.14), dist: float = 2.0, min_corners: int = 8) -> SyntheticScene:
+    """Boards on the walls of a room around the rig; per frame a random heading, +-20 deg
+    pitch and roll and +-0.4 m offset. Views keep corners inside the image (2 px margin)
+    and drop grazing views, as a detector would. Noise-free: add noise per seed."""
+    nx, ny, s = board
+    P = grid_corners(nx, ny, s)
+    centre = P.mean(0)
+    T_wb = []
+    for b in range(n_boards):
+        yaw = 2 * np.pi * b / n_boards
+        z = np.array([np.cos(yaw), np.sin(yaw), 0.0])  # the board's z points away from the rig
+        x = np.cross([0, 0, 1.0], z)
+        x /= np.linalg.norm(x)
+        R = np.column_stack([x, np.cross(z, x), z])
+        T_wb.append(geo.make_T(R, dist * z - R @ centre))
+    names = [f"b{b}" for b in range(n_boards)]
+    T_wB = {}
+    views = []
+    for f in range(n_frames):
+        yaw = rng.uniform(-np.pi, np.pi)
+        pitch, roll = rng.uniform(-np.radians(20), np.radians(20), 2)
+        R = geo.R_from_rotvec([0, 0, yaw]) @ geo.R_from_rotvec([0, pitch, 0]) @ geo.R_from_rotvec([roll, 0, 0])
+        T = geo.make_T(R, rng.uniform(-0.4, 0.4, 3))
+        stem = f"{f:06d}"
+        T_wB[stem] = T
+        for cam in truth_rig.cameras:
+            T_cam_world = geo.inv_T(cam.T_body_cam) @ geo.inv_T(T)
+            for b, name in enumerate(names):
+                T_cam_board = T_cam_world @ T_wb[b]
+                p_cam = geo.transform(T_cam_board, P)
+                uv, valid = cam.intrinsics.project(p_cam)
+                ok = valid & cam.intrinsics.in_image(uv, margin=2)
+                if ok.sum() < min_corners:
+                    continue
+                mean_ray = p_cam[ok].mean(0)
+                if abs(T_cam_board[:3, 2] @ mean_ray / np.linalg.norm(mean_ray)) < 0.25:
+                    continue  # grazing
+                ids = np.nonzero(ok)[0]
+                views.append(ViewIn(cam.name, stem, name, ids, uv[ok]))
+    truth = Truth(truth_rig, dict(zip(names, T_wb)), T_wB, {})
+    return SyntheticScene(views, {n: P for n in names}, truth)
+
+
+def with_noise(views: list[ViewIn], sigma: float, rng: np.random.Generator) -> list[ViewIn]:
+    return [ViewIn(v.camera, v.frame, v.board, v.ids, v.uv + rng.normal(0.0, sigma, v.uv.shape)) for v in views]
+
+
+def perturbed_truth(rig: Rig, seed: int) -> Rig:
+    """The library's own mounting/lens perturbation (what `rigcal simulate` applies)."""
+    from rigcal.simulate import perturb_rig
+
+    return perturb_rig(rig, np.random.default_rng([seed, 1]))
+
+
+# ----------------------------------------------------------------------------- output
+
+
+def md_table(headers: list[str], rows: list[list], title: str | None = None) -> str:
+    """A markdown table (readable in a terminal, pasteable into the README)."""
+    cells = [[str(h) for h in headers]] + [[_cell(x) for x in r] for r in rows]
+    w = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    line = lambda r: "| " + " | ".join(c.ljust(w[i]) for i, c in enumerate(r)) + " |"  # noqa: E731
+    out = [f"\n**{title}**\n"] if title else []
+    out.append(line(cells[0]))
+    out.append("|" + "|".join("-" * (x + 2) for x in w) + "|")
+    out.extend(line(r) for r in cells[1:])
+    return "\n".join(out)
+
+
+def _cell(x) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        if not np.isfinite(x):
+            return "-"
+        a = abs(x)
+        if a == 0:
+            return "0"
+        if a >= 100:
+            return f"{x:.1f}"
+        if a >= 1:
+            return f"{x:.2f}"
+        if a >= 0.01:
+            return f"{x:.3f}"
+        if a >= 0.001:
+            return f"{x:.4f}"
+        return f"{x:.1e}"
+    return str(x)
+
+
+def write_json(name: str, data) -> Path:
+    OUT.mkdir(parents=True, exist_ok=True)
+    p = OUT / f"{name}.json"
+    tmp = p.with_suffix(".tmp")
+    tmp.write_text(json.dumps(data, indent=1, default=_json_default), encoding="utf-8")
+    os.replace(tmp, p)
+    return p
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, tuple):
+        return list(o)
+    raise TypeError(type(o).__name__)
+
+
+def say(*parts) -> None:
+    print(*parts, flush=True)
+
+
+def machine() -> dict:
+    """What the figures were measured on (load average: other work inflates wall times)."""
+    import platform
+
+    try:
+        load = os.getloadavg()
+    except OSError:
+        load = (float("nan"),) * 3
+    return {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
+            "load_avg_1_5_15": [round(x, 2) for x in load], "date": time.strftime("%Y-%m-%d %H:%M %Z"),
+            "opencv": __import__("cv2").__version__, "numpy": np.__version__}
+
+
+@dataclass
+class Timer:
+    """Wall and CPU seconds (this process and its waited-for children) of a block."""
+
+    wall: float = 0.0
+    cpu: float = 0.0
+    _t: tuple = field(default=(), repr=False)
+
+    def __enter__(self):
+        self._t = (time.perf_counter(), _cpu())
+        return self
+
+    def __exit__(self, *exc):
+        self.wall = time.perf_counter() - self._t[0]
+        self.cpu = _cpu() - self._t[1]
+
+
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+if __name__ == "__main__":  # pragma: no cover
+    print(code_hash(), file=sys.stderr)
+
+
+# ----------------------------------------------------------------------------- parallel runs
+
+
+def run_pool(fn, tasks: list, workers: int = JOBS) -> list:
+    """fn(*task) for every task in `workers` forked processes, results in task order.
+
+    Renders and detections inside a task run with one process each, so two tasks keep
+    both cores busy through the serial parts (calibration) too."""
+    if workers <= 1 or len(tasks) <= 1:
+        return [fn(*t) for t in tasks]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = mp.get_context("fork")
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
+        futures = [pool.submit(fn, *t) for t in tasks]
+        return [f.result() for f in futures]

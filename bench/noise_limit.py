@@ -1,0 +1,232 @@
+"""The noise limit: camera-pair errors over seeds against the Cramér-Rao bound.
+
+For each scenario and seed: render (seeded), detect, calibrate; the bound is the
+Fisher information of the bundle adjustment at the TRUE state, for the corners the
+calibration used, with the measured corner noise (detected corners vs their true
+projections), pushed through each pair's relative pose (rigcal.bounds). The ratio
+reported per pair is RMS(error over seeds) / RMS(bound over seeds); 1.0 is an
+efficient estimator, the goal is <= 1.2 (issue 4: within 1.3x).
+
+A ratio well above 1 is something systematic. To say what, every seed is also
+calibrated with the detected corners REPLACED by their true projections plus white
+Gaussian noise of the measured sigma (same corners, same views): that isolates the
+solver (model selection, initialisation, convergence) from the detector. On the
+first seeds two more diagnostics run: distortion fixed to the truth's own model
+(is model selection to blame?) and the bundle adjustment restarted from the true
+state on the detected corners (did the solver stop at the minimum?).
+
+Frames are reduced from the accuracy scenarios (drone 30, stereo-forward 20,
+surround-6 30, fisheye 20) so 10 seeds of 4 scenes fit the benchmark's budget; the
+bound is computed per seed for its own scene, so the ratio keeps its meaning.
+
+    python -m bench.noise_limit [--seeds 10] [--scenario NAME ...] [--diag-seeds 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from rigcal import geometry as geo
+from rigcal.bounds import measured_corner_noise, pair_bounds, true_state
+from rigcal.solve import Intrinsics, State, bundle_adjust
+
+from .common import (SCENARIOS, Timer, calibrate, gaussian_views, get_dataset, md_table, pose_errors_body,
+                     rig_errors, run_pool, say, scenario, true_projections, write_json)
+
+FRAMES = {"drone-stereo-back": 30, "stereo-forward": 20, "surround-6": 30, "fisheye-stereo": 20}
+AXES = ("F", "L", "U")
+
+
+def _pair_stats(cal, truth, sigma: float) -> dict:
+    b = pair_bounds(cal, truth, sigma)
+    e = rig_errors(cal.rig, truth.rig)["pairs"]
+    out = {}
+    for k, v in e.items():
+        bb = b.get(tuple(k.split("/")))
+        if bb is None:
+            continue
+        out[k] = {"rot_deg": v["rot_deg"], "trans_mm": v["trans_mm"], "bound_rot_deg": bb["rot_deg"],
+                  "bound_trans_mm": bb["trans_mm"]}
+    return out
+
+
+def _coverage_samples(cal, truth_rig) -> dict:
+    """Per camera: true error (6) and predicted 1-sigma (6) in the output body frame."""
+    err = pose_errors_body(cal, truth_rig)
+    out = {}
+    for n in cal.cam_names:
+        st = cal.stats[n]
+        if st.sigma_rotation_deg is None:
+            continue
+        out[n] = {"error": err[n].tolist(),
+                  "sigma": np.concatenate([st.sigma_rotation_deg, st.sigma_position_mm]).tolist()}
+    return out
+
+
+def view_offsets(cal, uv_true: np.ndarray, sigma: float) -> dict:
+    """How far the detector's errors are from white: RMS of each view's mean error
+    (a per-image common offset) against sigma / sqrt(corners in the view)."""
+    r = cal.obs.uv - uv_true
+    v = cal.obs.view
+    n = np.bincount(v)
+    keep = n > 0
+    mean = np.stack([np.bincount(v, r[:, i])[keep] / n[keep] for i in range(2)], 1)
+    white = sigma / np.sqrt(n[keep])
+    return {"view_offset_rms_px": float(np.sqrt(np.mean(np.sum(mean**2, 1)) / 2)),
+            "white_expectation_px": float(np.sqrt(np.mean(white**2)))}
+
+
+def _relative(T_cam_body: np.ndarray, i: int, j: int) -> np.ndarray:
+    return T_cam_body[i] @ geo.inv_T(T_cam_body[j])
+
+
+def restart_from_truth(cal, truth) -> dict | None:
+    """Bundle adjustment of the same detected corners started at the true state (the
+    calibrated distortion model, true values): the largest difference from the
+    calibration's own relative poses (deg, mm) says whether the solver stopped short."""
+    st = true_state(cal, truth)
+    if st is None:
+        return None
+    intr = []
+    for it_cal, it_true in zip(cal.state.intrinsics, st.intrinsics):
+        v = np.zeros(len(it_cal.values))
+        k = min(len(v), len(it_true.values))
+        v[:k] = it_true.values[:k]
+        intr.append(Intrinsics(it_cal.model, v))
+    start = State(intr, st.T_cam_body, st.T_body_world, st.T_world_board)
+    res = bundle_adjust(cal.obs, start, cal.problem.gauge_cam, cal.problem.gauge_board)
+    C = len(cal.cam_names)
+    drot, dtr = 0.0, 0.0
+    for i in range(C):
+        for j in range(i + 1, C):
+            a, b = _relative(cal.state.T_cam_body, i, j), _relative(res.state.T_cam_body, i, j)
+            drot = max(drot, geo.rotation_angle_deg(a[:3, :3] @ b[:3, :3].T))
+            dtr = max(dtr, 1000 * float(np.linalg.norm(a[:3, 3] - b[:3, 3])))
+    return {"max_rot_diff_deg": drot, "max_trans_diff_mm": dtr}
+
+
+def truth_model(truth_rig) -> str:
+    """The distortion choice equal to the truth's own model (fisheye needs none)."""
+    m = truth_rig.cameras[0].intrinsics
+    if m.model == "fisheye":
+        return "auto"
+    return {2: "radtan2", 4: "radtan4", 5: "radtan5", 8: "rational8"}[len(m.dist)]
+
+
+def run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
+    """Everything for one (scenario, seed); runs in a worker process."""
+    scn = scenario(name).with_frames(frames)
+    ds = get_dataset(scn, seed, jobs=1)
+    with Timer() as t:
+        cal = calibrate(ds.views, ds.rig, ds.corners)
+    sigma = measured_corner_noise(cal, ds.truth)
+    uv_true = true_projections(cal, ds.truth)
+    out = {"scenario": name, "seed": seed, "frames": frames, "sigma_px": sigma, "calibration_s": t.wall,
+           "models": [cal.stats[n].distortion_model for n in cal.cam_names],
+           "auto": _pair_stats(cal, ds.truth, sigma), "coverage": _coverage_samples(cal, ds.truth.rig),
+           **view_offsets(cal, uv_true, sigma)}
+    rng = np.random.default_rng([seed, 7])
+    gcal = calibrate(gaussian_views(cal, uv_true, ds.corners, sigma, rng), ds.rig, ds.corners)
+    out["gauss"] = _pair_stats(gcal, ds.truth, sigma)
+    out["gauss_coverage"] = _coverage_samples(gcal, ds.truth.rig)
+    if diagnostics:
+        model = truth_model(ds.truth.rig)
+        if model != "auto":
+            out["truth_model"] = _pair_stats(calibrate(ds.views, ds.rig, ds.corners, model), ds.truth, sigma)
+            out["truth_model_name"] = model
+        out["restart"] = restart_from_truth(cal, ds.truth)
+    return out
+
+
+def run(names: list[str] | None = None, seeds: int = 10, diag_seeds: int = 3, frames: dict | None = None,
+        log=say) -> dict:
+    frames = {**FRAMES, **(frames or {})}
+    scns = SCENARIOS if not names else [scenario(n) for n in names]
+    tasks = [(s.name, frames[s.name], k, k < diag_seeds) for s in scns for k in range(seeds)]
+    log(f"noise limit: {len(tasks)} (scenario, seed) runs: render, detect, calibrate 2-{4 if diag_seeds else 2}x ...")
+    with Timer() as t:
+        runs = run_pool(run_seed, tasks)
+    return {"runs": runs, "summary": summarise(runs), "seconds": t.wall, "frames": frames, "seeds": seeds}
+
+
+def _ratio(runs: list[dict], variant: str, key: str) -> dict:
+    """{pair: (rms err, rms bound, ratio, n)} over the runs that have the variant."""
+    acc: dict[str, list] = {}
+    for r in runs:
+        for k, v in (r.get(variant) or {}).items():
+            acc.setdefault(k, []).append((v[key], v[f"bound_{key}"]))
+    out = {}
+    for k, vals in acc.items():
+        a = np.array(vals)
+        e, b = np.sqrt(np.mean(a[:, 0] ** 2)), np.sqrt(np.mean(a[:, 1] ** 2))
+        out[k] = {"rms_error": float(e), "rms_bound": float(b), "ratio": float(e / b), "n": len(a)}
+    return out
+
+
+def summarise(runs: list[dict]) -> dict:
+    by = {}
+    for r in runs:
+        by.setdefault(r["scenario"], []).append(r)
+    out = {}
+    for name, rs in by.items():
+        s = {}
+        for variant in ("auto", "gauss", "truth_model"):
+            s[variant] = {q: _ratio(rs, variant, q) for q in ("rot_deg", "trans_mm")}
+        restarts = [r["restart"] for r in rs if r.get("restart")]
+        s["restart_max_rot_diff_deg"] = max((x["max_rot_diff_deg"] for x in restarts), default=None)
+        s["restart_max_trans_diff_mm"] = max((x["max_trans_diff_mm"] for x in restarts), default=None)
+        s["sigma_px"] = float(np.mean([r["sigma_px"] for r in rs]))
+        s["view_offset_rms_px"] = float(np.sqrt(np.mean([r["view_offset_rms_px"] ** 2 for r in rs])))
+        s["white_expectation_px"] = float(np.sqrt(np.mean([r["white_expectation_px"] ** 2 for r in rs])))
+        s["seeds"] = len(rs)
+        s["frames"] = rs[0]["frames"]
+        out[name] = s
+    return out
+
+
+def tables(res: dict) -> str:
+    rows = []
+    for name, s in res["summary"].items():
+        for k, rot in s["auto"]["rot_deg"].items():
+            tr = s["auto"]["trans_mm"][k]
+            grot, gtr = s["gauss"]["rot_deg"].get(k, {}), s["gauss"]["trans_mm"].get(k, {})
+            rows.append([name, k, rot["rms_error"], rot["rms_bound"], rot["ratio"], tr["rms_error"], tr["rms_bound"],
+                         tr["ratio"], grot.get("ratio"), gtr.get("ratio")])
+    seeds = max(s["seeds"] for s in res["summary"].values())
+    parts = [md_table(["scenario", "pair", "rot RMS deg", "CRB deg", "rot ratio", "trans RMS mm", "CRB mm",
+                       "trans ratio", "rot ratio, white noise", "trans ratio, white noise"], rows,
+                      f"Noise limit: RMS error over {seeds} seeds vs Cramér-Rao bound (ratio 1 = efficient; "
+                      f"'white noise' = same corners, true projections + Gaussian noise of the measured sigma)")]
+    rows = []
+    for name, s in res["summary"].items():
+        tm = s["truth_model"]
+        worst_auto = max(max(v["ratio"] for v in s["auto"][q].values()) for q in ("rot_deg", "trans_mm"))
+        worst_tm = (max(max(v["ratio"] for v in tm[q].values()) for q in ("rot_deg", "trans_mm"))
+                    if tm["rot_deg"] else None)
+        n_tm = next(iter(tm["rot_deg"].values()))["n"] if tm["rot_deg"] else 0
+        rows.append([name, s["frames"], s["seeds"], s["sigma_px"], s["view_offset_rms_px"], s["white_expectation_px"],
+                     worst_auto, f"{worst_tm:.2f} ({n_tm} seeds)" if worst_tm is not None else "- (fisheye)",
+                     s["restart_max_rot_diff_deg"], s["restart_max_trans_diff_mm"]])
+    parts.append(md_table(["scenario", "frames", "seeds", "corner noise px", "per-view offset RMS px",
+                           "same if white px", "worst ratio (auto)", "worst ratio (truth's model)",
+                           "restart from truth: max rot diff deg", "max trans diff mm"], rows,
+                          "Noise-limit diagnostics"))
+    return "\n".join(parts)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--scenario", action="append")
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--diag-seeds", type=int, default=3)
+    a = ap.parse_args(argv)
+    res = run(a.scenario, a.seeds, a.diag_seeds)
+    say(tables(res))
+    write_json("noise_limit", res)
+
+
+if __name__ == "__main__":
+    main()
