@@ -73,6 +73,7 @@ BEND_REL = 1.0
 BEND_SIGMA = 1.0
 BEND_UNKNOWN = 1.0
 
+MIN_CLAIM_MARKERS = 3  # a lone decode in clutter or noise does not name a dictionary
 DIAGNOSE_DICTIONARIES = (
     "DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_4X4_1000",
     "DICT_5X5_50", "DICT_5X5_100", "DICT_5X5_250", "DICT_5X5_1000",
@@ -928,7 +929,8 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
     says = ("target.yaml says " + ", ".join(sorted(wanted))) if wanted else "target.yaml describes a chessboard"
     # A wrong dictionary still decodes a few stray markers in the real ones' bit patterns
     # (DICT_4X4_1000 read in DICT_5X5_1000 prints): judge it by how many more the other finds.
-    if best is not None and best[1] > 2 * max((len(v) for v in found.values()), default=0):
+    if (best is not None and best[1] >= MIN_CLAIM_MARKERS
+            and best[1] > 2 * max((len(v) for v in found.values()), default=0)):
         return f"markers of {best[0]} found ({best[1]} in {n} images, ids up to {best[2]}); {says}"
     hints = []
     for b in charuco:
