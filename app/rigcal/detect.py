@@ -135,7 +135,8 @@ class DetectionResult:
             amb = sum(v.ambiguous for v in vs)
             extra = [f"{self.no_board.get(cam, 0)} without a board"]
             if self.dropped.get(cam, 0):
-                extra.append(f"{self.dropped[cam]} views dropped (too few or collinear corners)")
+                n = self.dropped[cam]
+                extra.append(f"{n} view{'s' if n != 1 else ''} dropped (too few or collinear corners)")
             if bad.get(cam):
                 extra.append(f"{bad[cam]} unreadable")
             if amb:
