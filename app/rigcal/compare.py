@@ -52,6 +52,14 @@ def _pose(d: Any, key: str, label: str) -> np.ndarray:
     return geo.make_T(R, t)
 
 
+def _mapping(v: Any, key: str, label: str) -> dict:
+    if v is None:
+        return {}
+    if not isinstance(v, dict):
+        raise InputError(f"{label}: {key}: expected a mapping, got {type(v).__name__}")
+    return v
+
+
 def load_truth(path: str | Path) -> Truth:
     """truth.yaml (dataset.md) or a plain rig file (then there are no board/frame poses)."""
     path = Path(path)
@@ -67,12 +75,13 @@ def load_truth(path: str | Path) -> Truth:
     if not isinstance(doc, dict) or "rig" not in doc:
         raise InputError(f"{label}: expected a truth.yaml (with `rig`) or a rig file (with `cameras`)")
     rig = rig_from_dict(doc["rig"], f"{label}: rig")
-    boards = {str(k): _pose(v, f"boards.{k}", label) for k, v in (doc.get("boards") or {}).items()}
+    boards = {str(k): _pose(v, f"boards.{k}", label) for k, v in _mapping(doc.get("boards"), "boards", label).items()}
     frames, frame_boards = {}, {}
-    for k, v in (doc.get("frames") or {}).items():
+    for k, v in _mapping(doc.get("frames"), "frames", label).items():
         frames[str(k)] = _pose(v, f"frames.{k}", label)
-        if isinstance(v, dict) and v.get("boards"):
-            frame_boards[str(k)] = {str(b): _pose(p, f"frames.{k}.boards.{b}", label) for b, p in v["boards"].items()}
+        fb = _mapping(v.get("boards"), f"frames.{k}.boards", label)
+        if fb:
+            frame_boards[str(k)] = {str(b): _pose(p, f"frames.{k}.boards.{b}", label) for b, p in fb.items()}
     return Truth(rig, boards, frames, frame_boards)
 
 
