@@ -20,6 +20,8 @@ from .io import atomic_write_text
 
 SIGMA_WARN_MM = 2.0
 SIGMA_WARN_DEG = 0.1
+SIGMA_WARN_FOCAL = 0.01  # relative 1-sigma of fx, fy
+SIGMA_WARN_PP_PX = 5.0  # 1-sigma of cx, cy
 AXES = ("F", "L", "U")
 MOTION_HINT = {
     "F": "move the rig (or board) towards and away from the cameras, and tilt the board",
@@ -118,6 +120,14 @@ def _apply_image_sizes(rig: Rig, det, allow_resize: bool) -> Rig:
         prev = sizes.setdefault(cam, got)
         if prev != got:
             raise DatasetError(f"{path}: camera {cam}: images of two sizes ({prev[0]}x{prev[1]} and {got[0]}x{got[1]})")
+    for cam, got in sizes.items():
+        # some images at the rig's size and some not: scaling the intrinsics would fit neither
+        n_read = det.n_images.get(cam, 0) - det.unreadable_by_camera.get(cam, 0)
+        odd = [(path, expected) for c, path, _, expected in det.size_mismatch if c == cam]
+        if len(odd) < n_read:
+            path, expected = odd[0]
+            raise DatasetError(f"{path}: camera {cam}: images of two sizes ({expected[0]}x{expected[1]} as the rig "
+                               f"says, and {got[0]}x{got[1]} in {len(odd)} of {n_read}); --allow-resize needs one size")
     for c in rig.cameras:
         if c.name in sizes:
             w, h = sizes[c.name]
@@ -169,9 +179,21 @@ def _r(x: float, nd: int) -> float:
 
 
 def warnings_for(cal: Calibration) -> list[str]:
-    """Poorly constrained extrinsics: name the axis and the motion that would fix it."""
+    """Poorly constrained intrinsics and extrinsics: name the parameter or axis and the
+    motion that would fix it."""
     out = []
     for n, st in cal.stats.items():
+        sig = st.sigma_intrinsics or {}
+        m = cal.rig.camera(n).intrinsics
+        for k, value in (("fx", m.fx), ("fy", m.fy)):
+            if k in sig and sig[k] > SIGMA_WARN_FOCAL * value:
+                out.append(f"{n}: focal length {k} is poorly constrained (1-sigma {sig[k]:.2f} px = "
+                           f"{100 * sig[k] / value:.1f} % > {100 * SIGMA_WARN_FOCAL:g} %); tilt the board "
+                           f"towards the camera by 30-50 degrees both ways and vary its distance")
+        for k in ("cx", "cy"):
+            if k in sig and sig[k] > SIGMA_WARN_PP_PX:
+                out.append(f"{n}: principal point {k} is poorly constrained (1-sigma {sig[k]:.2f} px > "
+                           f"{SIGMA_WARN_PP_PX:g} px); tilt the board and cover the image edges and corners")
         if st.sigma_position_mm is None:
             continue
         for i, s in enumerate(st.sigma_position_mm):

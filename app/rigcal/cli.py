@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import os
+import signal
 import sys
 from enum import Enum
 from pathlib import Path
@@ -42,6 +43,8 @@ def guarded(fn):
             raise
         except RigcalError as e:
             _fail(str(e), e.exit_code)
+        except Terminated:
+            _fail("terminated (SIGTERM); no partial output was left behind", 128 + signal.SIGTERM)
         except KeyboardInterrupt:
             _fail("interrupted; no partial output was left behind", 130)
         except Exception as e:  # pragma: no cover - the last line of defence
@@ -217,7 +220,18 @@ def view(
     out(vw.run(rig, out_path))
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the program is so that every atomic writer and worker pool
+    cleans up as it does for Ctrl-C (Python's default for SIGTERM is to die on the spot,
+    leaving temporary files and orphaned worker processes)."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated()
+
+
 def main() -> None:
+    signal.signal(signal.SIGTERM, _on_sigterm)
     app()
 
 

@@ -33,6 +33,7 @@ from the plain Target. Output order does not depend on scheduling.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
@@ -758,20 +759,49 @@ def _detect_parallel(paths: list[str], target: Target, jobs: int, min_corners: i
     from concurrent.futures import ProcessPoolExecutor
 
     chunk = max(1, min(8, len(paths) // (jobs * 6)))
-    ex = ProcessPoolExecutor(max_workers=jobs, mp_context=_pool_context(), initializer=_init_worker,
-                             initargs=(target, min_corners, refine))
+    ex = None
     try:
-        results = ex.map(_work, paths, chunksize=chunk)  # submits all, workers start now; yields in input order
+        with _interrupts_deferred():  # a worker interrupted while it starts prints a traceback
+            ex = ProcessPoolExecutor(max_workers=jobs, mp_context=_pool_context(), initializer=_init_worker,
+                                     initargs=(target, min_corners, refine))
+            results = ex.map(_work, paths, chunksize=chunk)  # submits all, workers start now; yields in order
         bar.start()  # after the workers started: no progress-bar thread is copied into them
         out = []
         for r in results:
             out.append(r)
             bar.advance()
     except BaseException:
-        ex.shutdown(wait=False, cancel_futures=True)
+        # wait: workers finish their chunk and exit; a process still starting when this one
+        # exits finds its queue's semaphore gone and prints a traceback
+        if ex is not None:
+            ex.shutdown(wait=True, cancel_futures=True)
         raise
     ex.shutdown(wait=True)
     return out
+
+
+@contextlib.contextmanager
+def _interrupts_deferred():
+    """Hold SIGINT and SIGTERM for the duration, then act on them as their handlers would
+    have (KeyboardInterrupt, the CLI's Terminated, or the default action)."""
+    caught: list[int] = []
+    wanted = (signal.SIGINT, signal.SIGTERM)
+    try:
+        previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in wanted}
+    except ValueError:  # not the main thread: signals are not ours to change
+        yield
+        return
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if caught:
+            handler = previous[caught[0]]
+            if callable(handler):
+                handler(caught[0], None)
+            elif handler == signal.SIG_DFL:
+                signal.raise_signal(caught[0])
 
 
 class _Progress:

@@ -1,0 +1,722 @@
+"""Bad input and faults (issue 7): one test per row of the fault table (README, Robustness).
+
+Every command either works around the fault and says what it skipped, or stops with
+one stderr line (file, key, expected vs got) and exit code 2 (bad input) or 1 (the
+work failed); no traceback reaches the user and nothing is half-written.
+
+One small rendered dataset (drone-stereo-back, room scene, 12 frames) is made once per
+session and copied into each test's tmp_path before a fault is planted. Commands run
+in-process through typer's CliRunner, except where the fault lives at the process
+level (signals, libpng writing to the stderr file descriptor): those run `python -m
+rigcal` in a subprocess."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from rigcal import geometry as geo
+from rigcal.calibrate import warnings_for
+from rigcal.cli import app
+from rigcal.compare import compare_rigs, load_truth
+from rigcal.core import ViewIn, calibrate_views
+from rigcal.dataset import list_dataset
+from rigcal.detect import detect_dataset
+from rigcal.io import atomic_dir, atomic_write_text
+from rigcal.rig import dump_rig, load_rig
+from rigcal.simulate import simulate_dataset
+from rigcal.target import load_target
+
+ROOT = Path(__file__).resolve().parent.parent
+RIG = ROOT / "rigs" / "drone-stereo-back.yaml"
+CALIBRATED = ROOT / "tests" / "golden" / "drone-stereo-back-calibrated.yaml"
+BUMBLEBEE = ROOT.parent / "shared" / "data" / "real" / "boofcv_bumblebee2_stereo_chess"
+CAMERAS = ("front_left", "front_right", "back")
+FRAMES = 12
+JOBS = 2
+RUNNER = CliRunner()
+# stderr lines that are progress, not messages
+PROGRESS = re.compile(r"^(detecting|rendering|calibrating \d+ cameras)\b")
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def cli(*args):
+    return RUNNER.invoke(app, [str(a) for a in args])
+
+
+def no_traceback(stdout: str, stderr: str) -> None:
+    assert "Traceback" not in stdout + stderr, stderr[-3000:]
+
+
+def error_line(result, code: int, *needles: str) -> str:
+    """The one error line of a failed command; checks the exit code and that nothing else
+    but progress reached stderr."""
+    no_traceback(result.stdout, result.stderr)
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    assert result.exit_code == code, (result.exit_code, result.stdout[-2000:], result.stderr[-2000:])
+    return one_error_line(result.stderr, *needles)
+
+
+def one_error_line(stderr: str, *needles: str) -> str:
+    lines = [ln for ln in stderr.splitlines() if ln.strip() and not PROGRESS.match(ln)]
+    assert len(lines) == 1, stderr
+    line = lines[0]
+    assert line.startswith("rigcal: "), line
+    for n in needles:
+        assert n in line, (n, line)
+    return line
+
+
+def copy_dataset(src: Path, dst: Path, frames=None) -> Path:
+    """Copy a dataset (rig.yaml, target.yaml, truth.yaml, images/), optionally only some frame stems."""
+    keep = None if frames is None else {f"{f}.png" for f in frames}
+
+    def ignore(folder, names):
+        if keep is None or Path(folder).parent.name != "images":
+            return []
+        return [n for n in names if n not in keep]
+
+    shutil.copytree(src, dst, ignore=ignore)
+    return dst
+
+
+def frames_with_views(det, cam: str) -> list[str]:
+    return sorted({v.frame for v in det.views if v.camera == cam})
+
+
+def leftovers(folder: Path) -> list[str]:
+    """Temporary files or folders an atomic writer left behind."""
+    return sorted(p.name for p in Path(folder).iterdir() if p.name.endswith(".tmp"))
+
+
+def corrupt_png(path: Path) -> None:
+    """Flip bits in the middle of a PNG's image data (a CRC failure, not a truncation)."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+# ----------------------------------------------------------------------------- session data
+
+
+@pytest.fixture(scope="session")
+def sim(tmp_path_factory) -> Path:
+    """The clean dataset: drone-stereo-back, room scene, 12 frames (read-only: copy it)."""
+    out = tmp_path_factory.mktemp("faults") / "clean"
+    simulate_dataset(load_rig(RIG), out, scene="room", frames=FRAMES, seed=1, jobs=JOBS)
+    return out
+
+
+@pytest.fixture(scope="session")
+def clean_det(sim):
+    rig = load_rig(sim / "rig.yaml")
+    return detect_dataset(list_dataset(sim, rig), load_target(sim / "target.yaml"), rig=rig, jobs=JOBS,
+                          progress=False)
+
+
+TRUNCATED = "images/front_left/000003.png"
+GARBAGE = "images/back/000005.png"
+BAD_CRC = "images/front_right/000006.png"
+BLACK = "images/front_right/000004.png"
+WHITE = "images/back/000007.png"
+MISSING = "images/front_right/000009.png"
+
+
+@pytest.fixture(scope="session")
+def faulted(sim, tmp_path_factory):
+    """`rigcal calibrate` (a subprocess: libpng writes to the stderr descriptor itself) on the
+    dataset with a truncated PNG, a file of random bytes, a PNG failing its CRC, an
+    all-black and an all-white image and one frame missing for one camera."""
+    ds = copy_dataset(sim, tmp_path_factory.mktemp("faulted") / "ds")
+    p = ds / TRUNCATED
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])
+    (ds / GARBAGE).write_bytes(np.random.default_rng(7).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    corrupt_png(ds / BAD_CRC)
+    cv2.imwrite(str(ds / BLACK), np.zeros((480, 640), np.uint8))
+    cv2.imwrite(str(ds / WHITE), np.full((480, 640), 255, np.uint8))
+    (ds / MISSING).unlink()
+    out = ds.parent / "out.yaml"
+    proc = subprocess.run([sys.executable, "-m", "rigcal", "calibrate", str(ds), "--out", str(out), "--jobs",
+                           str(JOBS)], capture_output=True, text=True, timeout=600)
+    return ds, out, proc
+
+
+def summary_line(stdout: str, cam: str) -> str:
+    return next(ln for ln in stdout.splitlines() if ln.strip().startswith(f"{cam}: ") and "images" in ln)
+
+
+# ----------------------------------------------------------------------------- images
+
+
+def test_truncated_or_corrupt_image_is_skipped_with_one_warning_and_counted(faulted):
+    ds, out, proc = faulted
+    no_traceback(proc.stdout, proc.stderr)
+    assert proc.returncode == 0, proc.stderr
+    assert "libpng" not in proc.stderr  # the decoder's own stderr line is not let through
+    skipped = [ln for ln in proc.stderr.splitlines() if ln.startswith("warning: ") and "skipped" in ln]
+    assert len(skipped) == 3, proc.stderr
+    for rel, why in ((TRUNCATED, "truncated PNG"), (GARBAGE, "not a readable image"), (BAD_CRC, "CRC")):
+        mine = [ln for ln in skipped if str(ds / rel) in ln]
+        assert len(mine) == 1 and why in mine[0], (rel, skipped)
+        assert f"skipped {ds / rel}" in proc.stdout  # and listed in the summary
+    assert "1 unreadable" in summary_line(proc.stdout, "front_left")
+    assert "1 unreadable" in summary_line(proc.stdout, "front_right")
+    assert "1 unreadable" in summary_line(proc.stdout, "back")
+    assert load_rig(out).names == CAMERAS
+
+
+def test_black_and_white_images_give_no_detection_counted_without_warnings(faulted, clean_det, capfd):
+    ds, out, proc = faulted
+    assert proc.returncode == 0, proc.stderr
+    for rel in (BLACK, WHITE):
+        assert rel.split("/")[-1] not in proc.stderr.replace(Path(TRUNCATED).name, "").replace(
+            Path(GARBAGE).name, "").replace(Path(BAD_CRC).name, ""), proc.stderr
+    # counted among the images without a board: one more than the clean dataset has
+    for cam, rel in (("front_right", BLACK), ("back", WHITE)):
+        n = clean_det.no_board[cam] + 1
+        assert f"{n} without a board" in summary_line(proc.stdout, cam), (cam, proc.stdout)
+    # the library: no view, counted, nothing printed
+    rig = load_rig(ds / "rig.yaml")
+    sub = copy_dataset(ds, ds.parent / "flat", frames=["000004", "000007"])
+    for cam in CAMERAS:
+        for f in (sub / "images" / cam).iterdir():
+            if f"images/{cam}/{f.name}" not in (BLACK, WHITE):
+                f.unlink()
+    (sub / "images" / "front_left" / "000004.png").write_bytes((ds / BLACK).read_bytes())
+    capfd.readouterr()
+    det = detect_dataset(list_dataset(sub, rig), load_target(sub / "target.yaml"), rig=rig, jobs=1, progress=False)
+    assert capfd.readouterr() == ("", "")
+    assert det.views == [] and det.unreadable == []
+    assert det.no_board == {"front_left": 1, "front_right": 1, "back": 1}
+
+
+def test_image_size_differs_from_rig_resolution(sim, tmp_path):
+    ds = copy_dataset(sim, tmp_path / "ds", frames=["000000", "000001", "000002"])
+    p = ds / "images" / "back" / "000001.png"
+    cv2.imwrite(str(p), cv2.resize(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), (800, 600)))
+    r = cli("calibrate", ds, "--out", tmp_path / "out.yaml", "--jobs", 1)
+    error_line(r, 2, str(p), "camera back", "800x600", "640x480", "--allow-resize")
+    # --allow-resize scales a camera whose images all have another size; one odd image is refused
+    r = cli("calibrate", ds, "--out", tmp_path / "out.yaml", "--jobs", 1, "--allow-resize")
+    error_line(r, 2, str(p), "camera back", "two sizes", "640x480", "800x600")
+    assert not (tmp_path / "out.yaml").exists()
+
+
+def test_allow_resize_calibrates_images_of_another_size(sim, clean_det, tmp_path):
+    ds = copy_dataset(sim, tmp_path / "ds", frames=frames_with_views(clean_det, "back")[:7])
+    for p in (ds / "images" / "back").iterdir():
+        img = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        cv2.imwrite(str(p), cv2.resize(img, (800, 600), interpolation=cv2.INTER_CUBIC))
+    out = tmp_path / "out.yaml"
+    r = cli("calibrate", ds, "--out", out, "--jobs", JOBS, "--allow-resize")
+    no_traceback(r.stdout, r.stderr)
+    assert r.exit_code == 0, r.stderr[-3000:]
+    cal = load_rig(out)
+    true = load_truth(ds / "truth.yaml").rig.camera("back").intrinsics
+    m = cal.camera("back").intrinsics
+    assert (m.width, m.height) == (800, 600)
+    s = 800 / 640
+    assert m.fx == pytest.approx(s * true.fx, rel=0.01) and m.fy == pytest.approx(s * true.fy, rel=0.01)
+    assert m.cx == pytest.approx((true.cx + 0.5) * s - 0.5, abs=3.0)
+    assert m.cy == pytest.approx((true.cy + 0.5) * s - 0.5, abs=3.0)
+    assert cal.camera("front_left").intrinsics.width == 640
+    assert cal.camera("back").calibration["reprojection_rms_px"] < 0.1
+
+
+# ----------------------------------------------------------------------------- layout
+
+
+@pytest.mark.parametrize("change, needles", [
+    ("rename", ["images/rear/", "camera back", "images/back/"]),
+    ("extra", ["images/left_cam/", "not a camera of the rig"]),
+    ("drop", ["camera back", "no folder images/back/"]),
+])
+def test_camera_folders_must_match_the_rig(sim, tmp_path, change, needles):
+    ds = copy_dataset(sim, tmp_path / "ds", frames=["000000"])
+    if change == "rename":
+        (ds / "images" / "back").rename(ds / "images" / "rear")
+    elif change == "extra":
+        shutil.copytree(ds / "images" / "back", ds / "images" / "left_cam")
+    else:
+        shutil.rmtree(ds / "images" / "back")
+    error_line(cli("calibrate", ds, "--out", tmp_path / "o.yaml"), 2, *needles)
+    assert not (tmp_path / "o.yaml").exists()
+
+
+def test_frame_missing_for_one_camera_is_fine(faulted):
+    ds, out, proc = faulted
+    assert proc.returncode == 0, proc.stderr
+    assert not (ds / MISSING).exists()
+    assert summary_line(proc.stdout, "front_right").split(":", 1)[1].strip().startswith(f"{FRAMES - 1} images")
+    assert summary_line(proc.stdout, "front_left").split(":", 1)[1].strip().startswith(f"{FRAMES} images")
+    assert str(ds / MISSING) not in proc.stdout + proc.stderr
+    cal = load_rig(out)
+    assert cal.camera("front_right").calibration["frames"] <= FRAMES - 1
+    errors = compare_rigs(cal, load_truth(ds / "truth.yaml").rig)["pairs"][("front_left", "front_right")]
+    assert errors["rot_deg"] < 0.05 and errors["trans_mm"] < 0.5, errors
+
+
+# ----------------------------------------------------------------------------- target and coverage
+
+
+def test_wrong_dictionary_exits_1_with_the_likely_cause(sim, tmp_path):
+    ds = copy_dataset(sim, tmp_path / "ds", frames=["000000", "000001"])
+    t = ds / "target.yaml"
+    t.write_text(t.read_text().replace("DICT_5X5_1000", "DICT_4X4_1000"))
+    r = cli("calibrate", ds, "--out", tmp_path / "o.yaml", "--jobs", 1)
+    error_line(r, 1, "no board detected in any of 2 images of camera front_left; check target.yaml "
+                     "(dictionary, squares, legacy_pattern)", "markers of DICT_5X5_1000 found",
+               "target.yaml says DICT_4X4_1000")
+    assert not (tmp_path / "o.yaml").exists()
+
+
+def test_wrong_board_size_exits_1_with_the_likely_cause(sim, tmp_path):
+    ds = copy_dataset(sim, tmp_path / "ds", frames=["000000", "000001", "000002"])
+    t = ds / "target.yaml"
+    t.write_text(t.read_text().replace("squares: [9, 6]", "squares: [6, 9]"))
+    r = cli("calibrate", ds, "--out", tmp_path / "o.yaml", "--jobs", 1)
+    error_line(r, 1, "no board detected in any of 3 images of camera front_left; check target.yaml",
+               "corners appear with squares: [9, 6]")
+
+
+def test_camera_with_boards_in_fewer_than_3_frames_exits_1(sim, clean_det, tmp_path):
+    back = frames_with_views(clean_det, "back")[:2]
+    front = [f for f in frames_with_views(clean_det, "front_left") if f in frames_with_views(clean_det, "front_right")
+             and f not in back][:3]
+    ds = copy_dataset(sim, tmp_path / "ds", frames=back + front)
+    for p in (ds / "images" / "back").iterdir():
+        if p.stem not in back:
+            p.unlink()
+    r = cli("calibrate", ds, "--out", tmp_path / "o.yaml", "--jobs", 1)
+    error_line(r, 1, "back:", "only 2 frame(s)", "--fix-intrinsics")
+    assert not (tmp_path / "o.yaml").exists()
+
+
+# ----------------------------------------------------------------------------- the solve
+
+
+def _stereo_views(poses, rig_true, corners, rng, noise_px=0.1) -> list[ViewIn]:
+    views = []
+    for f, T_body_board in enumerate(poses):
+        for cam in rig_true.cameras:
+            p_cam = geo.transform(geo.inv_T(cam.T_body_cam) @ T_body_board, corners)
+            uv, valid = cam.intrinsics.project(p_cam)
+            ok = valid & cam.intrinsics.in_image(uv, margin=2)
+            if ok.sum() >= 8:
+                ids = np.nonzero(ok)[0]
+                views.append(ViewIn(cam.name, f"{f:06d}", "b", ids, uv[ok] + rng.normal(0, noise_px, (len(ids), 2))))
+    return views
+
+
+def test_degenerate_motion_calibrates_and_warns_what_is_poorly_constrained():
+    """Eight frames of a board in nearly the same pose in front of a stereo pair: the focal
+    length and the cameras' depth are not observable; calibrate must finish and say so.
+    The same board moved properly gives no warning."""
+    declared = load_rig(RIG)
+    declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
+    rng = np.random.default_rng(3)
+    cams = []
+    for c in declared.cameras:  # the truth: other focal lengths, some distortion, mounting errors
+        m = c.intrinsics.with_(fx=c.intrinsics.fx * 1.02, fy=c.intrinsics.fy * 1.021, dist=(-0.02, 0.01, 0, 0, 0))
+        T = c.T_body_cam.copy()
+        T[:3, 3] += rng.normal(0, 0.003, 3)
+        cams.append(replace(c, intrinsics=m, T_body_cam=T))
+    true = declared.with_cameras(cams)
+    nx, ny, s = 8, 5, 0.06
+    k = np.arange(nx * ny)
+    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
+
+    def pose(rotvec, dist, shift):
+        R = geo.R_from_rotvec(rotvec)
+        return declared.cameras[0].T_body_cam @ geo.make_T(R, np.array([shift[0] + 0.05, shift[1], dist])
+                                                           - R @ corners.mean(0))
+
+    still = [pose(rng.normal(0, np.radians(0.3), 3), 1.0 + rng.normal(0, 0.003), rng.normal(0, 0.003, 2))
+             for _ in range(8)]
+    cal = calibrate_views(_stereo_views(still, true, corners, rng), declared, {"b": corners})
+    assert np.isfinite(cal.rms_px) and cal.rms_px < 0.3
+    warns = warnings_for(cal)
+    for cam in ("front_left", "front_right"):
+        assert any(w.startswith(f"{cam}: focal length fx is poorly constrained") for w in warns), warns
+        assert any(w.startswith(f"{cam}: position along body F is poorly constrained") for w in warns), warns
+    moving = [pose(rng.normal(0, np.radians(25), 3), rng.uniform(0.6, 1.5), rng.normal(0, 0.15, 2))
+              for _ in range(8)]
+    good = calibrate_views(_stereo_views(moving, true, corners, rng), declared, {"b": corners})
+    assert warnings_for(good) == []
+
+
+def test_outlier_detections_are_rejected_and_counted(sim, clean_det):
+    """Real detections with a planted wrong corner id (two corners swapped) and a mirrored
+    board (every id reflected along the board's x): the solve rejects both and counts
+    them, and the rig comes out as accurate as it is without them."""
+    rig = load_rig(sim / "rig.yaml")
+    target = load_target(sim / "target.yaml")
+    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous)
+             for v in clean_det.views]
+    ki = max((k for k, v in enumerate(views) if v.camera == "front_left"), key=lambda k: len(views[k].ids))
+    v = views[ki]
+    a, b = int(np.argmin(v.ids)), int(np.argmax(v.ids))  # two corners far apart on the board
+    uv = v.uv.copy()
+    uv[[a, b]] = uv[[b, a]]
+    views[ki] = replace(v, uv=uv)
+    swapped = uv[[a, b]]
+    km = max((k for k, v in enumerate(views) if v.camera == "back"), key=lambda k: len(views[k].ids))
+    v = views[km]
+    nx = target.board(v.board).inner_corners[0]
+    mirrored = (v.ids // nx) * nx + (nx - 1 - v.ids % nx)
+    order = np.argsort(mirrored)
+    views[km] = replace(v, ids=mirrored[order], uv=v.uv[order])
+    planted_mirror = len(v.ids)
+
+    cal = calibrate_views(views, rig, {bd.name: bd.corners for bd in target.boards})
+    ci = cal.cam_names.index("front_left")
+    rows = [np.nonzero((cal.obs.cam == ci) & np.all(cal.obs.uv == p, axis=1))[0] for p in swapped]
+    assert all(len(r) == 1 and not cal.inliers[r[0]] for r in rows)
+    assert cal.stats["front_left"].outliers >= 2
+    assert cal.stats["back"].outliers >= planted_mirror
+    bi = cal.cam_names.index("back")
+    # none of the mirrored view's corners is used
+    mirror_uv = views[km].uv
+    used = cal.obs.uv[(cal.obs.cam == bi) & cal.inliers]
+    assert not (used[:, None, :] == mirror_uv[None]).all(-1).any()
+    errors = compare_rigs(cal.rig, load_truth(sim / "truth.yaml").rig)["pairs"]
+    for pair, e in errors.items():
+        assert e["rot_deg"] < 0.05 and e["trans_mm"] < 0.5, (pair, e)
+
+
+@pytest.mark.skipif(not BUMBLEBEE.is_dir(), reason="real data set ../shared/data/real not present")
+def test_symmetric_chessboard_order_is_resolved(tmp_path):
+    """BoofCV's Bumblebee2 set: a 5x7-square chessboard, the same turned by 180 degrees;
+    OpenCV returns pair 11's right corners in reverse. Calibrate must put them back in
+    order and use every frame: no outliers, the published 120.05 mm baseline."""
+    ds = tmp_path / "bb"
+    for cam in ("left", "right"):
+        (ds / "images" / cam).mkdir(parents=True)
+        for i in range(1, 12):
+            (ds / "images" / cam / f"{i:02d}.jpg").symlink_to(BUMBLEBEE / f"{cam}{i:02d}.jpg")
+    (ds / "rig.yaml").write_text("""rig: bumblebee2
+cameras:
+  left: {model: pinhole, resolution: [640, 480], intrinsics: {focal: 520.0}, position: [0, 0.06, 0], look: forward}
+  right: {model: pinhole, resolution: [640, 480], intrinsics: {focal: 520.0}, position: [0, -0.06, 0], look: forward}
+stereo_pairs: [[left, right]]
+""")
+    (ds / "target.yaml").write_text("boards:\n  - {type: chessboard, inner_corners: [6, 4], square_length: 0.03}\n")
+    out = tmp_path / "bb.yaml"
+    r = cli("calibrate", ds, "--out", out, "--jobs", 1)
+    no_traceback(r.stdout, r.stderr)
+    assert r.exit_code == 0, r.stderr
+    assert "11 with a 180-degree ambiguous order" in r.stdout
+    assert "1 view(s) had their corner order reversed" in r.stderr
+    cal = load_rig(out)
+    for cam in ("left", "right"):
+        assert cal.camera(cam).calibration["frames"] == 11
+        assert cal.camera(cam).calibration["outliers"] == 0
+    assert cal.stereo_pairs[0].baseline_m * 1000 == pytest.approx(120.05, abs=0.5)
+
+
+# ----------------------------------------------------------------------------- interrupts
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, IndexError, ValueError):
+            if int(stat.read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                out.append(int(stat.parent.name))
+    return out
+
+
+def _descendants(pid: int) -> list[int]:
+    out, todo = [], [pid]
+    while todo:
+        kids = _children(todo.pop())
+        out += kids
+        todo += kids
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _wait_for(cond, timeout: float = 120.0, what: str = "") -> None:
+    t0 = time.monotonic()
+    while not cond():
+        assert time.monotonic() - t0 < timeout, f"timed out waiting for {what}"
+        time.sleep(0.05)
+
+
+@pytest.mark.parametrize("command, sig, to_group, when", [
+    # Ctrl-C: the terminal signals the whole process group; as the worker pool starts
+    ("calibrate", signal.SIGINT, True, "starting"),
+    ("calibrate", signal.SIGTERM, False, "working"),  # kill PID, while the workers detect
+    ("simulate", signal.SIGINT, True, "working"),
+    ("simulate", signal.SIGTERM, False, "working"),
+])
+def test_interrupt_leaves_no_output_and_no_temporary_files(sim, tmp_path, command, sig, to_group, when):
+    if command == "calibrate":
+        out = tmp_path / "out.yaml"
+        args = ["calibrate", str(sim), "--out", str(out), "--report", str(tmp_path / "r.html"), "--jobs", str(JOBS)]
+    else:  # one camera: the first image is soon there
+        out = tmp_path / "sim"
+        rig = _write(tmp_path / "tiny.yaml", "cameras:\n  cam: {model: pinhole, resolution: [640, 480], "
+                                             "intrinsics: {focal: 400.0}, position: [0, 0, 0], look: forward}\n")
+        args = ["simulate", str(rig), "--out", str(out), "--frames", "12", "--jobs", str(JOBS)]
+    proc = subprocess.Popen([sys.executable, "-m", "rigcal", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        if command == "calibrate" and when == "starting":  # the first helper process appears
+            _wait_for(lambda: _children(proc.pid) or proc.poll() is not None, what="the worker pool")
+        elif command == "calibrate":  # workers (children of the forkserver) are detecting
+            _wait_for(lambda: len(_descendants(proc.pid)) >= 3 or proc.poll() is not None, what="detection workers")
+        else:  # rendering into the temporary dataset folder
+            _wait_for(lambda: any(tmp_path.glob(".sim.*.tmp/images/*/*.png")) or proc.poll() is not None,
+                      what="the first rendered image")
+        assert proc.poll() is None, "finished before it could be interrupted"
+        workers = _descendants(proc.pid)
+        if to_group:
+            os.killpg(proc.pid, sig)
+        else:
+            os.kill(proc.pid, sig)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    no_traceback(stdout, stderr)
+    assert proc.returncode == 128 + sig, (proc.returncode, stderr)
+    one_error_line(stderr, "no partial output was left behind")
+    assert not out.exists() and not (tmp_path / "r.html").exists()
+    assert leftovers(tmp_path) == []
+    if command == "simulate":
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["tiny.yaml"]
+    _wait_for(lambda: not any(_alive(w) for w in workers), timeout=30, what="worker processes to end")
+
+
+def test_interrupt_while_writing_leaves_nothing(tmp_path, monkeypatch):
+    def interrupted(fd):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(os, "fsync", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write_text(tmp_path / "out.yaml", "x" * 100000)
+    with pytest.raises(KeyboardInterrupt):
+        with atomic_dir(tmp_path / "dataset") as d:
+            (d / "rig.yaml").write_text("x")
+            raise KeyboardInterrupt
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- outputs
+
+
+def _commands(sim: Path, tmp: Path, out: Path) -> dict[str, list]:
+    """Every command that writes, each writing to `out` (a file or folder path)."""
+    camchain = tmp / "camchain.yaml"
+    if not camchain.exists():
+        assert cli("export", CALIBRATED, "--format", "kalibr", "--out", camchain).exit_code == 0
+    return {
+        "calibrate": ["calibrate", sim, "--out", out, "--jobs", 1],
+        "simulate": ["simulate", RIG, "--out", out, "--frames", 2, "--jobs", 1],
+        "export": ["export", CALIBRATED, "--format", "json", "--out", out],
+        "export-ros": ["export", CALIBRATED, "--format", "ros", "--out", out],
+        "board": ["board", sim / "target.yaml", "--out", out.with_suffix(".png"), "--dpi", 50],
+        "view": ["view", RIG, "--out", out],
+        "import": ["import", camchain, "--rig", RIG, "--out", out],
+    }
+
+
+@pytest.mark.parametrize("command", ["calibrate", "simulate", "export", "export-ros", "board", "view", "import"])
+def test_unwritable_output_exits_2_before_any_work(sim, tmp_path, command):
+    # tests run as root, where a 0500 folder does not stop a write: a regular file in the
+    # path does, for everyone
+    blocker = tmp_path / "a_file"
+    blocker.write_text("keep me")
+    args = _commands(sim, tmp_path, blocker / "out")[command]
+    t0 = time.perf_counter()
+    error_line(cli(*args), 2, str(blocker))
+    assert blocker.read_text() == "keep me"
+    if command == "calibrate":  # refused up front, not after minutes of detection
+        assert time.perf_counter() - t0 < 5.0
+    assert leftovers(tmp_path) == []
+
+
+def test_output_under_proc_exits_2(sim, tmp_path):
+    error_line(cli("export", CALIBRATED, "--format", "json", "--out", "/proc/rigcal-test.json"), 2,
+               "/proc/rigcal-test.json")
+
+
+@pytest.fixture
+def full_disk(tmp_path, monkeypatch):
+    """A folder on a full file system: a 64 KiB tmpfs filled up when this process may
+    mount one, else a folder where every rename fails with ENOSPC."""
+    mnt = tmp_path / "full"
+    mnt.mkdir()
+    mounted = os.geteuid() == 0 and shutil.which("mount") and subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True).returncode == 0
+    if mounted:
+        with contextlib.suppress(OSError), open(mnt / "filler", "wb") as f:
+            while True:
+                f.write(b"\0" * 4096)
+                f.flush()
+    else:
+        real_replace = os.replace
+
+        def no_space(src, dst, *a, **k):
+            if str(mnt) in str(dst):
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+            return real_replace(src, dst, *a, **k)
+
+        monkeypatch.setattr(os, "replace", no_space)
+    try:
+        yield mnt
+    finally:
+        if mounted:
+            subprocess.run(["umount", str(mnt)], check=False)
+
+
+@pytest.mark.parametrize("command", ["calibrate", "simulate", "export", "board"])
+def test_disk_full_exits_2_and_leaves_nothing(sim, clean_det, tmp_path, full_disk, command):
+    before = sorted(p.name for p in full_disk.iterdir())
+    src = sim
+    if command == "calibrate":  # a short dataset: the write comes after the whole calibration
+        frames = [f for f in frames_with_views(clean_det, "back")
+                  if all(f in frames_with_views(clean_det, c) for c in CAMERAS)][:6]
+        src = copy_dataset(sim, tmp_path / "ds", frames=frames)
+    out = full_disk / ("sim" if command == "simulate" else "out.yaml")
+    # simulate's images are written by cv2.imwrite, which gives no reason
+    why = "cannot write" if command == "simulate" else os.strerror(errno.ENOSPC)
+    error_line(cli(*_commands(src, tmp_path, out)[command]), 2, str(full_disk), why)
+    assert sorted(p.name for p in full_disk.iterdir()) == before
+
+
+# ----------------------------------------------------------------------------- input files
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text)
+    return path
+
+
+def _sub(path: Path, old: str, new: str) -> str:
+    """The file's text with the first `old` (a regular expression after "re:") replaced."""
+    text = path.read_text()
+    pattern = old[3:] if old.startswith("re:") else re.escape(old)
+    assert re.search(pattern, text), (old, path)
+    return re.sub(pattern, lambda m: new, text, count=1)
+
+
+MALFORMED = {
+    # name: (file to break, old, new, command, needles)
+    "rig": ("rig", "fx: 300.0", "fx: three hundred", "calibrate",
+            ["rig.yaml", "cameras.front_left.intrinsics.fx", "expected a number", "got text 'three hundred'"]),
+    "rig-syntax": ("rig", "resolution: [640, 480]", "resolution: [640, 480", "calibrate",
+                   ["rig.yaml", "not valid YAML at line"]),
+    "target": ("target", "squares: [9, 6]", "squares: [9]", "calibrate",
+               ["target.yaml", "boards[0].squares", "expected two integers", "got"]),
+    "target-key": ("target", "marker_length:", "marker_size:", "calibrate",
+                   ["target.yaml", "boards[0].marker_size", "unknown key"]),
+    "calibrated-export": ("calibrated", "position: [0.1012, 0.0497, 0.0103]", "position: [0.1012, 0.0497]", "export",
+                          ["cal.yaml", "cameras.front_left.position", "expected 3 numbers", "got [0.1012, 0.0497]"]),
+    "calibrated-project": ("calibrated", "quaternion: [", "quaternion: [2, ", "project",
+                           ["cal.yaml", "cameras.front_left", "quaternion"]),
+    "calibrated-view": ("calibrated", "model: pinhole", "model: pinhole2", "view",
+                        ["cal.yaml", "cameras.front_left.model", "pinhole2"]),
+    "truth-compare": ("truth", "boards:", "boards: 1\nold_boards:", "compare", ["truth.yaml", "boards", "expected"]),
+    "camchain-import": ("camchain", "camera_model: pinhole", "camera_model: [pinhole]", "import",
+                        ["camchain.yaml", "cam0.camera_model"]),
+    "target-board": ("target", "square_length: 0.144", "square_length: '0.144'", "board",
+                     ["target.yaml", "boards[0].square_length", "expected a number", "got text '0.144'"]),
+    "rig-simulate": ("rig", "resolution: [640, 480]", "resolution: [640, -480]", "simulate",
+                     ["rig.yaml", "cameras.front_left.resolution", "-480"]),
+}
+NONFINITE = {
+    "rig": ("rig", "fx: 300.0", "fx: .nan", "calibrate", ["rig.yaml", "cameras.front_left.intrinsics.fx", "finite"]),
+    "target": ("target", "square_length: 0.144", "square_length: .inf", "calibrate",
+               ["target.yaml", "boards[0].square_length", "finite"]),
+    "calibrated-export": ("calibrated", "position: [0.1012", "position: [.nan", "export",
+                          ["cal.yaml", "cameras.front_left.position[0]", "finite"]),
+    "calibrated-stats": ("calibrated", "reprojection_rms_px:", "reprojection_rms_px: -.inf\n      old_rms:", "project",
+                         ["cal.yaml", "reprojection_rms_px", "finite"]),
+    "truth-compare": ("truth", r"re:position: \[[^,]+,", "position: [.inf,", "compare",
+                      ["truth.yaml", "cameras.front_left.position[0]", "finite"]),
+    "camchain-import": ("camchain", "intrinsics: [", "intrinsics: [.nan, ", "import",
+                        ["camchain.yaml", "cam0.intrinsics", "finite"]),
+    "rig-view": ("rig", "position: [0.1, 0.05, 0.01]", "position: [0.1, .inf, 0.01]", "view",
+                 ["rig.yaml", "cameras.front_left.position[1]", "finite"]),
+}
+
+
+def _broken_inputs(sim: Path, tmp: Path, which: str, old: str, new: str) -> dict[str, Path]:
+    """Input files (the dataset's rig and target, a calibrated rig, a truth.yaml, a Kalibr
+    camchain) in tmp, with one of them edited."""
+    ds = copy_dataset(sim, tmp / "ds", frames=["000000"])
+    files = {"rig": ds / "rig.yaml", "target": ds / "target.yaml", "truth": ds / "truth.yaml",
+             "calibrated": _write(tmp / "cal.yaml", CALIBRATED.read_text()), "camchain": tmp / "camchain.yaml"}
+    assert cli("export", CALIBRATED, "--format", "kalibr", "--out", files["camchain"]).exit_code == 0
+    _write(files[which], _sub(files[which], old, new))
+    files["dataset"] = ds
+    return files
+
+
+def _command(command: str, which: str, f: dict[str, Path], tmp: Path) -> list:
+    return {
+        "calibrate": ["calibrate", f["dataset"], "--out", tmp / "o.yaml", "--jobs", 1],
+        "export": ["export", f["calibrated"], "--format", "json", "--out", tmp / "o.json"],
+        "project": ["project", f["calibrated"], "--position", 0, 0, 10, "--heading", 0, "--point", 3, 10, 12],
+        "view": ["view", f["calibrated"] if which == "calibrated" else f["rig"], "--out", tmp / "o.html"],
+        "compare": ["compare", f["calibrated"], f["truth"]],
+        "import": ["import", f["camchain"], "--rig", RIG, "--out", tmp / "o.yaml"],
+        "board": ["board", f["target"], "--out", tmp / "o.png", "--dpi", 50],
+        "simulate": ["simulate", f["rig"], "--out", tmp / "o", "--frames", 2, "--jobs", 1],
+    }[command]
+
+
+def _check_input_case(sim, tmp_path, case):
+    which, old, new, command, needles = case
+    f = _broken_inputs(sim, tmp_path, which, old, new)
+    error_line(cli(*_command(command, which, f, tmp_path)), 2, *needles)
+    assert not any(p.name.startswith("o.") or p.name == "o" for p in tmp_path.iterdir())
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.parametrize("case", [MALFORMED[k] for k in sorted(MALFORMED)], ids=sorted(MALFORMED))
+def test_malformed_yaml_is_one_line_with_file_key_and_expected(sim, tmp_path, case):
+    _check_input_case(sim, tmp_path, case)
+
+
+@pytest.mark.parametrize("name", sorted(NONFINITE))
+def test_nan_and_inf_are_refused_at_load(sim, tmp_path, name):
+    _check_input_case(sim, tmp_path, NONFINITE[name])
+
+
+@pytest.mark.parametrize("args, needles", [
+    (["project", RIG, "--position", "nan", 0, 0, "--heading", 0, "--point", 1, 2, 3], ["--position", "finite"]),
+    (["project", RIG, "--position", 0, 0, 0, "--heading", "inf", "--point", 1, 2, 3], ["--heading", "finite"]),
+    (["simulate", RIG, "--out", "never", "--noise", "nan"], ["--noise", "nan"]),
+    (["simulate", RIG, "--out", "never", "--blur", "inf"], ["--blur", "inf"]),
+])
+def test_nan_and_inf_options_are_refused(tmp_path, args, needles):
+    error_line(cli(*args), 2, *needles)
+    assert not Path("never").exists()
