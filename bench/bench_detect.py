@@ -5,7 +5,8 @@
     python bench/bench_detect.py --real-rms      # mono calibration RMS on the real sets per refinement
 
 Throughput is images per second of `detect_dataset` end to end (reading, detection,
-refinement; the process pool's start-up included) on: the samples/real/ chessboard
+refinement; the process pool's start-up included), and for jobs 1 the CPU time per
+image (which other load on the machine barely changes), on: the samples/real/ chessboard
 sets, the caliscope ChArUco frames and the wide-angle ChArUco set from
 ../shared/data/real (when present), and a `rigcal simulate` room dataset. The
 machine's load average is printed beside it: other work on the machine inflates it.
@@ -82,12 +83,17 @@ def throughput(jobs_list: list[int], sim_frames: int) -> None:
             target = load_target(path / "target.yaml")
             images = list_dataset(path, rig)
             for jobs in jobs_list:
+                cpu0 = time.process_time()
                 res = detect_dataset(images, target, rig=rig, jobs=jobs, progress=False)
+                cpu = time.process_time() - cpu0
                 n = sum(res.n_images.values())
                 corners = sum(len(v.ids) for v in res.views)
+                # CPU time of this process: the whole work when serial (a figure other load
+                # on the machine barely moves); workers of a pool are not its children
+                cpu_s = f", {1000 * cpu / n:.0f} ms CPU per image" if res.jobs == 1 else ""
                 print(f"{name}: {n} images ({'/'.join(f'{w}x{h}' for w, h in sorted(set(res.image_size.values())))}), "
-                      f"jobs {jobs}: {res.seconds:.2f} s, {n / res.seconds:.1f} images/s; {len(res.views)} views, "
-                      f"{corners} corners; {_load()}", flush=True)
+                      f"jobs {res.jobs}: {res.seconds:.2f} s, {n / res.seconds:.1f} images/s{cpu_s}; "
+                      f"{len(res.views)} views, {corners} corners; {_load()}", flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 

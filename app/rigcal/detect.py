@@ -74,6 +74,7 @@ BEND_REL = 1.0
 BEND_SIGMA = 1.0
 BEND_UNKNOWN = 1.0
 
+INVERTED_UNLESS = 4  # markers found as printed, below which the inverted image is searched too
 MIN_CLAIM_MARKERS = 3  # a lone decode in clutter or noise does not name a dictionary
 DIAGNOSE_DICTIONARIES = (
     "DICT_4X4_50", "DICT_4X4_100", "DICT_4X4_250", "DICT_4X4_1000",
@@ -551,8 +552,11 @@ class _CharucoGroup:
     def detect(self, gray: np.ndarray) -> list[tuple[Board, np.ndarray, np.ndarray]]:
         found = [self.markers(gray)]
         per_board = [self._select(found[0], r) for r in self.ranges]
-        if any(len(ids) == 0 for _, ids in per_board):
-            # No marker of a board: maybe it is printed inverted (white markers on black).
+        if sum(len(ids) for _, ids in per_board) < INVERTED_UNLESS:
+            # (Almost) no marker: maybe the boards are printed inverted (white markers on
+            # black). An image that shows a board as printed is not searched again: that
+            # pass would double the cost of every multi-board image for a target that
+            # mixes both kinds of print, which nobody makes.
             inv = self.markers(cv2.bitwise_not(gray))
             for k, r in enumerate(self.ranges):
                 alt = self._select(inv, r)
