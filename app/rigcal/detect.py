@@ -8,27 +8,29 @@ Pipeline per image:
 
 1. Read (any of png/jpg/bmp/tif, 8/16-bit, grey or colour) -> 8-bit grey. Unreadable
    files are skipped and counted; flat (all-black/all-white) images skip detection.
-2. ChArUco: ArUco markers are found once per dictionary (not once per board), and
-   each board interpolates its corners from its own marker ids with its own
-   CharucoDetector (legacy layout respected). A board with no markers in the image is
-   looked for again in the inverted image (white markers on black), so inverted
-   prints need no key in target.yaml.
-   Chessboard: findChessboardCornersSB, falling back to findChessboardCorners; the
+2. ChArUco: ArUco markers are found once per dictionary (not once per board), with the
+   dictionary cut to the target's own ids, and each board interpolates its corners
+   from its own markers with its own CharucoDetector (legacy layout respected). When
+   (almost) no marker shows as printed, the inverted image is searched too (white
+   markers on black), so inverted prints need no key in target.yaml.
+   Chessboard: findChessboardCorners, falling back to findChessboardCornersSB; the
    corner order is made right-handed and, for boards that are not 180-degree
    symmetric, turned so the black top-left square is first. Views of symmetric boards
    are flagged `ambiguous` (the solver resolves the order against the other cameras).
 3. Corner refinement (`refine`): "symmetric" (default) re-estimates every corner as the
    centre of point symmetry of the image inside a cross around the corner's two edge
-   lines, kept narrower than the white gap between squares and markers; "subpix" is
-   cv2.cornerSubPix with a window fitted to that gap; "none" keeps OpenCV's corners.
-   Measured on exact renders (tests/test_detect.py, README): OpenCV's ChArUco corners
-   are off by ~0.06-0.14 px RMS (the detector's cornerSubPix window reaches the
-   markers), "subpix" ~0.04-0.14, "symmetric" ~0.008-0.015.
+   lines, kept narrower than the white gap between squares and markers, with each
+   arm's bend (lens distortion) and a shading gradient fitted alongside; a corner it
+   cannot place is left out. "subpix" is cv2.cornerSubPix with a window fitted to the
+   gap; "none" keeps OpenCV's corners. Measured against exact truth (README, bench/
+   bench_detect.py --accuracy): OpenCV's ChArUco corners are off by 0.04-0.08 px RMS
+   on `rigcal simulate` renders (0.15 fisheye) with a per-view common offset of up to
+   0.04 px; "symmetric" 0.012 px (0.046 fisheye), per-view offset 0.003-0.005.
 4. Views with fewer than `min_corners` corners, or with (nearly) collinear corners,
    are dropped and counted.
 
-Work is spread over processes (`jobs`); each worker builds its OpenCV detectors once
-from the plain Target. Output order does not depend on scheduling.
+Work is spread over processes (`jobs`, forkserver workers); each builds its OpenCV
+detectors once from the plain Target. Output order does not depend on scheduling.
 """
 
 from __future__ import annotations
