@@ -1,0 +1,108 @@
+"""`python -m bench` (= `make bench`): every benchmark, every table.
+
+Sections (each also runs alone: python -m bench.<name>):
+
+  accuracy     4 simulated scenarios vs truth, the declared rig and the CRB (seed 0)
+  peer         OpenCV 5 cv2.calibrateMultiview on the same detections
+  speed        `rigcal calibrate` wall/CPU time on drone-stereo-back 60 frames
+  noise        error / Cramér-Rao bound over 10 seeds per scenario, with diagnostics
+  montecarlo   share of true errors inside the reported 2 sigma (synthetic + rendered)
+  scale        solver time and memory, 6 cameras x 100 .. 1000 frames
+  real         real photographs vs published references
+
+Tables go to stdout and, together, to bench/out/summary.md; numbers to
+bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
+a rerun skips them.
+
+    python -m bench [--only SECTION ...] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+from . import accuracy, montecarlo, noise_limit, peer_opencv, real, scale, speed
+from .common import OUT, machine, say, write_json
+
+SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--only", nargs="+", choices=SECTIONS, help="run only these sections")
+    ap.add_argument("--quick", action="store_true",
+                    help="fewer seeds and sizes (noise limit 3 seeds, Monte Carlo 10, scale up to 200 frames)")
+    a = ap.parse_args(argv)
+    todo = a.only or SECTIONS
+    t0 = time.perf_counter()
+    info = machine()
+    say(f"rigcal benchmarks - {info['date']}, {info['cpus']} CPUs, load average {info['load_avg_1_5_15']}, "
+        f"OpenCV {info['opencv']}, numpy {info['numpy']}, Python {info['python']}")
+    out: list[str] = []
+    timings = {}
+
+    def section(name: str, fn):
+        t = time.perf_counter()
+        text = fn()
+        timings[name] = time.perf_counter() - t
+        say(text)
+        say(f"\n({name}: {timings[name]:.0f} s)")
+        out.append(text)
+
+    acc = None
+    if "accuracy" in todo or "peer" in todo:
+        acc = accuracy.run(None if "accuracy" in todo else ["stereo-forward", "fisheye-stereo"])
+        write_json("accuracy", {"results": acc, "machine": info})
+        if "accuracy" in todo:
+            section("accuracy", lambda: accuracy.tables(acc))
+    if "peer" in todo:
+        def peer():
+            res = peer_opencv.run(accuracy=acc)
+            write_json("peer_opencv", {"results": res, "machine": info})
+            return peer_opencv.tables(res)
+        section("peer", peer)
+    if "speed" in todo:
+        def sp():
+            r = speed.run()
+            write_json("speed", r)
+            return speed.tables(r)
+        section("speed", sp)
+    nl = None
+    if "noise" in todo:
+        def noise():
+            nonlocal nl
+            nl = noise_limit.run(seeds=3 if a.quick else 10, diag_seeds=1 if a.quick else 3)
+            write_json("noise_limit", {**nl, "machine": info})
+            return noise_limit.tables(nl)
+        section("noise", noise)
+    if "montecarlo" in todo:
+        def mc():
+            r = montecarlo.run(seeds=10 if a.quick else 30)
+            write_json("montecarlo", {**r, "machine": info})
+            return montecarlo.tables(r, nl)
+        section("montecarlo", mc)
+    if "scale" in todo:
+        def sc():
+            r = scale.run((100, 200) if a.quick else scale.FRAMES)
+            write_json("scale", {"results": r, "machine": info})
+            return scale.tables(r)
+        section("scale", sc)
+    if "real" in todo:
+        def rl():
+            r = real.run()
+            write_json("real", {"results": r, "machine": info})
+            return real.tables(r)
+        section("real", rl)
+    total = time.perf_counter() - t0
+    head = (f"# rigcal benchmarks\n\n{info['date']}; {info['cpus']} CPUs; load average at start "
+            f"{info['load_avg_1_5_15']}; {info['platform']}; Python {info['python']}, OpenCV {info['opencv']}, "
+            f"numpy {info['numpy']}. Total {total:.0f} s (" +
+            ", ".join(f"{k} {v:.0f} s" for k, v in timings.items()) + ").\n")
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / "summary.md").write_text(head + "\n".join(out) + "\n", encoding="utf-8")
+    say(f"\nall benchmarks: {total:.0f} s; tables in {OUT / 'summary.md'}")
+
+
+if __name__ == "__main__":
+    main()

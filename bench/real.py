@@ -1,0 +1,236 @@
+"""Real photographs: calibrated values next to their published references.
+
+* samples/real/bumblebee2: baseline vs BoofCV's 120.05 mm (target: within 0.2 mm),
+  with --distortion auto, radial2, radtan4 and radtan5 side by side.
+* samples/real/opencv_stereo: baseline in squares vs 3.344 (scikit-surgeryimage's
+  |T| 100.31 / 30) and 3.345 (an OpenCV 5 stereoCalibrate re-run); target 0.5 %.
+* ../shared/data/real (linked into bench/out/real by samples/real/make_datasets.py):
+  stereo_calib_wideangle_charuco baseline vs the author's 75.0 mm (target 0.5 mm);
+  caliscope_4cam_charuco_a pairwise camera-centre distances and relative rotations
+  vs caliscope's own solution (target 2.5 cm / 2 deg; caliscope is itself only that
+  consistent); boofcv_trinocular_ecocheck baselines in squares vs a pairwise OpenCV
+  run (no published reference: a self-consistency check).
+
+Detections are cached per dataset (bench/out/cache/real-*), keyed like the simulated ones.
+
+    python -m bench.real [--set NAME ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import pickle
+import subprocess
+import sys
+import time
+import tomllib
+from pathlib import Path
+
+import numpy as np
+
+import rigcal
+from rigcal import geometry as geo
+from rigcal.core import ViewIn
+
+from .common import CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, md_table, say, write_json
+
+SAMPLES = ROOT / "samples" / "real"
+SHARED = ROOT.parent / "shared" / "data" / "real"
+LINKED = OUT / "real"
+BUMBLEBEE_REF_MM = 120.05
+WIDEANGLE_REF_MM = 75.0
+OPENCV_REF_SQUARES = {"scikit-surgeryimage |T|/30": float(np.linalg.norm([100.304, -0.813, -1.167]) / 30.0),
+                      "OpenCV 5 stereoCalibrate re-run": 3.345}
+TRINOCULAR_REF_SQUARES = {("left", "middle"): 4.909, ("middle", "right"): 4.749, ("left", "right"): 9.642}
+
+
+def detections(dataset: Path, tag: str, log=say):
+    """(rig, corners, views, n_images, detection seconds), detections cached."""
+    from rigcal.dataset import list_dataset
+    from rigcal.detect import detect_dataset
+    from rigcal.target import load_target
+
+    rig = rigcal.load_rig(dataset / "rig.yaml")
+    target = load_target(dataset / "target.yaml")
+    corners = {b.name: b.corners for b in target.boards}
+    cache = CACHE / f"real-{tag}-{code_hash()}.pkl"
+    if cache.is_file():
+        with open(cache, "rb") as f:
+            meta = pickle.load(f)
+    else:
+        log(f"  detecting {dataset} ...")
+        images = list_dataset(dataset, rig)
+        det = detect_dataset(images, target, rig=rig, jobs=JOBS, progress=False)
+        meta = {"views": [(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), bool(v.ambiguous))
+                          for v in det.views], "n_images": images.n_images, "det_s": det.seconds}
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        tmp = cache.with_suffix(".tmp")
+        with open(tmp, "wb") as f:
+            pickle.dump(meta, f)
+        os.replace(tmp, cache)
+    return rig, corners, [ViewIn(*v) for v in meta["views"]], meta["n_images"], meta["det_s"]
+
+
+def _baseline(rig, a: str, b: str) -> float:
+    return float(np.linalg.norm(rig.camera(a).T_body_cam[:3, 3] - rig.camera(b).T_body_cam[:3, 3]))
+
+
+def _cal_row(cal) -> dict:
+    return {"rms_px": cal.rms_px, "models": {n: cal.stats[n].distortion_model for n in cal.cam_names},
+            "outliers": int((~cal.inliers).sum()), "corners": int(cal.inliers.sum()),
+            "flips": int(cal.flips), "notes": cal.notes}
+
+
+def bumblebee2(log=say) -> dict:
+    rig, corners, views, n, det_s = detections(SAMPLES / "bumblebee2", "bumblebee2", log)
+    rows = {}
+    for dist in ("auto", "radial2", "radtan4", "radtan5"):
+        with Timer() as t:
+            cal = calibrate(views, rig, corners, dist)
+        rows[dist] = {"baseline_mm": 1000 * _baseline(cal.rig, "left", "right"), "seconds": t.wall, **_cal_row(cal)}
+    return {"set": "bumblebee2", "images": n, "detection_s": det_s, "reference_mm": BUMBLEBEE_REF_MM, "runs": rows}
+
+
+def opencv_stereo(log=say) -> dict:
+    rig, corners, views, n, det_s = detections(SAMPLES / "opencv_stereo", "opencv_stereo", log)
+    with Timer() as t:
+        cal = calibrate(views, rig, corners)
+    square = 0.030  # target.yaml's square: results in squares = metres / square
+    return {"set": "opencv_stereo", "images": n, "detection_s": det_s, "seconds": t.wall,
+            "baseline_squares": _baseline(cal.rig, "left", "right") / square, "references": OPENCV_REF_SQUARES,
+            **_cal_row(cal)}
+
+
+def linked(name: str, log=say) -> Path | None:
+    """bench/out/real/<name>, built by samples/real/make_datasets.py (None when the shared sets are absent)."""
+    script = SAMPLES / "make_datasets.py"
+    if not SHARED.is_dir() or not script.is_file():
+        return None
+    dst = LINKED / name
+    if not (dst / "rig.yaml").is_file():
+        log(f"  linking {name} into {dst} ...")
+        subprocess.run([sys.executable, str(script), str(LINKED), name], check=True, capture_output=True)
+    return dst
+
+
+def wideangle(log=say) -> dict | None:
+    d = linked("wideangle", log)
+    if d is None:
+        return None
+    rig, corners, views, n, det_s = detections(d, "wideangle", log)
+    with Timer() as t:
+        cal = calibrate(views, rig, corners)
+    return {"set": "wideangle", "images": n, "detection_s": det_s, "seconds": t.wall,
+            "baseline_mm": 1000 * _baseline(cal.rig, "left", "right"), "reference_mm": WIDEANGLE_REF_MM,
+            **_cal_row(cal)}
+
+
+def caliscope_reference() -> dict[str, np.ndarray]:
+    """caliscope's T_cam_world per camera (its camera_array.toml: x_cam = R x_world + t)."""
+    doc = tomllib.loads((SHARED / "caliscope_4cam_charuco_a" / "camera_array.toml").read_text())
+    return {f"cam_{k}": geo.make_T(np.array(v["rotation"]), np.array(v["translation"]))
+            for k, v in doc["cameras"].items()}
+
+
+def caliscope(log=say) -> dict | None:
+    d = linked("caliscope", log)
+    if d is None:
+        return None
+    rig, corners, views, n, det_s = detections(d, "caliscope", log)
+    with Timer() as t:
+        cal = calibrate(views, rig, corners)
+    ref = caliscope_reference()
+    pairs = {}
+    names = list(cal.cam_names)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            T_a_b = geo.inv_T(cal.rig.camera(a).T_body_cam) @ cal.rig.camera(b).T_body_cam
+            R_a_b = ref[a] @ geo.inv_T(ref[b])  # caliscope's camera b in camera a
+            pairs[f"{a}/{b}"] = {
+                "distance_m": float(np.linalg.norm(T_a_b[:3, 3])),
+                "reference_distance_m": float(np.linalg.norm(R_a_b[:3, 3])),
+                "translation_diff_m": float(np.linalg.norm(T_a_b[:3, 3] - R_a_b[:3, 3])),
+                "rotation_diff_deg": geo.rotation_angle_deg(T_a_b[:3, :3] @ R_a_b[:3, :3].T),
+            }
+    return {"set": "caliscope", "images": n, "detection_s": det_s, "seconds": t.wall, "pairs": pairs,
+            **_cal_row(cal)}
+
+
+def trinocular(log=say) -> dict | None:
+    d = linked("trinocular", log)
+    if d is None:
+        return None
+    rig, corners, views, n, det_s = detections(d, "trinocular", log)
+    with Timer() as t:
+        cal = calibrate(views, rig, corners)
+    base = {f"{a}/{b}": {"squares": _baseline(cal.rig, a, b), "opencv_pairwise": ref}
+            for (a, b), ref in TRINOCULAR_REF_SQUARES.items()}
+    return {"set": "trinocular", "images": n, "detection_s": det_s, "seconds": t.wall, "baselines": base,
+            **_cal_row(cal)}
+
+
+SETS = {"bumblebee2": bumblebee2, "opencv_stereo": opencv_stereo, "wideangle": wideangle, "caliscope": caliscope,
+        "trinocular": trinocular}
+
+
+def run(names: list[str] | None = None, log=say) -> dict:
+    out = {}
+    for name in names or list(SETS):
+        log(f"real: {name} ...")
+        out[name] = SETS[name](log)
+    return out
+
+
+def tables(res: dict) -> str:
+    rows = []
+    bb = res.get("bumblebee2")
+    if bb:
+        for dist, r in bb["runs"].items():
+            rows.append(["bumblebee2", f"--distortion {dist} ({'/'.join(sorted(set(r['models'].values())))})",
+                         "baseline mm", r["baseline_mm"], bb["reference_mm"], r["baseline_mm"] - bb["reference_mm"],
+                         r["rms_px"], r["seconds"]])
+    oc = res.get("opencv_stereo")
+    if oc:
+        for lab, ref in oc["references"].items():
+            rows.append(["opencv_stereo", f"auto ({'/'.join(sorted(set(oc['models'].values())))}), vs {lab}",
+                         "baseline squares", oc["baseline_squares"], ref,
+                         f"{100 * (oc['baseline_squares'] / ref - 1):+.2f} %", oc["rms_px"], oc["seconds"]])
+    wa = res.get("wideangle")
+    if wa:
+        rows.append(["wideangle", f"auto ({'/'.join(sorted(set(wa['models'].values())))})", "baseline mm",
+                     wa["baseline_mm"], wa["reference_mm"], wa["baseline_mm"] - wa["reference_mm"], wa["rms_px"],
+                     wa["seconds"]])
+    tri = res.get("trinocular")
+    if tri:
+        for k, b in tri["baselines"].items():
+            rows.append(["trinocular", f"auto, {k}", "baseline squares", b["squares"], b["opencv_pairwise"],
+                         f"{100 * (b['squares'] / b['opencv_pairwise'] - 1):+.2f} %", tri["rms_px"], tri["seconds"]])
+    parts = [md_table(["set", "run", "quantity", "rigcal", "reference", "difference", "reproj RMS px", "calib s"],
+                      rows, "Real images: calibrated vs published reference")]
+    cs = res.get("caliscope")
+    if cs:
+        rows = [[k, p["distance_m"], p["reference_distance_m"], 100 * p["translation_diff_m"], p["rotation_diff_deg"]]
+                for k, p in cs["pairs"].items()]
+        parts.append(md_table(["pair", "rigcal distance m", "caliscope distance m", "rel. translation diff cm",
+                               "rel. rotation diff deg"], rows,
+                              f"caliscope 4-camera set vs caliscope's own solution (reproj RMS {cs['rms_px']:.3f} px, "
+                              f"{cs['corners']} corners, models {sorted(set(cs['models'].values()))})"))
+    missing = [k for k in SETS if k in res and res[k] is None]
+    if missing:
+        parts.append(f"\nnot run (no {SHARED}): {', '.join(missing)}")
+    return "\n".join(parts)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--set", action="append", choices=list(SETS))
+    a = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    res = run(a.set)
+    say(tables(res))
+    write_json("real", {"results": res, "seconds": time.perf_counter() - t0})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,102 @@
+"""The benchmark modules import, and one micro-scenario runs end to end through the same
+code `make bench` uses (synthetic corners, no rendering; a few seconds). Timed numbers
+are never asserted: tolerances are physical and loose."""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+import pytest
+
+import rigcal
+from rigcal.bounds import pair_bounds
+
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "__main__")
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_bench_module_imports(name):
+    mod = importlib.import_module(f"bench.{name}")
+    assert mod.__doc__
+
+
+@pytest.fixture(scope="module")
+def micro():
+    from bench import common
+
+    rig = rigcal.load_rig(common.RIGS / "stereo-forward.yaml")
+    truth_rig = common.perturbed_truth(rig, 3)
+    sc = common.synthetic_room(truth_rig, np.random.default_rng(4), n_frames=12)
+    views = common.with_noise(sc.views, 0.05, np.random.default_rng(5))
+    cal = common.calibrate(views, rig, sc.corners)
+    return rig, truth_rig, sc, views, cal
+
+
+def test_micro_scenario_calibrates_near_the_bound(micro):
+    from bench import common, noise_limit
+
+    rig, truth_rig, sc, views, cal = micro
+    bounds = pair_bounds(cal, sc.truth, 0.05)
+    est = common.rig_errors(cal.rig, truth_rig)["pairs"]["left/right"]
+    declared = common.rig_errors(rig, truth_rig)["pairs"]["left/right"]
+    b = bounds[("left", "right")]
+    assert 0 < b["trans_mm"] < 1.0 and 0 < b["rot_deg"] < 0.1
+    # one seed: a loose multiple of the bound, and far better than not calibrating
+    assert est["trans_mm"] < 6 * b["trans_mm"] and est["rot_deg"] < 6 * b["rot_deg"]
+    assert declared["trans_mm"] > 20 * est["trans_mm"]
+    # the noise-limit pieces on the same calibration
+    stats = noise_limit._pair_stats(cal, sc.truth, 0.05)
+    assert stats["left/right"]["bound_trans_mm"] == pytest.approx(b["trans_mm"])
+    cov = noise_limit._coverage_samples(cal, truth_rig)
+    assert set(cov) == {"left", "right"} and all(np.all(np.isfinite(c["sigma"])) for c in cov.values())
+
+
+def test_truth_reexpressed_does_not_depend_on_truths_body_frame(micro):
+    """The true rig is compared in the frame fitted to the declared rig: moving the
+    truth's own body frame rigidly must not change it (comparing raw truth.yaml poses would)."""
+    from bench import common
+    from rigcal import geometry as geo
+
+    rig, truth_rig, sc, views, cal = micro
+    T_shift = geo.make_T(geo.R_from_rotvec([0.3, -0.2, 0.5]), [0.4, -1.0, 0.25])
+    moved = truth_rig.with_cameras([c.__class__(c.name, c.intrinsics, T_shift @ c.T_body_cam)
+                                    for c in truth_rig.cameras])
+    a, b = common.truth_in_output_frame(cal, truth_rig), common.truth_in_output_frame(cal, moved)
+    for n in a:
+        np.testing.assert_allclose(a[n], b[n], atol=1e-9)
+    # and it is close to the declared rig (the mounting errors are a few mm / ~1 deg)
+    for n in a:
+        assert np.linalg.norm(a[n][:3, 3] - rig.camera(n).T_body_cam[:3, 3]) < 0.03
+
+
+def test_gaussian_views_keep_the_corners(micro):
+    from bench import common
+
+    rig, truth_rig, sc, views, cal = micro
+    uv_true = common.true_projections(cal, sc.truth)
+    assert np.sqrt(np.mean((uv_true - cal.obs.uv) ** 2)) == pytest.approx(0.05, rel=0.2)
+    g = common.gaussian_views(cal, uv_true, sc.corners, 0.0, np.random.default_rng(0))
+    assert sum(len(v.ids) for v in g) == len(cal.obs)
+    first = g[0]
+    P = sc.corners[first.board][first.ids]
+    m = cal.obs.view == cal.obs.view[0]
+    np.testing.assert_allclose(P, cal.obs.p_board[m], atol=1e-12)
+
+
+def test_opencv_peer_on_the_micro_scenario(micro):
+    from bench import common, peer_opencv
+
+    rig, truth_rig, sc, views, cal = micro
+    cv = peer_opencv.run_multiview(views, rig, sc.corners)
+    assert cv["ok"], cv.get("error")
+    assert cv["frames_shared"] > 0 and 0 < cv["observations_used"] <= cv["observations_available"]
+    e = common.rig_errors(cv["rig"], truth_rig)["pairs"]["left/right"]
+    assert e["trans_mm"] < 2.0 and e["rot_deg"] < 0.2
+
+
+def test_tables_render():
+    from bench.common import md_table
+
+    t = md_table(["a", "b"], [[1.23456, None], ["x", float("nan")]], "title")
+    assert "| a " in t and "1.23" in t and "-" in t and "**title**" in t
