@@ -179,19 +179,14 @@ def mutated_docs(draw):
     return doc
 
 
-# target._number calls math.isfinite on an int beyond float range (a 400-digit YAML integer)
-BIG_INT_BUG = pytest.mark.xfail(raises=OverflowError, strict=True,
-                                reason="target._number: OverflowError on an integer beyond float range")
 
 
-@BIG_INT_BUG
 def test_integer_beyond_float_range_is_a_target_file_error():
     with pytest.raises(TargetFileError, match="square_length"):
         parse_target("boards:\n  - {type: chessboard, inner_corners: [9, 6], square_length: 1" + "0" * 400 + "}\n",
                      "big.yaml")
 
 
-@BIG_INT_BUG  # only that error: any other failure of this property still fails the test
 @SETTINGS
 @given(mutated_docs())
 def test_mutated_targets_only_raise_target_file_errors(doc):
