@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import geometry as geo
-from .solve import Intrinsics, Observations, Problem, SolveResult, State, camera_covariance
+from .solve import Intrinsics, Problem, SolveResult, State, camera_covariance
 
 
 def true_state(cal, truth) -> State | None:

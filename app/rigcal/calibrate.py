@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -15,7 +14,7 @@ from rich.table import Table
 from . import __version__
 from .core import Calibration, ViewIn, calibrate_views
 from .errors import CalibrationError, DatasetError, OutputError
-from .rig import Camera, Rig, StereoPair, dump_rig, load_rig
+from .rig import Rig, StereoPair, dump_rig, load_rig
 from .io import atomic_write_text
 
 SIGMA_WARN_MM = 2.0

@@ -220,7 +220,6 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     cam_names = list(rig.names)
     board_names = list(corners)
     frames = sorted({v.frame for v in views_in})
-    ci = {n: i for i, n in enumerate(cam_names)}
     bi = {n: i for i, n in enumerate(board_names)}
     fi = {n: i for i, n in enumerate(frames)}
     _check_reference(reference, rig)
@@ -392,7 +391,6 @@ def _extrinsic_covariance(res, rig: Rig, reference: str, T_body_cam_solve: np.nd
         cov, intr_sl, cam_sl = camera_covariance(res)
     except np.linalg.LinAlgError:
         return None
-    pb = res.problem
     C = len(cam_sl)
     T_out = reference_transform(T_body_cam_solve, rig, reference)
     ref_poses = [T_out @ T for T in T_body_cam_solve]

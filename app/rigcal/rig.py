@@ -6,9 +6,8 @@ drift apart. Validation happens here, once; the rest of rigcal trusts the types.
 
 from __future__ import annotations
 
-import math
 import re
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -19,6 +18,7 @@ from . import geometry as geo
 from .camera import FISHEYE_DIST_LENGTH, MODELS, PINHOLE_DIST_LENGTHS, CameraModel
 from .errors import RigFileError
 from .io import atomic_write_text
+from .validate import _check_finite_tree, _kind, _number, _positive, _short, _unknown, _vector
 
 NAME_RE = re.compile(r"^[a-z0-9_]+$")
 TOP_KEYS = ("rig", "body_frame", "cameras", "stereo_pairs", "calibration")
@@ -433,83 +433,6 @@ def _pairs_from_doc(v: Any, cameras: dict[str, Camera], err) -> tuple[StereoPair
             raise err(key, f"{left} and {right} are at the same position; a stereo pair needs a baseline")
         pairs.append(StereoPair(left=left, right=right, **extra))
     return tuple(pairs)
-
-
-# ----------------------------------------------------------------------------- validators
-
-
-def _kind(v: Any, limit: int = 60) -> str:
-    """A value, described briefly for an error line."""
-    if v is None:
-        return "nothing"
-    if isinstance(v, dict):
-        return "a mapping" if v else "an empty mapping"
-    if isinstance(v, str):
-        return "text " + _short(repr(v), limit)
-    return _short(repr(v), limit)
-
-
-def _short(text: str, limit: int) -> str:
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _unknown(d: dict, allowed: Sequence[str], key: str, err) -> None:
-    for k in d:
-        if k not in allowed:
-            hint = _closest(str(k), allowed)
-            name = _short(str(k), 60)
-            at = f"{key}.{name}" if key else name
-            raise err(at, f"unknown key" + (f" (did you mean `{hint}`?)" if hint else "")
-                      + f"; expected one of {', '.join(allowed)}")
-
-
-def _closest(word: str, options: Sequence[str]) -> str | None:
-    import difflib
-
-    m = difflib.get_close_matches(word, options, n=1, cutoff=0.6)
-    return m[0] if m else None
-
-
-def _number(v: Any, key: str, err) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise err(key, f"expected a number, got {_kind(v)}")
-    try:
-        x = float(v)
-    except OverflowError:  # an integer beyond float range
-        x = math.inf
-    if not math.isfinite(x):
-        raise err(key, f"expected a finite number, got {_kind(v)}")
-    return x
-
-
-def _positive(v: Any, key: str, err) -> float:
-    x = _number(v, key, err)
-    if x <= 0:
-        raise err(key, f"expected a positive number, got {v!r}")
-    return x
-
-
-def _vector(v: Any, n: int, key: str, err) -> np.ndarray:
-    if not isinstance(v, (list, tuple)) or len(v) != n:
-        raise err(key, f"expected {n} numbers, got {_kind(v)}")
-    return np.array([_number(x, f"{key}[{i}]", err) for i, x in enumerate(v)])
-
-
-def _check_finite_tree(v: Any, key: str, err) -> None:
-    """Free-form stats blocks (calibration, depth_check) hold mappings with text keys, lists,
-    text, booleans and finite numbers, which is what the writer can round-trip."""
-    if isinstance(v, dict):
-        for k, x in v.items():
-            if not isinstance(k, str):
-                raise err(key, f"expected text keys, got {_kind(k)}")
-            _check_finite_tree(x, f"{key}.{k}", err)
-    elif isinstance(v, list):
-        for i, x in enumerate(v):
-            _check_finite_tree(x, f"{key}[{i}]", err)
-    elif isinstance(v, (int, float)):  # bool is an int
-        _number(float(v) if isinstance(v, bool) else v, key, err)
-    elif v is not None and not isinstance(v, str):
-        raise err(key, f"expected numbers, text, lists or mappings, got {_kind(v)}")
 
 
 # ----------------------------------------------------------------------------- saving

@@ -20,13 +20,13 @@ matrix, so a solve is linear in the number of frames.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
 
 from . import geometry as geo
-from .camera import distort_fisheye, distort_pinhole, pad12
+from .camera import distort_fisheye, distort_pinhole
 
 POSE_DIM = 6
 

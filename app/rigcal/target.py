@@ -31,6 +31,7 @@ from scipy.special import ndtr
 from .errors import InputError, OutputError, TargetFileError
 from .io import atomic_write_bytes, atomic_write_text
 from .rig import load_yaml
+from .validate import _kind, _positive, _unknown
 
 TYPES = ("charuco", "chessboard")
 TOP_KEYS = ("boards",)
@@ -334,34 +335,12 @@ def _required(d: dict, k: str, key: str, err, what: str) -> Any:
     return d[k]
 
 
-def _kind(v: Any) -> str:
-    if v is None:
-        return "nothing"
-    return {dict: "a mapping", list: "a list", str: f"text {v!r}", bool: f"{v!r}"}.get(type(v), repr(v))
 
 
-def _unknown(d: dict, allowed: tuple[str, ...], key: str, err) -> None:
-    for k in d:
-        if k not in allowed:
-            hint = difflib.get_close_matches(str(k), allowed, n=1, cutoff=0.6)
-            at = f"{key}.{k}" if key else str(k)
-            raise err(at, "unknown key" + (f" (did you mean `{hint[0]}`?)" if hint else "")
-                      + f"; expected one of {', '.join(allowed)}")
 
 
-def _number(v: Any, key: str, err) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise err(key, f"expected a number, got {_kind(v)}")
-    if not math.isfinite(v):
-        raise err(key, f"expected a finite number, got {v!r}")
-    return float(v)
 
 
-def _positive(v: Any, key: str, err) -> float:
-    x = _number(v, key, err)
-    if x <= 0:
-        raise err(key, f"expected a positive number, got {v!r}")
-    return x
 
 
 def _int_pair(v: Any, key: str, least: int, err) -> tuple[int, int]:
