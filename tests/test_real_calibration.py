@@ -1,0 +1,162 @@
+"""Calibration on real photographs against published references (issue 4, "Real images").
+
+Each test compares with an independent answer: a published calibration, or OpenCV's own
+stereoCalibrate run on the same corners. Gaps to the published numbers are measured and
+explained in README ("Real image sets"); the bounds here are those measured figures with
+a small margin, not loosened until they pass.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+import rigcal
+from rigcal import geometry as geo
+from rigcal.core import ViewIn, calibrate_views
+from rigcal.dataset import list_dataset
+from rigcal.detect import detect_dataset
+from rigcal.target import load_target
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLES = ROOT / "samples" / "real"
+SHARED = ROOT.parent / "shared" / "data" / "real"
+
+
+def _detect(ds: Path, rig=None):
+    rig = rig or rigcal.load_rig(ds / "rig.yaml")
+    target = load_target(ds / "target.yaml")
+    det = detect_dataset(list_dataset(ds, rig), target, rig=rig, jobs=1, progress=False)
+    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous)
+             for v in det.views]
+    return rig, target, views
+
+
+def _baseline(cal) -> float:
+    p = cal.rig.stereo_pairs[0]
+    return float(np.linalg.norm(cal.rig.camera(p.left).T_body_cam[:3, 3] - cal.rig.camera(p.right).T_body_cam[:3, 3]))
+
+
+@pytest.fixture(scope="module")
+def bumblebee():
+    return _detect(SAMPLES / "bumblebee2")
+
+
+def test_bumblebee2_baseline_against_boofcv(bumblebee):
+    """BoofCV's reference (radial2 model): 120.05 mm. With the same model rigcal is within
+    0.2 mm; `auto` keeps the right camera's decentering (LR 33, far beyond chance) and lands
+    0.25 mm from the radial-only reference."""
+    rig, target, views = bumblebee
+    corners = {b.name: b.corners for b in target.boards}
+    cal2 = calibrate_views(views, rig, corners, distortion="radial2")
+    assert abs(1000 * _baseline(cal2) - 120.05) < 0.2
+    assert cal2.flips == 1  # pair 11: the right camera's corner order is reversed (README of the set)
+    auto = calibrate_views(views, rig, corners, distortion="auto")
+    assert abs(1000 * _baseline(auto) - 120.05) < 0.3
+    assert auto.rms_px < 0.1
+    # focal lengths within 0.2 % of BoofCV's
+    for name, fx in (("left", 524.6142), ("right", 526.4373)):
+        assert abs(cal2.rig.camera(name).intrinsics.fx / fx - 1) < 2e-3
+
+
+def test_opencv_sample_pairs_against_opencv_on_the_same_corners():
+    """The baseline in squares equals OpenCV's stereoCalibrate run on rigcal's corners to
+    0.1 %, and is within 0.6 % of the published 3.345 squares, which came from cornerSubPix
+    corners that fit 2.6x worse (0.45 px RMS against rigcal's 0.17 px)."""
+    rig, target, views = _detect(SAMPLES / "opencv_stereo")
+    board = target.boards[0]
+    cal = calibrate_views(views, rig, {board.name: board.corners}, distortion="radtan5")
+    squares = _baseline(cal) / board.square_length
+    # OpenCV's own stereo calibration on exactly these corners (full views only)
+    by = {}
+    for v in views:
+        if len(v.ids) == board.n_corners:
+            by.setdefault(v.frame, {})[v.camera] = v.uv[np.argsort(v.ids)].astype(np.float32)
+    frames = [f for f in sorted(by) if len(by[f]) == 2]
+    obj = [board.corners.astype(np.float32)] * len(frames)
+    left = [by[f]["left"] for f in frames]
+    right = [by[f]["right"] for f in frames]
+    _, K1, D1, _, _ = cv2.calibrateCamera(obj, left, (640, 480), None, None)
+    _, K2, D2, _, _ = cv2.calibrateCamera(obj, right, (640, 480), None, None)
+    out = cv2.stereoCalibrate(obj, left, right, K1, D1, K2, D2, (640, 480), flags=cv2.CALIB_FIX_INTRINSIC)
+    opencv_squares = float(np.linalg.norm(out[6])) / board.square_length
+    assert abs(squares / opencv_squares - 1) < 1e-3
+    assert abs(squares / 3.345 - 1) < 6e-3
+    assert cal.rms_px < 0.25
+
+
+def _caliscope(tmp_path_factory):
+    if not (SHARED / "caliscope_4cam_charuco_a").is_dir():
+        pytest.skip("../shared/data/real is not beside this checkout")
+    out = tmp_path_factory.mktemp("real")
+    subprocess.run([sys.executable, str(SAMPLES / "make_datasets.py"), str(out), "caliscope"], check=True,
+                   capture_output=True)
+    return out / "caliscope"
+
+
+def _caliscope_reference():
+    doc = tomllib.loads((SHARED / "caliscope_4cam_charuco_a" / "camera_array.toml").read_text())
+    cams = {}
+    for k, v in doc["cameras"].items():
+        R, t = np.array(v["rotation"]), np.array(v["translation"])  # world -> camera
+        cams[f"cam_{k}"] = dict(T_cam_world=geo.make_T(R, t), K=np.array(v["matrix"]), dist=v["distortions"],
+                                size=v["size"])
+    return cams
+
+
+@pytest.fixture(scope="module")
+def caliscope(tmp_path_factory):
+    ds = _caliscope(tmp_path_factory)
+    ref = _caliscope_reference()
+    rig_doc = yaml.safe_load((ds / "rig.yaml").read_text())
+    # The reference's intrinsics came from separate recordings; declare them, as caliscope did.
+    for name, c in ref.items():
+        K = c["K"]
+        rig_doc["cameras"][name]["intrinsics"] = {"fx": float(K[0, 0]), "fy": float(K[1, 1]),
+                                                  "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+        rig_doc["cameras"][name]["distortion"] = [float(x) for x in c["dist"]]
+    rig = rigcal.rig.rig_from_dict(rig_doc, "caliscope-with-reference-intrinsics")
+    rig_plain, target, views = _detect(ds)
+    return rig, rig_plain, target, views, ref
+
+
+def _pair_errors(cal, ref):
+    out = {}
+    names = cal.rig.names
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            T_ab = geo.inv_T(cal.rig.camera(a).T_body_cam) @ cal.rig.camera(b).T_body_cam  # b -> a
+            R_ab = ref[a]["T_cam_world"] @ geo.inv_T(ref[b]["T_cam_world"])
+            out[(a, b)] = (1000 * abs(np.linalg.norm(T_ab[:3, 3]) - np.linalg.norm(R_ab[:3, 3])),
+                           1000 * np.linalg.norm(T_ab[:3, 3] - R_ab[:3, 3]),
+                           geo.rotation_angle_deg(T_ab[:3, :3] @ R_ab[:3, :3].T))
+    return out
+
+
+def test_caliscope_four_cameras_with_reference_intrinsics(caliscope):
+    """Inverted board, software sync (up to 43 ms), no declared poses: with caliscope's own
+    intrinsics every pair lands within 2.5 cm and 2 deg of caliscope's extrinsics."""
+    rig, _, target, views, ref = caliscope
+    cal = calibrate_views(views, rig, {b.name: b.corners for b in target.boards}, fix_intrinsics=True)
+    for pair, (d_dist, d_vec, d_rot) in _pair_errors(cal, ref).items():
+        assert d_vec < 25.0 and d_rot < 2.0, (pair, d_dist, d_vec, d_rot)
+
+
+def test_caliscope_four_cameras_from_the_images_alone(caliscope):
+    """From these images alone (a 12-corner board, 26-45 views per camera) all four cameras
+    calibrate and link up; the intrinsics are weakly determined, so the pairs are looser
+    (measured: distances within 7 cm of caliscope's); the reported sigmas say so."""
+    _, rig_plain, target, views, ref = caliscope
+    cal = calibrate_views(views, rig_plain, {b.name: b.corners for b in target.boards})
+    assert set(cal.rig.names) == {"cam_0", "cam_1", "cam_2", "cam_3"}
+    errs = _pair_errors(cal, ref)
+    assert max(e[0] for e in errs.values()) < 70.0
+    # the uncertainty is reported honestly: at least one camera's position sigma is > 2 mm
+    assert max(np.max(cal.stats[n].sigma_position_mm) for n in cal.rig.names) > 2.0
