@@ -15,7 +15,7 @@ from . import __version__
 from .core import Calibration, ViewIn, calibrate_views
 from .errors import CalibrationError, DatasetError, OutputError
 from .rig import Rig, StereoPair, dump_rig, load_rig
-from .io import atomic_write_text
+from .io import atomic_write_texts
 
 SIGMA_WARN_MM = 2.0
 SIGMA_WARN_DEG = 0.1
@@ -93,9 +93,8 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         from .report import build_report
 
         report_html = build_report(cal, out_rig, det, pairs, timings)
-    atomic_write_text(out_path, text)
-    if report_html is not None:
-        atomic_write_text(report_path, report_html)
+    # the rig and its report land together or not at all
+    atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
     for w in warnings_for(cal):
         console.print(f"warning: {w}")
     for n in cal.notes:

@@ -287,6 +287,10 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     stats = {}
     inl_obs = obs.subset(res.inliers)
     r_all = res.problem.residuals(res.problem.x0()).reshape(-1, 2)
+    lost = [n for c, n in enumerate(cam_names) if not np.any(obs.cam[res.inliers] == c)]
+    if lost:
+        raise CalibrationError(f"{', '.join(lost)}: every corner was rejected as an outlier; the views of "
+                               f"this camera disagree with the rest of the rig (wrong target, or a moved camera?)")
     for c, n in enumerate(cam_names):
         v = res.state.intrinsics[c].values
         declared = rig.camera(n).intrinsics

@@ -35,11 +35,8 @@ detectors once from the plain Target. Output order does not depend on scheduling
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
-import signal
-import sys
 import time
 import zlib
 from dataclasses import dataclass, field
@@ -50,6 +47,7 @@ import cv2
 import numpy as np
 
 from .target import Board, Target
+from .workers import interrupts_deferred, pool_context
 
 REFINE_MODES = ("symmetric", "subpix", "none")
 SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
@@ -712,39 +710,6 @@ def _work(path: str) -> _ImageOut:
     return _ImageOut((gray.shape[1], gray.shape[0]), None, views, dropped)
 
 
-def _pool_context():
-    import multiprocessing as mp
-
-    # Not fork: a forked worker inherits locks held by the parent's threads (OpenBLAS,
-    # OpenCV) and was seen to hang. forkserver forks workers from a clean process that
-    # has imported rigcal.detect once, so they start in milliseconds. Like any
-    # multiprocessing code, a script calling this needs `if __name__ == "__main__":`.
-    if "forkserver" in mp.get_all_start_methods():
-        ctx = mp.get_context("forkserver")
-        ctx.set_forkserver_preload(["rigcal.detect"])
-        _start_forkserver_deaf_to_ctrl_c()
-        return ctx
-    return mp.get_context("spawn")
-
-
-def _start_forkserver_deaf_to_ctrl_c() -> None:
-    """Start this process's forkserver with SIGINT ignored, which it and every worker it
-    forks keep. Ctrl-C signals the whole process group: the server or a worker still
-    importing would print its own KeyboardInterrupt traceback, and a worker would die
-    mid-task; this way only the main process sees it and stops the pool in order."""
-    from multiprocessing import forkserver
-
-    try:
-        previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    except ValueError:  # not the main thread: signals are not ours to change
-        forkserver.ensure_running()
-        return
-    try:
-        forkserver.ensure_running()
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 def _detect_serial(paths: list[str], target: Target, min_corners: int, refine: str, bar) -> list[_ImageOut]:
     global _WORKER
     keep = _WORKER
@@ -767,8 +732,8 @@ def _detect_parallel(paths: list[str], target: Target, jobs: int, min_corners: i
     chunk = max(1, min(8, len(paths) // (jobs * 6)))
     ex = None
     try:
-        with _interrupts_deferred():  # a worker interrupted while it starts prints a traceback
-            ex = ProcessPoolExecutor(max_workers=jobs, mp_context=_pool_context(), initializer=_init_worker,
+        with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
+            ex = ProcessPoolExecutor(max_workers=jobs, mp_context=pool_context("rigcal.detect"), initializer=_init_worker,
                                      initargs=(target, min_corners, refine))
             results = ex.map(_work, paths, chunksize=chunk)  # submits all, workers start now; yields in order
         bar.start()  # after the workers started: no progress-bar thread is copied into them
@@ -784,30 +749,6 @@ def _detect_parallel(paths: list[str], target: Target, jobs: int, min_corners: i
         raise
     ex.shutdown(wait=True)
     return out
-
-
-@contextlib.contextmanager
-def _interrupts_deferred():
-    """Hold SIGINT and SIGTERM for the duration, then act on them as their handlers would
-    have (KeyboardInterrupt, the CLI's Terminated, or the default action)."""
-    caught: list[int] = []
-    wanted = (signal.SIGINT, signal.SIGTERM)
-    try:
-        previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in wanted}
-    except ValueError:  # not the main thread: signals are not ours to change
-        yield
-        return
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-        if caught:
-            handler = previous[caught[0]]
-            if callable(handler):
-                handler(caught[0], None)
-            elif handler == signal.SIG_DFL:
-                signal.raise_signal(caught[0])
 
 
 class _Progress:

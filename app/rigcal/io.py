@@ -27,28 +27,48 @@ def _default_file_mode() -> int:
     return 0o666 & ~mask
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    path = Path(path)
-    fd, tmp = _tmp_beside(path)
+def atomic_write_files(items: list[tuple[str | Path, bytes]]) -> None:
+    """Write one or several files as one: every temporary is written and synced first (where
+    a full disk or a permission shows), and only then are they renamed into place, so a
+    failure leaves none of them rather than some."""
+    staged: list[tuple[str, Path]] = []
+    path = None
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, _default_file_mode())  # mkstemp makes 0600; outputs are meant to be shared
-        os.replace(tmp, path)
+        for path, data in items:
+            path = Path(path)
+            fd, tmp = _tmp_beside(path)
+            staged.append((tmp, path))
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.chmod(tmp, _default_file_mode())  # mkstemp makes 0600; outputs are meant to be shared
+        for tmp, path in staged:
+            os.replace(tmp, path)
     except OSError as e:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        _remove(staged)
         raise OutputError(f"{path}: cannot write ({e.strerror or e})") from None
     except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+        _remove(staged)
         raise
 
 
+def _remove(staged: list[tuple[str, Path]]) -> None:
+    for tmp, _ in staged:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    atomic_write_files([(path, data)])
+
+
 def atomic_write_text(path: str | Path, text: str) -> None:
-    atomic_write_bytes(path, text.encode("utf-8"))
+    atomic_write_files([(path, text.encode("utf-8"))])
+
+
+def atomic_write_texts(items: list[tuple[str | Path, str]]) -> None:
+    atomic_write_files([(p, t.encode("utf-8")) for p, t in items])
 
 
 @contextlib.contextmanager

@@ -45,6 +45,7 @@ from .errors import InputError, OutputError
 from .io import atomic_dir
 from .rig import Camera, Rig, load_rig, rig_to_dict
 from .target import Board, Target, dump_target, load_target
+from .workers import interrupts_deferred, pool_context
 
 SCENES = ("room", "board")
 DEFAULT_FRAMES = {"room": 60, "board": 40}
@@ -667,27 +668,21 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
 
 
 def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> float:
-    import multiprocessing as mp
-
-    # Not fork: a forked worker inherits locks held by the parent's threads (OpenBLAS,
-    # OpenCV) and can hang. forkserver starts workers from a clean process that has
-    # imported rigcal.simulate once; each receives the ray maps once, pickled.
-    if "forkserver" in mp.get_all_start_methods():
-        ctx = mp.get_context("forkserver")
-        ctx.set_forkserver_preload(["rigcal.simulate"])
-    else:  # pragma: no cover - platforms without forkserver
-        ctx = mp.get_context("spawn")
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx, initializer=_set_state,
-                               initargs=(state,))
+    """Render in forkserver workers (rigcal.workers); each receives the ray maps once, pickled."""
+    pool = None
     cpu = 0.0
     try:
-        futures = [pool.submit(_render_and_write, *t) for t in tasks]
+        with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
+            pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=pool_context("rigcal.simulate"),
+                                       initializer=_set_state, initargs=(state,))
+            futures = [pool.submit(_render_and_write, *t) for t in tasks]
         for fut in as_completed(futures):
             cpu += fut.result()
             if bar:
                 bar.advance()
     except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
     return cpu
