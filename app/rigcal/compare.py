@@ -13,13 +13,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from rich.console import Group
 from rich.table import Table
 
 from . import geometry as geo
 from .errors import InputError, RigFileError
-from .rig import Rig, load_rig, rig_from_dict
+from .rig import Rig, load_rig, load_yaml, rig_from_dict
+from .validate import read_text
 
 
 @dataclass(frozen=True)
@@ -62,14 +62,8 @@ def _mapping(v: Any, key: str, label: str) -> dict:
 
 def load_truth(path: str | Path) -> Truth:
     """truth.yaml (dataset.md) or a plain rig file (then there are no board/frame poses)."""
-    path = Path(path)
     label = str(path)
-    try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{label}: file not found") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as e:
-        raise InputError(f"{label}: cannot read as YAML ({e.__class__.__name__})") from None
+    doc = load_yaml(read_text(path, InputError), label, InputError)
     if isinstance(doc, dict) and "cameras" in doc:
         return Truth(rig_from_dict(doc, label), {}, {}, {})
     if not isinstance(doc, dict) or "rig" not in doc:

@@ -605,16 +605,11 @@ def run_import(source: Path, fmt: str, out_path: Path, rig_path: Path | None = N
             "import: a camchain gives poses relative to cam0, not in the drone's FLU body frame: give "
             "--rig DECLARED.yaml (declared camera names and poses; cam0 is placed at its declared pose) "
             "or --body-from cam0 (cam0's camera frame becomes the body frame)")
-    source = Path(source)
+    from .rig import load_yaml
+    from .validate import read_text
+
     label = str(source)
-    try:
-        doc = yaml.safe_load(source.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{label}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{label}: cannot read ({e.__class__.__name__}: {e})") from None
-    except yaml.YAMLError as e:
-        raise InputError(f"{label}: not valid YAML: {getattr(e, 'problem', None) or e}") from None
+    doc = load_yaml(read_text(source, InputError), label, InputError)
     cams = parse_camchain(doc, label)
     declared = load_rig(rig_path) if rig_path is not None else None
     rig, notes, warnings = rig_from_camchain(cams, label, declared, str(rig_path) if rig_path else "", body_from)

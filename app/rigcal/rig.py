@@ -18,7 +18,7 @@ from . import geometry as geo
 from .camera import FISHEYE_DIST_LENGTH, MODELS, PINHOLE_DIST_LENGTHS, CameraModel
 from .errors import RigFileError
 from .io import atomic_write_text
-from .validate import _check_finite_tree, _kind, _number, _positive, _short, _unknown, _vector
+from .validate import read_text, _check_finite_tree, _kind, _number, _positive, _short, _unknown, _vector
 
 NAME_RE = re.compile(r"^[a-z0-9_]+$")
 TOP_KEYS = ("rig", "body_frame", "cameras", "stereo_pairs", "calibration")
@@ -137,15 +137,7 @@ class Rig:
 
 def load_rig(path: str | Path) -> Rig:
     """Read and validate a rig file; raises RigFileError naming file, key and what was expected."""
-    path = Path(path)
-    label = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise RigFileError(f"{label}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise RigFileError(f"{label}: cannot read ({e.__class__.__name__}: {e})") from None
-    return parse_rig(text, label)
+    return parse_rig(read_text(path, RigFileError), str(path))
 
 
 def parse_rig(text: str, label: str = "<rig>") -> Rig:

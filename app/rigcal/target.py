@@ -31,7 +31,7 @@ from scipy.special import ndtr
 from .errors import InputError, OutputError, TargetFileError
 from .io import atomic_write_bytes, atomic_write_text
 from .rig import load_yaml
-from .validate import _kind, _positive, _unknown
+from .validate import _kind, _positive, _unknown, read_text
 
 TYPES = ("charuco", "chessboard")
 TOP_KEYS = ("boards",)
@@ -234,14 +234,7 @@ def _board_design(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def load_target(path: str | Path) -> Target:
     """Read and validate target.yaml; raises TargetFileError `file: key: what was expected`."""
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise TargetFileError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise TargetFileError(f"{path}: cannot read ({e.__class__.__name__}: {e})") from None
-    return parse_target(text, str(path))
+    return parse_target(read_text(path, TargetFileError), str(path))
 
 
 def parse_target(text: str, label: str = "<target>") -> Target:

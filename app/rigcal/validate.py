@@ -5,6 +5,7 @@ and got. Numbers must be finite (integers beyond float range included)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
@@ -81,3 +82,14 @@ def _check_finite_tree(v: Any, key: str, err) -> None:
         _number(float(v) if isinstance(v, bool) else v, key, err)
     elif v is not None and not isinstance(v, str):
         raise err(key, f"expected numbers, text, lists or mappings, got {_kind(v)}")
+
+
+def read_text(path: str | Path, error: type[Exception]) -> str:
+    """An input file's text, or one line `file: file not found` / `file: cannot read (...)`."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise error(f"{path}: cannot read ({e.__class__.__name__}: {e})") from None
