@@ -233,6 +233,14 @@ def T_from_rt(rt: np.ndarray) -> np.ndarray:
     return T
 
 
+def rotation_angles(Rs: np.ndarray) -> np.ndarray:
+    """Angles (rad) of rotations (N, 3, 3), vectorised: atan2(|axis part|, trace part) is
+    accurate at 0 and pi alike, unlike arccos of the trace."""
+    tr = np.trace(Rs, axis1=1, axis2=2)
+    v = np.stack([Rs[:, 2, 1] - Rs[:, 1, 2], Rs[:, 0, 2] - Rs[:, 2, 0], Rs[:, 1, 0] - Rs[:, 0, 1]], axis=1)
+    return np.arctan2(0.5 * np.linalg.norm(v, axis=1), 0.5 * (tr - 1.0))
+
+
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Angle of a rotation in degrees (robust near 0 via the quaternion)."""
     return float(np.degrees(np.linalg.norm(rotvec_from_R(R))))
@@ -270,7 +278,7 @@ def robust_mean_pose(Ts: np.ndarray, iters: int = 3) -> np.ndarray:
     R = mean_rotation(Ts[:, :3, :3])
     w = np.ones(len(Ts))
     for _ in range(iters):
-        ang = np.array([np.linalg.norm(rotvec_from_R(R.T @ Ri)) for Ri in Ts[:, :3, :3]])
+        ang = rotation_angles(np.einsum("ji,njk->nik", R, Ts[:, :3, :3]))
         scale = 3.0 * max(np.median(ang), 1e-4)
         w = 1.0 / (1.0 + (ang / scale) ** 2)
         w[ang > 3 * scale] = 0.0
