@@ -30,18 +30,19 @@ import time
 import numpy as np
 
 from rigcal import geometry as geo
+from rigcal.errors import RigcalError
 from rigcal.bounds import measured_corner_noise, pair_bounds, true_state
 from rigcal.solve import Intrinsics, State, bundle_adjust
 
 from .common import (SCENARIOS, Timer, calibrate, gaussian_views, get_dataset, md_table, pose_errors_body,
-                     rig_errors, run_pool, say, scenario, true_projections, write_json)
+                     rig_errors, rig_scale_ppm, run_pool, say, scenario, true_projections, write_json)
 
 FRAMES = {"drone-stereo-back": 30, "stereo-forward": 20, "surround-6": 30, "fisheye-stereo": 20}
 AXES = ("F", "L", "U")
 
 
 def _pair_stats(cal, truth, sigma: float) -> dict:
-    b = pair_bounds(cal, truth, sigma)
+    b = pair_bounds(cal, truth, sigma)  # LinAlgError: see run_seed
     e = rig_errors(cal.rig, truth.rig)["pairs"]
     out = {}
     for k, v in e.items():
@@ -117,7 +118,15 @@ def truth_model(truth_rig) -> str:
 
 
 def run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
-    """Everything for one (scenario, seed); runs in a worker process."""
+    """Everything for one (scenario, seed); runs in a worker process. A failure is
+    reported in the tables (with its message), not allowed to stop the other runs."""
+    try:
+        return _run_seed(name, frames, seed, diagnostics)
+    except (np.linalg.LinAlgError, RigcalError, ValueError) as e:
+        return {"scenario": name, "seed": seed, "frames": frames, "failed": f"{type(e).__name__}: {e}"}
+
+
+def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
     scn = scenario(name).with_frames(frames)
     ds = get_dataset(scn, seed, jobs=1)
     with Timer() as t:
@@ -127,11 +136,17 @@ def run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
     out = {"scenario": name, "seed": seed, "frames": frames, "sigma_px": sigma, "calibration_s": t.wall,
            "models": [cal.stats[n].distortion_model for n in cal.cam_names],
            "auto": _pair_stats(cal, ds.truth, sigma), "coverage": _coverage_samples(cal, ds.truth.rig),
+           "scale_ppm": rig_scale_ppm(cal, ds.truth.rig),
+           "corners_used": len(cal.obs), "corners_detected": int(sum(len(v.ids) for v in ds.views)),
            **view_offsets(cal, uv_true, sigma)}
     rng = np.random.default_rng([seed, 7])
     gcal = calibrate(gaussian_views(cal, uv_true, ds.corners, sigma, rng), ds.rig, ds.corners)
-    out["gauss"] = _pair_stats(gcal, ds.truth, sigma)
+    try:
+        out["gauss"] = _pair_stats(gcal, ds.truth, sigma)
+    except np.linalg.LinAlgError as e:
+        out["gauss_failed"] = f"pair_bounds: {e}"
     out["gauss_coverage"] = _coverage_samples(gcal, ds.truth.rig)
+    out["gauss_scale_ppm"] = rig_scale_ppm(gcal, ds.truth.rig)
     if diagnostics:
         model = truth_model(ds.truth.rig)
         if model != "auto":
@@ -169,7 +184,8 @@ def _ratio(runs: list[dict], variant: str, key: str) -> dict:
 def summarise(runs: list[dict]) -> dict:
     by = {}
     for r in runs:
-        by.setdefault(r["scenario"], []).append(r)
+        if "failed" not in r:
+            by.setdefault(r["scenario"], []).append(r)
     out = {}
     for name, rs in by.items():
         s = {}
@@ -181,6 +197,11 @@ def summarise(runs: list[dict]) -> dict:
         s["sigma_px"] = float(np.mean([r["sigma_px"] for r in rs]))
         s["view_offset_rms_px"] = float(np.sqrt(np.mean([r["view_offset_rms_px"] ** 2 for r in rs])))
         s["white_expectation_px"] = float(np.sqrt(np.mean([r["white_expectation_px"] ** 2 for r in rs])))
+        s["scale_ppm_mean"] = float(np.mean([r["scale_ppm"] for r in rs]))
+        s["scale_ppm_std"] = float(np.std([r["scale_ppm"] for r in rs]))
+        s["gauss_scale_ppm_mean"] = float(np.mean([r["gauss_scale_ppm"] for r in rs]))
+        s["gauss_scale_ppm_std"] = float(np.std([r["gauss_scale_ppm"] for r in rs]))
+        s["corners_used_share"] = float(sum(r["corners_used"] for r in rs) / sum(r["corners_detected"] for r in rs))
         s["seeds"] = len(rs)
         s["frames"] = rs[0]["frames"]
         out[name] = s
@@ -207,13 +228,20 @@ def tables(res: dict) -> str:
         worst_tm = (max(max(v["ratio"] for v in tm[q].values()) for q in ("rot_deg", "trans_mm"))
                     if tm["rot_deg"] else None)
         n_tm = next(iter(tm["rot_deg"].values()))["n"] if tm["rot_deg"] else 0
-        rows.append([name, s["frames"], s["seeds"], s["sigma_px"], s["view_offset_rms_px"], s["white_expectation_px"],
+        rows.append([name, s["frames"], s["seeds"], f"{100 * s['corners_used_share']:.0f} %", s["sigma_px"],
+                     s["view_offset_rms_px"], s["white_expectation_px"],
+                     f"{s['scale_ppm_mean']:+.0f} +- {s['scale_ppm_std']:.0f}",
+                     f"{s['gauss_scale_ppm_mean']:+.0f} +- {s['gauss_scale_ppm_std']:.0f}",
                      worst_auto, f"{worst_tm:.2f} ({n_tm} seeds)" if worst_tm is not None else "- (fisheye)",
                      s["restart_max_rot_diff_deg"], s["restart_max_trans_diff_mm"]])
-    parts.append(md_table(["scenario", "frames", "seeds", "corner noise px", "per-view offset RMS px",
-                           "same if white px", "worst ratio (auto)", "worst ratio (truth's model)",
-                           "restart from truth: max rot diff deg", "max trans diff mm"], rows,
-                          "Noise-limit diagnostics"))
+    parts.append(md_table(["scenario", "frames", "seeds", "detected corners used", "corner noise px",
+                           "per-view offset RMS px", "same if white px", "rig scale ppm", "rig scale ppm, white",
+                           "worst ratio (auto)", "worst ratio (truth's model)", "restart from truth: max rot diff deg",
+                           "max trans diff mm"], rows, "Noise-limit diagnostics"))
+    failed = [f"{r['scenario']} seed {r['seed']}: {r.get('failed') or r.get('gauss_failed')}" for r in res["runs"]
+              if "failed" in r or "gauss_failed" in r]
+    if failed:
+        parts.append("\nruns that failed (left out above): " + "; ".join(failed))
     return "\n".join(parts)
 
 

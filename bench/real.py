@@ -31,7 +31,7 @@ import numpy as np
 
 import rigcal
 from rigcal import geometry as geo
-from rigcal.core import ViewIn
+from rigcal.core import ViewIn, calibrate_views
 
 from .common import CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, md_table, say, write_json
 
@@ -40,7 +40,7 @@ SHARED = ROOT.parent / "shared" / "data" / "real"
 LINKED = OUT / "real"
 BUMBLEBEE_REF_MM = 120.05
 WIDEANGLE_REF_MM = 75.0
-OPENCV_REF_SQUARES = {"scikit-surgeryimage |T|/30": float(np.linalg.norm([100.304, -0.813, -1.167]) / 30.0),
+OPENCV_REF_SQUARES = {"scikit-surgeryimage norm(T)/30": float(np.linalg.norm([100.304, -0.813, -1.167]) / 30.0),
                       "OpenCV 5 stereoCalibrate re-run": 3.345}
 TRINOCULAR_REF_SQUARES = {("left", "middle"): 4.909, ("middle", "right"): 4.749, ("left", "right"): 9.642}
 
@@ -126,21 +126,34 @@ def wideangle(log=say) -> dict | None:
             **_cal_row(cal)}
 
 
+def _caliscope_doc() -> dict:
+    return tomllib.loads((SHARED / "caliscope_4cam_charuco_a" / "camera_array.toml").read_text())
+
+
 def caliscope_reference() -> dict[str, np.ndarray]:
     """caliscope's T_cam_world per camera (its camera_array.toml: x_cam = R x_world + t)."""
-    doc = tomllib.loads((SHARED / "caliscope_4cam_charuco_a" / "camera_array.toml").read_text())
     return {f"cam_{k}": geo.make_T(np.array(v["rotation"]), np.array(v["translation"]))
-            for k, v in doc["cameras"].items()}
+            for k, v in _caliscope_doc()["cameras"].items()}
 
 
-def caliscope(log=say) -> dict | None:
-    d = linked("caliscope", log)
-    if d is None:
-        return None
-    rig, corners, views, n, det_s = detections(d, "caliscope", log)
-    with Timer() as t:
-        cal = calibrate(views, rig, corners)
-    ref = caliscope_reference()
+def caliscope_intrinsics_rig(rig):
+    """The declared rig with caliscope's own intrinsics (its camera_array.toml, calibrated by
+    caliscope from separate recordings that are not in the set)."""
+    from rigcal.camera import CameraModel
+    from rigcal.rig import Camera
+
+    doc = _caliscope_doc()["cameras"]
+    cams = []
+    for c in rig.cameras:
+        v = doc[c.name.split("_")[1]]
+        K = np.array(v["matrix"])
+        m = CameraModel("pinhole", c.intrinsics.width, c.intrinsics.height, K[0, 0], K[1, 1], K[0, 2], K[1, 2],
+                        tuple(float(x) for x in v["distortions"]))
+        cams.append(Camera(c.name, m, c.T_body_cam))
+    return rig.with_cameras(cams)
+
+
+def _caliscope_pairs(cal, ref: dict) -> dict:
     pairs = {}
     names = list(cal.cam_names)
     for i, a in enumerate(names):
@@ -153,7 +166,33 @@ def caliscope(log=say) -> dict | None:
                 "translation_diff_m": float(np.linalg.norm(T_a_b[:3, 3] - R_a_b[:3, 3])),
                 "rotation_diff_deg": geo.rotation_angle_deg(T_a_b[:3, :3] @ R_a_b[:3, :3].T),
             }
-    return {"set": "caliscope", "images": n, "detection_s": det_s, "seconds": t.wall, "pairs": pairs,
+    return pairs
+
+
+def _intrinsics_vs(cal, ref_rig) -> dict:
+    out = {}
+    for c in cal.rig.cameras:
+        m, r = c.intrinsics, ref_rig.camera(c.name).intrinsics
+        out[c.name] = {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy, "ref_fx": r.fx, "ref_fy": r.fy,
+                       "ref_cx": r.cx, "ref_cy": r.cy, "model": cal.stats[c.name].distortion_model,
+                       "sigma": cal.stats[c.name].sigma_intrinsics}
+    return out
+
+
+def caliscope(log=say) -> dict | None:
+    d = linked("caliscope", log)
+    if d is None:
+        return None
+    rig, corners, views, n, det_s = detections(d, "caliscope", log)
+    with Timer() as t:
+        cal = calibrate(views, rig, corners)
+    ref = caliscope_reference()
+    ref_rig = caliscope_intrinsics_rig(rig)
+    # diagnostic: the same detections with caliscope's intrinsics held fixed (extrinsics only)
+    fixed = calibrate_views(views, ref_rig, corners, fix_intrinsics=True)
+    return {"set": "caliscope", "images": n, "detection_s": det_s, "seconds": t.wall,
+            "pairs": _caliscope_pairs(cal, ref), "intrinsics": _intrinsics_vs(cal, ref_rig),
+            "fixed_reference_intrinsics": {"pairs": _caliscope_pairs(fixed, ref), "rms_px": fixed.rms_px},
             **_cal_row(cal)}
 
 
@@ -188,34 +227,44 @@ def tables(res: dict) -> str:
     if bb:
         for dist, r in bb["runs"].items():
             rows.append(["bumblebee2", f"--distortion {dist} ({'/'.join(sorted(set(r['models'].values())))})",
-                         "baseline mm", r["baseline_mm"], bb["reference_mm"], r["baseline_mm"] - bb["reference_mm"],
-                         r["rms_px"], r["seconds"]])
+                         "baseline mm", f"{r['baseline_mm']:.3f}", f"{bb['reference_mm']:.2f}",
+                         f"{r['baseline_mm'] - bb['reference_mm']:+.3f} mm", r["rms_px"], r["seconds"]])
     oc = res.get("opencv_stereo")
     if oc:
         for lab, ref in oc["references"].items():
             rows.append(["opencv_stereo", f"auto ({'/'.join(sorted(set(oc['models'].values())))}), vs {lab}",
-                         "baseline squares", oc["baseline_squares"], ref,
+                         "baseline squares", f"{oc['baseline_squares']:.4f}", f"{ref:.4f}",
                          f"{100 * (oc['baseline_squares'] / ref - 1):+.2f} %", oc["rms_px"], oc["seconds"]])
     wa = res.get("wideangle")
     if wa:
         rows.append(["wideangle", f"auto ({'/'.join(sorted(set(wa['models'].values())))})", "baseline mm",
-                     wa["baseline_mm"], wa["reference_mm"], wa["baseline_mm"] - wa["reference_mm"], wa["rms_px"],
-                     wa["seconds"]])
+                     f"{wa['baseline_mm']:.3f}", f"{wa['reference_mm']:.2f}",
+                     f"{wa['baseline_mm'] - wa['reference_mm']:+.3f} mm", wa["rms_px"], wa["seconds"]])
     tri = res.get("trinocular")
     if tri:
         for k, b in tri["baselines"].items():
-            rows.append(["trinocular", f"auto, {k}", "baseline squares", b["squares"], b["opencv_pairwise"],
+            rows.append(["trinocular", f"auto, {k}", "baseline squares", f"{b['squares']:.4f}",
+                         f"{b['opencv_pairwise']:.3f}",
                          f"{100 * (b['squares'] / b['opencv_pairwise'] - 1):+.2f} %", tri["rms_px"], tri["seconds"]])
     parts = [md_table(["set", "run", "quantity", "rigcal", "reference", "difference", "reproj RMS px", "calib s"],
                       rows, "Real images: calibrated vs published reference")]
     cs = res.get("caliscope")
     if cs:
-        rows = [[k, p["distance_m"], p["reference_distance_m"], 100 * p["translation_diff_m"], p["rotation_diff_deg"]]
+        fx = cs["fixed_reference_intrinsics"]["pairs"]
+        rows = [[k, f"{p['distance_m']:.3f}", f"{p['reference_distance_m']:.3f}", 100 * p["translation_diff_m"],
+                 p["rotation_diff_deg"], 100 * fx[k]["translation_diff_m"], fx[k]["rotation_diff_deg"]]
                 for k, p in cs["pairs"].items()]
         parts.append(md_table(["pair", "rigcal distance m", "caliscope distance m", "rel. translation diff cm",
-                               "rel. rotation diff deg"], rows,
-                              f"caliscope 4-camera set vs caliscope's own solution (reproj RMS {cs['rms_px']:.3f} px, "
-                              f"{cs['corners']} corners, models {sorted(set(cs['models'].values()))})"))
+                               "rel. rotation diff deg", "with caliscope's intrinsics fixed: cm", "deg"], rows,
+                              f"caliscope 4-camera set vs caliscope's own solution (target 2.5 cm / 2 deg; "
+                              f"reproj RMS {cs['rms_px']:.3f} px, {cs['corners']} corners, models "
+                              f"{sorted(set(cs['models'].values()))})"))
+        rows = [[n, f"{c['fx']:.1f} / {c['fy']:.1f}", f"{c['ref_fx']:.1f} / {c['ref_fy']:.1f}",
+                 f"{c['cx']:.1f} / {c['cy']:.1f}", f"{c['ref_cx']:.1f} / {c['ref_cy']:.1f}", c["model"],
+                 (f"{c['sigma']['cx']:.1f} / {c['sigma']['cy']:.1f}" if c.get("sigma") else "-")]
+                for n, c in cs["intrinsics"].items()]
+        parts.append(md_table(["camera", "rigcal fx / fy", "caliscope fx / fy", "rigcal cx / cy", "caliscope cx / cy",
+                               "model", "rigcal 1-sigma cx / cy"], rows, "caliscope: intrinsics from this set alone"))
     missing = [k for k in SETS if k in res and res[k] is None]
     if missing:
         parts.append(f"\nnot run (no {SHARED}): {', '.join(missing)}")
