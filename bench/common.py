@@ -192,6 +192,31 @@ def pose_errors_body(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:
     return out
 
 
+MIN_FRAME_CORNERS = 4
+
+
+def crb_pairs(cal: Calibration, truth: Truth, sigma_px: float) -> tuple[dict, int]:
+    """rigcal.bounds.pair_bounds, robust to frames the calibration left with fewer than
+    MIN_FRAME_CORNERS inlier corners: such a frame's 6 pose unknowns absorb its few
+    residuals exactly, so it carries no information about the cameras, but its singular
+    block makes pair_bounds raise (rigcal.solve.camera_covariance inverts every frame
+    block). Their corners are left out of the bound. Returns (bounds, frames left out)."""
+    from dataclasses import replace
+
+    from rigcal.bounds import pair_bounds
+
+    o = cal.obs
+    n = np.bincount(o.frame[cal.inliers], minlength=len(cal.frames))
+    weak = n < MIN_FRAME_CORNERS
+    use = cal.inliers & ~weak[o.frame]
+    dropped = int(np.sum(weak & (n > 0)))
+    target = cal if dropped == 0 else replace(cal, inliers=use)
+    try:
+        return pair_bounds(target, truth, sigma_px), dropped
+    except np.linalg.LinAlgError:
+        return {}, dropped
+
+
 def rig_scale_ppm(cal: Calibration, truth_rig: Rig) -> float:
     """Least-squares scale error of the calibrated camera positions about their centroid
     against the truth (output frame), parts per million: a rig that came out uniformly
