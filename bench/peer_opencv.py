@@ -113,15 +113,21 @@ def run_multiview(views, rig, corners: dict) -> dict:
     info = {"n_points_per_frame": inp["n_points"], "frames": int(inp["detectionMask"].shape[1]),
             "frames_shared": shared, "observations_used": inp["observations_used"],
             "observations_available": int(sum(len(v.ids) for v in views))}
+    args = (inp["objPoints"], inp["imagePoints"], sizes, inp["detectionMask"], models)
     with Timer() as t:
         try:
-            rms, Ks, Ds, Rs, Ts = cv2.calibrateMultiview(inp["objPoints"], inp["imagePoints"], sizes,
-                                                         inp["detectionMask"], models, None, None, None, None)
+            rms, Ks, Ds, Rs, Ts = cv2.calibrateMultiview(*args, None, None, None, None)
         except cv2.error as e:
-            msg = str(e).strip().splitlines()[-1]
-            m = re.search(r"error: \([^)]*\) (.*?) in function", msg)
-            msg = m.group(1).strip() if m else msg
-            return {**info, "ok": False, "error": msg, "seconds": t.wall if t.wall else 0.0}
+            first = _cv_message(e)
+            try:
+                # OpenCV's own per-camera intrinsics step failed: give it the declared intrinsics
+                Ks0 = [c.intrinsics.K for c in rig.cameras]
+                Ds0 = [np.array(c.intrinsics.dist, float).reshape(1, -1) for c in rig.cameras]
+                rms, Ks, Ds, Rs, Ts = cv2.calibrateMultiview(*args, Ks0, Ds0, None, None,
+                                                             flags=cv2.CALIB_USE_INTRINSIC_GUESS)
+                info["note"] = f"own intrinsics step failed ({first}); declared intrinsics given as the guess"
+            except cv2.error as e2:
+                return {**info, "ok": False, "error": first, "error_with_guess": _cv_message(e2)}
     cams = []
     for i, c in enumerate(rig.cameras):
         R = np.asarray(Rs[i], float)
@@ -135,6 +141,15 @@ def run_multiview(views, rig, corners: dict) -> dict:
         cams.append(Camera(c.name, m, geo.inv_T(T_cam_cam0)))
     return {**info, "ok": True, "rms_px": float(rms), "seconds": t.wall, "cpu_s": t.cpu,
             "rig": rig.with_cameras(cams)}
+
+
+def _cv_message(e: cv2.error) -> str:
+    """OpenCV's error in a few words: its detail when short, else its error class."""
+    msg = str(e).strip().splitlines()[-1]
+    m = re.search(r"error: \(-?\d+:([^)]*)\) (.*?)(?: in function|$)", msg)
+    if not m:
+        return msg[:100]
+    return m.group(2).strip() if len(m.group(2)) <= 80 else m.group(1).strip()
 
 
 def run_scenario(scn, seed: int = 0, rigcal_result: dict | None = None, log=say) -> dict:
@@ -183,7 +198,8 @@ def tables(results: list[dict]) -> str:
                          max(abs(x) for x in r["rigcal"]["focal"].values()),
                          max(abs(x) for x in cv["focal"].values()), r["rigcal"]["calibration_s"], cv["seconds"],
                          f"{cv['observations_used']}/{cv['observations_available']} corners "
-                         f"({cv['n_points_per_frame']}/frame), {cv['frames_shared']} shared frames"])
+                         f"({cv['n_points_per_frame']}/frame), {cv['frames_shared']} shared frames, RMS "
+                         f"{cv['rms_px']:.3g} px" + (f"; {cv['note']}" if cv.get("note") else "")])
     return md_table(["scenario", "pair", "rigcal rot deg", "OpenCV rot deg", "rigcal trans mm", "OpenCV trans mm",
                      "rigcal max focal err %", "OpenCV max focal err %", "rigcal s", "OpenCV s",
                      "OpenCV input / note"], rows,
