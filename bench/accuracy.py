@@ -16,8 +16,6 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
 from rigcal.bounds import measured_corner_noise
 
 from .common import (SCENARIOS, Timer, calibrate, crb_pairs, get_dataset, md_table, rig_errors, say, scenario,

@@ -28,9 +28,9 @@ import numpy as np
 
 import rigcal
 
-from .noise_limit import truth_model
 from .common import (RIGS, Timer, calibrate, md_table, perturbed_truth, pose_errors_body, run_pool, say,
                      synthetic_room, with_noise, write_json)
+from .noise_limit import truth_model
 
 PARAMS = ("rot F", "rot L", "rot U", "pos F", "pos L", "pos U")
 RIG = "drone-stereo-back.yaml"

@@ -25,7 +25,6 @@ bound is computed per seed for its own scene, so the ratio keeps its meaning.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
