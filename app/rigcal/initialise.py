@@ -150,7 +150,10 @@ def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str) -
         proj = cv2.projectPoints(o, r, t, np.eye(3), None)[0].reshape(-1, 2)
         err = float(np.sqrt(np.mean(np.sum((proj - xn) ** 2, axis=1))))
         T = geo.make_T(cv2.Rodrigues(r)[0], t.ravel())
-        if t.ravel()[2] > 0 and camera_faces_print(T) and (best is None or err < best[1]):
+        # the corners seen must be in front; the board's origin need not be (a fisheye sees
+        # boards that reach past its side, with the origin behind it)
+        in_front = bool(np.all(geo.transform(T, o)[:, 2] > 0))
+        if in_front and camera_faces_print(T) and (best is None or err < best[1]):
             best = (T, err)
     if best is None:
         return None

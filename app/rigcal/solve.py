@@ -384,7 +384,12 @@ class NormalEquations:
         diag = np.einsum("fii->fi", blocks)
         diag *= 1.0 + lam
         diag += 1e-12  # a frame left without observations stays put instead of blowing up
-        Hinv = np.linalg.inv(blocks)
+        if lam > 0:
+            Hinv = np.linalg.inv(blocks)
+        else:
+            # Marginalising (covariance): a frame left with 1-3 corners is rank-deficient; its
+            # pseudo-inverse lets those corners inform nothing, instead of an inverse of noise.
+            Hinv = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
         nF = len(Hinv)
         n_a = len(H_aa)
         # batched matmul per frame block (einsum without BLAS was the slowest line here)
