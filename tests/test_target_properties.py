@@ -133,21 +133,7 @@ def test_valid_files_with_a_line_replaced_only_raise_target_file_errors(i, data)
 # ----------------------------------------------------------------------------- mutations of valid targets
 
 
-def paths(doc, prefix=()):
-    out = [prefix]
-    if isinstance(doc, dict):
-        for k, v in doc.items():
-            out += paths(v, prefix + (k,))
-    elif isinstance(doc, list):
-        for i, v in enumerate(doc):
-            out += paths(v, prefix + (i,))
-    return out
-
-
-def get(doc, path):
-    for k in path:
-        doc = doc[k]
-    return doc
+from doc_paths import get, paths  # noqa: E402 (shared with the other loader's properties)
 
 
 NUMBER_EDITS = [0, -1, 1, 2, 3, 10**9, -0.0, 1e-320, 1e308, float("nan"), float("inf"), 10**400, True, "1", None,
