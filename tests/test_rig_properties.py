@@ -4,7 +4,6 @@ anything else; generated valid rigs always load and round-trip."""
 
 from __future__ import annotations
 
-import copy
 from pathlib import Path
 
 import numpy as np
@@ -101,35 +100,14 @@ def test_valid_files_with_a_line_replaced_only_raise_rig_file_errors(i, data):
 # ----------------------------------------------------------------------------- mutations of valid rigs
 
 
-from doc_paths import get, paths  # noqa: E402 (shared with the other loader's properties)
+from doc_paths import mutated_docs as shared_mutated_docs  # noqa: E402 (shared with the other loader's properties)
 
 
 NUMBER_EDITS = [0, -1.0, 1e-320, 1e308, float("nan"), float("inf"), -0.0, 10**400, True, "1", None, [], {}]
 
 
-@st.composite
-def mutated_docs(draw):
-    doc = copy.deepcopy(draw(st.sampled_from(VALID_DOCS)))
-    for _ in range(draw(st.integers(1, 3))):
-        all_paths = [p for p in paths(doc) if p]
-        if not all_paths:
-            break
-        path = draw(st.sampled_from(all_paths))
-        parent, last = get(doc, path[:-1]), path[-1]
-        action = draw(st.sampled_from(["delete", "replace", "number", "insert", "copy"]))
-        if action == "delete":
-            del parent[last]
-        elif action == "replace":
-            parent[last] = draw(values)
-        elif action == "number":
-            parent[last] = draw(st.sampled_from(NUMBER_EDITS))
-        elif action == "insert" and isinstance(parent, dict):
-            parent[draw(keys)] = draw(values)
-        elif action == "insert":
-            parent.insert(last, draw(values))
-        else:  # copy another subtree here (a camera's pose onto another, a key into a list...)
-            parent[last] = copy.deepcopy(get(doc, draw(st.sampled_from(all_paths))))
-    return doc
+def mutated_docs():
+    return shared_mutated_docs(VALID_DOCS, NUMBER_EDITS, keys, values)
 
 
 @SETTINGS

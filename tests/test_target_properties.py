@@ -5,7 +5,6 @@ they say and round-trip."""
 
 from __future__ import annotations
 
-import copy
 
 import cv2
 import pytest
@@ -133,36 +132,15 @@ def test_valid_files_with_a_line_replaced_only_raise_target_file_errors(i, data)
 # ----------------------------------------------------------------------------- mutations of valid targets
 
 
-from doc_paths import get, paths  # noqa: E402 (shared with the other loader's properties)
+from doc_paths import mutated_docs as shared_mutated_docs  # noqa: E402 (shared with the other loader's properties)
 
 
 NUMBER_EDITS = [0, -1, 1, 2, 3, 10**9, -0.0, 1e-320, 1e308, float("nan"), float("inf"), 10**400, True, "1", None,
                 [], {}, [3, 3], [0, 5], [10**9, 10**9], "DICT_4X4_50", "DICT_5X5_1001"]
 
 
-@st.composite
-def mutated_docs(draw):
-    doc = copy.deepcopy(draw(st.sampled_from(VALID_DOCS)))
-    for _ in range(draw(st.integers(1, 3))):
-        all_paths = [p for p in paths(doc) if p]
-        if not all_paths:
-            break
-        path = draw(st.sampled_from(all_paths))
-        parent, last = get(doc, path[:-1]), path[-1]
-        action = draw(st.sampled_from(["delete", "replace", "number", "insert", "copy"]))
-        if action == "delete":
-            del parent[last]
-        elif action == "replace":
-            parent[last] = draw(values)
-        elif action == "number":
-            parent[last] = copy.deepcopy(draw(st.sampled_from(NUMBER_EDITS)))  # later edits must not reach the list
-        elif action == "insert" and isinstance(parent, dict):
-            parent[draw(keys)] = draw(values)
-        elif action == "insert":
-            parent.insert(last, draw(values))
-        else:  # another subtree here: a board twice, a key's value into another key
-            parent[last] = copy.deepcopy(get(doc, draw(st.sampled_from(all_paths))))
-    return doc
+def mutated_docs():
+    return shared_mutated_docs(VALID_DOCS, NUMBER_EDITS, keys, values)
 
 
 
