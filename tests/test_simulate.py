@@ -218,6 +218,29 @@ def test_perturb_rig_is_seeded_and_realistic():
     assert all(np.allclose(c.T_body_cam, d.T_body_cam) for c, d in zip(zero.cameras, rig.cameras))
 
 
+def test_perturb_rig_keeps_lens_errors_when_the_distortion_draw_is_refused():
+    """A fisheye whose image circle crosses the image border: a principal-point shift alone
+    can move border pixels out of the field, so no distortion draw passes the field check.
+    That once dropped the focal and principal-point errors too (the true lens equalled the
+    declared one); now every camera's truth has its own fx, cx, cy, and a refused draw
+    leaves exactly the declared distortion."""
+    from rigcal.simulate import _field_border
+
+    rig = load_rig(RIGS / "fisheye-stereo.yaml")
+    kept, refused = 0, 0
+    for seed in range(12):
+        truth = perturb_rig(rig, np.random.default_rng([seed, 1]))
+        for cd, ct in zip(rig.cameras, truth.cameras):
+            m, md = ct.intrinsics, cd.intrinsics
+            assert m.fx != md.fx and m.fy != md.fy and m.cx != md.cx and m.cy != md.cy, (seed, cd.name)
+            if m.dist == md.dist:
+                refused += 1
+            else:  # a kept distortion error never costs a border pixel the ray the declared lens has there
+                assert np.all(_field_border(m) | ~_field_border(md)), (seed, cd.name)
+                kept += 1
+    assert kept > 0 and refused > 0  # these seeds exercise both branches
+
+
 def test_default_scene_and_generated_targets():
     assert default_scene(load_rig(RIGS / "drone-stereo-back.yaml")) == "room"  # the back camera shares no view
     assert default_scene(load_rig(RIGS / "surround-6.yaml")) == "room"  # no view common to all six

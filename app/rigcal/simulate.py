@@ -77,7 +77,10 @@ def perturb_rig(rig: Rig, rng: np.random.Generator, mount_error_mm: float = 5.0,
     plus N(0, focal_error / 10) more (so fx != fy); cx, cy + U(-5, 5) px; distortion
     the declared coefficients plus small non-zero terms (pinhole: k1, k2, p1, p2 -
     k3 and higher stay as declared, so a 4- or 5-coefficient model fits exactly;
-    at least 4 coefficients are written; fisheye: k1..k4)."""
+    at least 4 coefficients are written; fisheye: k1..k4), at full, half or quarter
+    size, the first that leaves a ray at every image-border pixel the declared lens has
+    one at, else the declared coefficients. The focal and principal-point errors are
+    kept either way."""
     cams = []
     for cam in rig.cameras:
         if cam.T_body_cam is None:
@@ -94,17 +97,16 @@ def perturb_rig(rig: Rig, rng: np.random.Generator, mount_error_mm: float = 5.0,
         e2 = rng.normal(0.0, focal_error / 10.0)
         pp = rng.uniform(-PP_OFFSET_PX, PP_OFFSET_PX, 2)
         draws = rng.uniform(-1.0, 1.0, 6)  # drawn once so retries below do not shift the stream
-        true_m = None
+        # the focal and principal-point errors are kept whatever becomes of the distortion draw
+        lens = m.with_(fx=m.fx * (1 + e1), fy=m.fy * (1 + e1 + e2), cx=m.cx + pp[0], cy=m.cy + pp[1])
         declared_field = _field_border(m)
-        for scale in (1.0, 0.5, 0.25, 0.0):
-            dist = _perturbed_distortion(m, draws, scale)
-            cand = m.with_(fx=m.fx * (1 + e1), fy=m.fy * (1 + e1 + e2), cx=m.cx + pp[0], cy=m.cy + pp[1], dist=dist)
+        true_m = lens  # the declared distortion, when no scaled draw passes
+        for scale in (1.0, 0.5, 0.25):
+            cand = lens.with_(dist=_perturbed_distortion(m, draws, scale))
             # the errors must not make the lens fold back where the declared one does not
             if np.all(_field_border(cand) | ~declared_field):
                 true_m = cand
                 break
-        if true_m is None:
-            true_m = m
         cams.append(Camera(name=cam.name, intrinsics=true_m, T_body_cam=T))
     return rig.with_cameras(cams)
 
