@@ -1,5 +1,6 @@
 """Shared pieces of the benchmarks: scenarios, the render + detect cache, calibration
-runs, synthetic corner observations, table printing and JSON output.
+runs, table printing and JSON output. Synthetic corner observations (no rendering) come
+from rigcal.synthetic.
 
 Every random draw is seeded. Renders and detections are cached per (scenario, frames,
 seed) under bench/out/cache, keyed by a hash of the code that produces them
@@ -272,70 +273,7 @@ def rig_errors(est: Rig, truth_rig: Rig) -> dict:
             "stereo": {pair_key(*k): v for k, v in r["stereo"].items()}}
 
 
-# ----------------------------------------------------------------------------- synthetic observations
-
-
-def grid_corners(nx: int, ny: int, s: float) -> np.ndarray:
-    """(nx*ny, 3) board-frame corners on an s-metre grid, ids row-major."""
-    k = np.arange(nx * ny)
-    return np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(len(k))])
-
-
-@dataclass
-class SyntheticScene:
-    """Exact projections of wall boards around a rig that turns through every heading."""
-
-    views: list[ViewIn]  # noise-free
-    corners: dict[str, np.ndarray]
-    truth: Truth
-
-
-def synthetic_room(truth_rig: Rig, rng: np.random.Generator, n_frames: int, n_boards: int = 4,
-                   board=(10, 7, 0.14), dist: float = 2.0, min_corners: int = 8) -> SyntheticScene:
-    """Boards on the walls of a room around the rig; per frame a random heading, +-20 deg
-    pitch and roll and +-0.4 m offset. Views keep corners inside the image (2 px margin)
-    and drop grazing views, as a detector would. Noise-free: add noise per seed."""
-    nx, ny, s = board
-    P = grid_corners(nx, ny, s)
-    centre = P.mean(0)
-    T_wb = []
-    for b in range(n_boards):
-        yaw = 2 * np.pi * b / n_boards
-        z = np.array([np.cos(yaw), np.sin(yaw), 0.0])  # the board's z points away from the rig
-        x = np.cross([0, 0, 1.0], z)
-        x /= np.linalg.norm(x)
-        R = np.column_stack([x, np.cross(z, x), z])
-        T_wb.append(geo.make_T(R, dist * z - R @ centre))
-    names = [f"b{b}" for b in range(n_boards)]
-    T_wB = {}
-    views = []
-    for f in range(n_frames):
-        yaw = rng.uniform(-np.pi, np.pi)
-        pitch, roll = rng.uniform(-np.radians(20), np.radians(20), 2)
-        R = geo.R_from_rotvec([0, 0, yaw]) @ geo.R_from_rotvec([0, pitch, 0]) @ geo.R_from_rotvec([roll, 0, 0])
-        T = geo.make_T(R, rng.uniform(-0.4, 0.4, 3))
-        stem = f"{f:06d}"
-        T_wB[stem] = T
-        for cam in truth_rig.cameras:
-            T_cam_world = geo.inv_T(cam.T_body_cam) @ geo.inv_T(T)
-            for b, name in enumerate(names):
-                T_cam_board = T_cam_world @ T_wb[b]
-                p_cam = geo.transform(T_cam_board, P)
-                uv, valid = cam.intrinsics.project(p_cam)
-                ok = valid & cam.intrinsics.in_image(uv, margin=2)
-                if ok.sum() < min_corners:
-                    continue
-                mean_ray = p_cam[ok].mean(0)
-                if abs(T_cam_board[:3, 2] @ mean_ray / np.linalg.norm(mean_ray)) < 0.25:
-                    continue  # grazing
-                ids = np.nonzero(ok)[0]
-                views.append(ViewIn(cam.name, stem, name, ids, uv[ok]))
-    truth = Truth(truth_rig, dict(zip(names, T_wb)), T_wB, {})
-    return SyntheticScene(views, {n: P for n in names}, truth)
-
-
-def with_noise(views: list[ViewIn], sigma: float, rng: np.random.Generator) -> list[ViewIn]:
-    return [ViewIn(v.camera, v.frame, v.board, v.ids, v.uv + rng.normal(0.0, sigma, v.uv.shape)) for v in views]
+# ----------------------------------------------------------------------------- the true rig
 
 
 def perturbed_truth(rig: Rig, seed: int) -> Rig:

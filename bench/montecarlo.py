@@ -27,9 +27,9 @@ import argparse
 import numpy as np
 
 import rigcal
+from rigcal.synthetic import room_scene, with_noise
 
-from .common import (RIGS, Timer, calibrate, md_table, perturbed_truth, pose_errors_body, run_pool, say,
-                     synthetic_room, with_noise, write_json)
+from .common import RIGS, Timer, calibrate, md_table, perturbed_truth, pose_errors_body, run_pool, say, write_json
 from .noise_limit import truth_model
 
 PARAMS = ("rot F", "rot L", "rot U", "pos F", "pos L", "pos U")
@@ -43,7 +43,7 @@ def _scene():
     if not _SCENE:
         rig = rigcal.load_rig(RIGS / RIG)
         truth_rig = perturbed_truth(rig, 0)
-        _SCENE["v"] = (rig, truth_rig, synthetic_room(truth_rig, np.random.default_rng([0, 3]), FRAMES))
+        _SCENE["v"] = (rig, truth_rig, room_scene(truth_rig, np.random.default_rng([0, 3]), FRAMES))
     return _SCENE["v"]
 
 

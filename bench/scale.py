@@ -1,7 +1,7 @@
 """Scale: solver time and memory for 6 cameras and many frames (issue 8; target 6 x 500 < 30 s).
 
 Detections are synthetic (exact projections of four wall boards around rigs/surround-6
-plus 0.1 px Gaussian noise, bench.common.synthetic_room): rendering 3000 images would
+plus 0.1 px Gaussian noise, rigcal.synthetic.room_scene): rendering 3000 images would
 measure the renderer, not the solver. Each size runs in its own process so the peak
 resident memory (ru_maxrss) belongs to that calibration alone.
 
@@ -20,9 +20,9 @@ import sys
 import numpy as np
 
 import rigcal
+from rigcal.synthetic import room_scene, with_noise
 
-from .common import ROOT, RIGS, Timer, calibrate, md_table, perturbed_truth, rig_errors, say, synthetic_room, \
-    with_noise, write_json
+from .common import ROOT, RIGS, Timer, calibrate, md_table, perturbed_truth, rig_errors, say, write_json
 
 FRAMES = (100, 200, 500, 1000)
 SIGMA_PX = 0.1
@@ -31,7 +31,7 @@ SIGMA_PX = 0.1
 def one(frames: int) -> dict:
     rig = rigcal.load_rig(RIGS / "surround-6.yaml")
     truth_rig = perturbed_truth(rig, 0)
-    sc = synthetic_room(truth_rig, np.random.default_rng([frames, 5]), frames)
+    sc = room_scene(truth_rig, np.random.default_rng([frames, 5]), frames)
     views = with_noise(sc.views, SIGMA_PX, np.random.default_rng([frames, 6]))
     rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     with Timer() as t:

@@ -11,6 +11,7 @@ import pytest
 
 import rigcal
 from rigcal.bounds import pair_bounds
+from rigcal.synthetic import room_scene, with_noise
 
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "__main__")
 
@@ -27,8 +28,8 @@ def micro():
 
     rig = rigcal.load_rig(common.RIGS / "stereo-forward.yaml")
     truth_rig = common.perturbed_truth(rig, 3)
-    sc = common.synthetic_room(truth_rig, np.random.default_rng(4), n_frames=12)
-    views = common.with_noise(sc.views, 0.05, np.random.default_rng(5))
+    sc = room_scene(truth_rig, np.random.default_rng(4), n_frames=12)
+    views = with_noise(sc.views, 0.05, np.random.default_rng(5))
     cal = common.calibrate(views, rig, sc.corners)
     return rig, truth_rig, sc, views, cal
 
