@@ -17,7 +17,7 @@ import rigcal
 from rigcal import calibrate, checks, geometry as geo, report
 from rigcal.core import calibrate_views
 
-from synthetic_obs import perturb, room_scene
+from synthetic_obs import noisy_room, perturb
 
 RIG = "rigs/drone-stereo-back.yaml"
 N_FRAMES = 15
@@ -33,7 +33,7 @@ def synthetic_calibration():
     rig = rigcal.load_rig(RIG)
     rng = np.random.default_rng(5)
     truth = perturb(rig, rng)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=N_FRAMES, noise_px=0.1)
+    views, corners = noisy_room(truth, rng, 0.1, n_frames=N_FRAMES)
     spoiled = range(0, len(views), 7)
     for k in spoiled:
         uv = views[k].uv.copy()

@@ -13,8 +13,9 @@ from rigcal.compare import compare_rigs
 from rigcal.core import ViewIn, calibrate_views
 from rigcal.errors import CalibrationError
 from rigcal.solve import Intrinsics, Observations, Problem, State, levenberg_marquardt
+from rigcal.synthetic import grid_corners, room_scene, with_noise
 
-from synthetic_obs import grid_corners, perturb, room_scene
+from synthetic_obs import noisy_room, perturb
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +25,8 @@ def drone():
 
 def _small_problem(rig, rng, n_frames=6, jitter=True):
     truth = perturb(rig, rng)
-    views, corners, T_wb, T_wB = room_scene(truth, rng, n_frames=n_frames, noise_px=0.1)
+    sc = room_scene(truth, rng, n_frames=n_frames)
+    views, corners = with_noise(sc.views, 0.1, rng), sc.corners
     names, boards = list(rig.names), list(corners)
     frames = sorted({v.frame for v in views})
     cam = np.concatenate([np.full(len(v.ids), names.index(v.camera)) for v in views])
@@ -36,8 +38,8 @@ def _small_problem(rig, rng, n_frames=6, jitter=True):
     intr = [Intrinsics("pinhole", np.concatenate([[c.intrinsics.fx, c.intrinsics.fy, c.intrinsics.cx,
                                                    c.intrinsics.cy], c.intrinsics.dist])) for c in truth.cameras]
     T_cb = np.array([geo.inv_T(c.T_body_cam) for c in truth.cameras])
-    T_bw = np.array([geo.inv_T(T_wB[int(f)]) for f in frames])
-    state = State(intr, T_cb, T_bw, T_wb.copy())
+    T_bw = np.array([geo.inv_T(sc.T_world_body[f]) for f in frames])
+    state = State(intr, T_cb, T_bw, np.array([sc.T_world_board[b] for b in boards]))
     if jitter:  # start away from the truth so deltas are non-zero (tests the SO(3) left Jacobian)
         for T in (state.T_cam_body[1:], state.T_body_world, state.T_world_board[1:]):
             for k in range(len(T)):
@@ -86,7 +88,7 @@ def test_round_trip_non_overlapping_rig_within_noise(drone):
     predicted sigmas explain the errors."""
     rng = np.random.default_rng(11)
     truth = perturb(drone, rng)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=30, noise_px=0.05)
+    views, corners = noisy_room(truth, rng, 0.05, n_frames=30)
     cal = calibrate_views(views, drone, corners)
     pairs = _pair_errors(cal.rig, truth)
     for (a, b), e in pairs.items():
@@ -107,9 +109,9 @@ def test_round_trip_non_overlapping_rig_within_noise(drone):
 def test_planted_outliers_are_rejected(drone):
     rng = np.random.default_rng(12)
     truth = perturb(drone, rng)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=24, noise_px=0.05)
+    views, corners = noisy_room(truth, rng, 0.05, n_frames=24)
     bad = []
-    for k in rng.choice(len(views), 25, replace=False):
+    for k in rng.choice(np.arange(1, len(views)), 25, replace=False):  # view 0 is mirrored below
         v = views[k]
         uv = v.uv.copy()
         i = rng.integers(len(uv))
@@ -130,7 +132,7 @@ def test_planted_outliers_are_rejected(drone):
 def test_disconnected_camera_is_named(drone):
     rng = np.random.default_rng(13)
     truth = perturb(drone, rng)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=20, noise_px=0.05)
+    views, corners = noisy_room(truth, rng, 0.05, n_frames=20)
     # the back camera only ever sees a board no front camera sees, in frames of its own
     back = [ViewIn(v.camera, "x" + v.frame, "lonely", v.ids, v.uv) for v in views if v.camera == "back"]
     front = [v for v in views if v.camera != "back"]
@@ -142,7 +144,7 @@ def test_disconnected_camera_is_named(drone):
 def test_too_few_frames_suggests_fix_intrinsics(drone):
     rng = np.random.default_rng(14)
     truth = perturb(drone, rng)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=20, noise_px=0.05)
+    views, corners = noisy_room(truth, rng, 0.05, n_frames=20)
     back_frames = sorted({v.frame for v in views if v.camera == "back"})[:2]
     views = [v for v in views if v.camera != "back" or v.frame in back_frames]
     with pytest.raises(CalibrationError, match=r"back: boards detected in only 2 frame\(s\).*--fix-intrinsics"):
@@ -152,7 +154,7 @@ def test_too_few_frames_suggests_fix_intrinsics(drone):
 def test_reference_camera_keeps_its_declared_pose(drone):
     rng = np.random.default_rng(15)
     truth = perturb(drone, rng)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=20, noise_px=0.05)
+    views, corners = noisy_room(truth, rng, 0.05, n_frames=20)
     cal = calibrate_views(views, drone, corners, reference="camera:back")
     assert np.allclose(cal.rig.camera("back").T_body_cam, drone.camera("back").T_body_cam, atol=1e-12)
     assert np.allclose(cal.stats["back"].sigma_position_mm, 0, atol=1e-9)
@@ -161,7 +163,7 @@ def test_reference_camera_keeps_its_declared_pose(drone):
 def test_rig_without_declared_poses_uses_first_camera_as_body(drone):
     rng = np.random.default_rng(16)
     truth = perturb(drone, rng)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=20, noise_px=0.05)
+    views, corners = noisy_room(truth, rng, 0.05, n_frames=20)
     bare = drone.with_cameras([rigcal.Camera(c.name, c.intrinsics, None) for c in drone.cameras])
     cal = calibrate_views(views, bare, corners)
     assert np.allclose(cal.rig.camera("front_left").T_body_cam, np.eye(4), atol=1e-12)
@@ -211,7 +213,7 @@ def test_fisheye_pair_round_trip():
     rig = rigcal.load_rig("rigs/fisheye-stereo.yaml")
     rng = np.random.default_rng(18)
     truth = perturb(rig, rng, focal=0.01)
-    views, corners, _, _ = room_scene(truth, rng, n_frames=20, noise_px=0.05, board=(8, 6, 0.2), dist=1.5)
+    views, corners = noisy_room(truth, rng, 0.05, n_frames=20, board=(8, 6, 0.2), dist=1.5)
     cal = calibrate_views(views, rig, corners)
     e = _pair_errors(cal.rig, truth)[tuple(rig.names)]
     assert e["rot_deg"] < 0.05 and e["trans_mm"] < 1.0, e
