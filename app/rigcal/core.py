@@ -16,7 +16,7 @@ from . import geometry as geo
 from .camera import CameraModel, PINHOLE_MODEL_NAMES
 from .errors import CalibrationError, InputError
 from .initialise import (MAX_INIT_VIEWS, MonoFit, PosedView, _select_views, corner_residuals, fit_pinhole,
-                         inlier_masks, pnp, pose_graph, resolve_flips)
+                         inlier_masks, pnp_views, pose_graph, resolve_flips)
 from .rig import Camera, Rig
 from .solve import Intrinsics, Observations, Problem, State, bundle_adjust, camera_covariance
 
@@ -164,11 +164,7 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
             notes.extend(log)
             if n == 8:
                 values = fit8.values
-    Ts = []
-    for o, i in zip(obj, img):
-        r = pnp(o, i, values, declared.model)
-        Ts.append(r)
-    return values, Ts, notes
+    return values, pnp_views(obj, img, values, declared.model), notes
 
 
 def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tuple[MonoFit, list, list]:
@@ -201,8 +197,7 @@ def _init_fisheye(obj: list, img: list, declared: CameraModel) -> np.ndarray:
     """One-camera bundle adjustment from the declared intrinsics and per-view PnP."""
     values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
     keep, Ts = [], []
-    for k, (o, i) in enumerate(zip(obj, img)):
-        r = pnp(o, i, values, "fisheye")
+    for k, r in enumerate(pnp_views(obj, img, values, "fisheye")):
         if r is not None:
             keep.append(k)
             Ts.append(r[0])
@@ -292,7 +287,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         for c, log in logs.items():
             selection[cam_names[c]].extend(log)
         if reduced is not None:
-            res = bundle_adjust(obs, reduced, gauge_cam, gauge_board, fix)
+            res = bundle_adjust(obs, reduced, gauge_cam, gauge_board, fix, inliers=res.inliers)
             solve_s += res.seconds
     timings["solve_s"] = solve_s
     if not res.converged:

@@ -471,21 +471,35 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
 
 def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: int,
                   fix_intrinsics: np.ndarray | None = None, reject_sigma: float = 5.0,
-                  max_rounds: int = 5) -> SolveResult:
+                  max_rounds: int = 5, inliers: np.ndarray | None = None) -> SolveResult:
     """Robust solve (Cauchy), then drop corners beyond `reject_sigma` robust sigmas and
-    re-solve with plain least squares on the inliers until the inlier set is stable."""
+    re-solve with plain least squares on the inliers until the inlier set is stable.
+
+    inliers: (M,) bool from an earlier solve of nearly this problem (the same corners,
+    a state close to its solution): the robust pass is skipped and rejection starts
+    from that set."""
     import time
 
     t0 = time.perf_counter()
     history = []
-    pb = Problem(obs, state, gauge_cam, gauge_board, fix_intrinsics)
-    r0 = pb.residuals(pb.x0()).reshape(-1, 2)
-    # Cauchy scale: generous at first so a rough start is not mistaken for outliers.
-    scale = max(3.0 * np.median(np.linalg.norm(r0, axis=1)), 1.0)
-    x, nit, conv = levenberg_marquardt(pb, scale=scale)
-    cur = pb.state(x)
-    history.append(("robust", nit))
-    inliers = np.ones(len(obs), bool)
+    conv = True
+    if inliers is None:
+        pb = Problem(obs, state, gauge_cam, gauge_board, fix_intrinsics)
+        r0 = pb.residuals(pb.x0()).reshape(-1, 2)
+        # Cauchy scale: generous at first so a rough start is not mistaken for outliers.
+        scale = max(3.0 * np.median(np.linalg.norm(r0, axis=1)), 1.0)
+        x, nit, conv = levenberg_marquardt(pb, scale=scale)
+        cur = pb.state(x)
+        history.append(("robust", nit))
+        inliers = np.ones(len(obs), bool)
+    else:
+        # solve on the given set first: rejecting at the start state would judge corners
+        # by a model not yet re-fitted (k3 just removed bends the image border)
+        inliers = np.asarray(inliers, bool).copy()
+        pb = Problem(obs.subset(inliers), state, gauge_cam, gauge_board, fix_intrinsics)
+        x, nit, conv = levenberg_marquardt(pb, scale=None)
+        cur = pb.state(x)
+        history.append(("warm", nit, int(inliers.sum())))
     for _ in range(max_rounds):
         pb_all = Problem(obs, cur, gauge_cam, gauge_board, fix_intrinsics)
         e = np.linalg.norm(pb_all.residuals(pb_all.x0()).reshape(-1, 2), axis=1)
