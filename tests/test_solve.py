@@ -75,7 +75,12 @@ def test_levenberg_marquardt_reaches_scipy_least_squares_minimum(drone):
     assert converged
     cost_lm = 0.5 * np.sum(pb.residuals(x_lm) ** 2)
     assert cost_lm <= ref.cost * (1 + 1e-9)
-    assert np.allclose(x_lm, ref.x, rtol=1e-6, atol=1e-8)
+    # LM stops once a step lowers chi-square by < 1e-4 (levenberg_marquardt): what is left
+    # must be a tiny fraction of each parameter's standard error, not a fixed number of digits
+    J = pb.jacobian(ref.x).toarray()
+    dof = J.shape[0] - J.shape[1]
+    sd = np.sqrt(np.diag(np.linalg.inv(J.T @ J)) * 2 * ref.cost / dof)
+    assert np.all(np.abs(x_lm - ref.x) < 0.01 * sd), np.max(np.abs(x_lm - ref.x) / sd)
 
 
 def _pair_errors(cal_rig, truth):
@@ -141,6 +146,31 @@ def test_disconnected_camera_is_named(drone):
         calibrate_views(front + back, drone, corners)
 
 
+def test_disconnected_message_names_the_stray_group_whoever_is_the_gauge():
+    """When the gauge camera is the stray one (it has the most views), the pose graph
+    reaches only it; the message must still blame it, not the pair that is linked."""
+    from types import SimpleNamespace as V
+
+    from rigcal.initialise import _disconnected_message, camera_groups
+
+    views = ([V(cam=c, frame=f, board=0) for f in range(5) for c in (0, 1)]
+             + [V(cam=2, frame=10 + f, board=1) for f in range(9)])
+    assert sorted(map(sorted, camera_groups(views, 4))) == [[0, 1], [2], [3]]
+    names, boards = ["front_left", "front_right", "back", "down"], ["b0", "lonely"]
+    for missing in ([0, 1, 3], [2, 3]):  # gauge = back, then gauge = front_left
+        msg = _disconnected_message(views, missing, names, boards)
+        assert "back: never in a frame with another camera that sees a board" in msg
+        assert "(lonely)" in msg and "down: no usable board views" in msg
+        assert "front_left:" not in msg and "front_right:" not in msg
+    views.append(V(cam=2, frame=3, board=1))  # back now shares frame 3 with the pair: one group
+    assert sorted(map(sorted, camera_groups(views, 4))) == [[0, 1, 2], [3]]
+    # a pair split from the main group is named as a pair
+    pair = [V(cam=c, frame=f, board=0) for f in range(5) for c in (0, 1)] + \
+           [V(cam=c, frame=10 + f, board=1) for f in range(5) for c in (2, 3)] + [V(cam=4, frame=1, board=0)]
+    msg = _disconnected_message(pair, [2, 3], names + ["up"], boards)
+    assert "back: linked only to down; no frame or board is shared with front_left, front_right, up" in msg
+
+
 def test_too_few_frames_suggests_fix_intrinsics(drone):
     rng = np.random.default_rng(14)
     truth = perturb(drone, rng)
@@ -167,8 +197,13 @@ def test_rig_without_declared_poses_uses_first_camera_as_body(drone):
     bare = drone.with_cameras([rigcal.Camera(c.name, c.intrinsics, None) for c in drone.cameras])
     cal = calibrate_views(views, bare, corners)
     assert np.allclose(cal.rig.camera("front_left").T_body_cam, np.eye(4), atol=1e-12)
+    # the same relative geometry as with declared poses: only the body frame differs
+    # (accuracy against the noise is the business of the round-trip tests above)
+    declared = calibrate_views(views, drone, corners)
+    same = _pair_errors(cal.rig, declared.rig)
     for (a, b), e in _pair_errors(cal.rig, truth).items():
-        assert e["rot_deg"] < 0.03 and e["trans_mm"] < 1.0
+        assert same[(a, b)]["rot_deg"] < 1e-6 and same[(a, b)]["trans_mm"] < 1e-4, (a, b, same[(a, b)])
+        assert e["rot_deg"] < 0.1 and e["trans_mm"] < 3.0, (a, b, e)
 
 
 def _stereo_chessboard_views(rig, truth, rng, n_frames, corners, nx, ny, noise=0.05):
