@@ -157,13 +157,19 @@ def test_caliscope_four_cameras_with_reference_intrinsics(caliscope):
 
 
 def test_caliscope_four_cameras_from_the_images_alone(caliscope):
-    """From these images alone (a 12-corner board, 26-45 views per camera) all four cameras
-    calibrate and link up; the intrinsics are weakly determined, so the pairs are looser
-    (measured: distances within 7 cm of caliscope's); the reported sigmas say so."""
+    """From these images alone (a 12-corner board, 26-45 views per camera, software sync):
+    the joint solve fits 0.9 px against 0.04-0.08 px per camera alone, so rigcal takes the
+    intrinsics from each camera's own views (core.rigidity_check). They land within 1.5 %
+    of caliscope's focal lengths (the joint solve had bent them 10-16 %), and the pairs
+    within 1.1-4.8 cm and 1.4-3.0 deg of caliscope's solution: the issue's 2.5 cm / 2 deg
+    is not met from these images alone (README, "Real images")."""
     _, rig_plain, target, views, ref = caliscope
     cal = calibrate_views(views, rig_plain, {b.name: b.corners for b in target.boards})
     assert set(cal.rig.names) == {"cam_0", "cam_1", "cam_2", "cam_3"}
+    assert any("disagree with one rigid rig per frame" in n for n in cal.notes), cal.notes
+    for n in cal.rig.names:
+        K = ref[n]["K"]
+        m = cal.rig.camera(n).intrinsics
+        assert abs(m.fx / K[0, 0] - 1) < 0.02 and abs(m.fy / K[1, 1] - 1) < 0.02, (n, m.fx, m.fy)
     errs = _pair_errors(cal, ref)
-    assert max(e[0] for e in errs.values()) < 70.0
-    # the uncertainty is reported honestly: at least one camera's position sigma is > 2 mm
-    assert max(np.max(cal.stats[n].sigma_position_mm) for n in cal.rig.names) > 2.0
+    assert max(e[1] for e in errs.values()) < 60.0 and max(e[2] for e in errs.values()) < 4.0, errs
