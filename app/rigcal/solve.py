@@ -434,7 +434,7 @@ def _cost(r: np.ndarray, scale: float | None) -> float:
 
 
 def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: int = 100,
-                        chi2_tol: float = 1e-4) -> tuple[np.ndarray, int, bool]:
+                        chi2_tol: float = 1e-2) -> tuple[np.ndarray, int, bool]:
     """LM with Marquardt scaling and a Schur-eliminated frame block; robust via IRLS when
     `scale` is given (Cauchy). Converged when an accepted step lowers the chi-square (cost
     in units of the residual variance) by less than chi2_tol: past that, further digits
