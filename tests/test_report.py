@@ -4,6 +4,8 @@ calibration statistics and the depth check they illustrate."""
 
 from __future__ import annotations
 
+import html
+
 import dataclasses
 import functools
 import re
@@ -99,6 +101,15 @@ def test_tables_name_every_camera_and_the_baseline(built):
     assert " ".join(f"{x:.3f}" for x in st.sigma_position_mm) in tables
     assert f"{int((~cal.inliers).sum())} outliers rejected" in tables
     assert "No detection step" in tables
+
+
+def test_model_choice_is_explained(built):
+    cal, out_rig, _, page = built[:4]
+    section = page[page.index("<h3>Distortion model choice</h3>"):page.index("<h2>Cameras: pose")]
+    for name in out_rig.names:
+        st = cal.stats[name]
+        assert f"<li>{name}: {st.distortion_model}" in section
+        assert st.model_selection and all(html.escape(line) in section for line in st.model_selection)
 
 
 def test_rejected_corners_are_reported(built):

@@ -190,6 +190,14 @@ def intrinsics_table(cal: Calibration, out_rig: Rig) -> str:
                    "distortion", "RMS px", "observations", "frames", "outliers"], rows, name_cols=3, wrap=(8,))
 
 
+def model_choice_html(cal: Calibration, out_rig: Rig) -> str:
+    """Why each camera has its distortion model: the tests core.py ran, per camera."""
+    items = [f"<li>{_e(cam.name)}: {_e(cal.stats[cam.name].distortion_model)}"
+             + "".join(f"<br>{_e(line)}" for line in cal.stats[cam.name].model_selection) + "</li>"
+             for cam in out_rig.cameras]
+    return "<ul class=\"model\">" + "".join(items) + "</ul>"
+
+
 def extrinsics_table(cal: Calibration, out_rig: Rig) -> str:
     rows = []
     for cam in out_rig.cameras:
@@ -477,6 +485,7 @@ def build_report(cal: Calibration, out_rig: Rig, det, pairs: dict, timings: dict
     body = [f"<h1>rigcal calibration report: {_e(out_rig.name)}</h1>", summary_html(cal, out_rig),
             "<h2>Warnings and notes</h2>", messages_html(cal),
             "<h2>Cameras: intrinsics</h2>", intrinsics_table(cal, out_rig),
+            "<h3>Distortion model choice</h3>", model_choice_html(cal, out_rig),
             "<h2>Cameras: pose in the body frame (FLU) and its uncertainty</h2>", extrinsics_table(cal, out_rig),
             "<p class=\"caption\">1-sigma from the bundle adjustment's covariance, in the output body frame; "
             "rotation sigmas are about the body F, L, U axes.</p>"]
