@@ -171,7 +171,7 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
         sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
         o_s, i_s = [obj[i] for i in sel], [img[i] for i in sel]
         n_want = 5 if distortion == "auto" else DISTORTION_CHOICES[distortion]
-        fit, o_s, i_s = _clean_fit(o_s, i_s, declared, n_want)
+        fit, o_s, i_s, o_c, i_c = _clean_fit(o_s, i_s, declared, n_want)
         chosen = fit
         if distortion == "auto" and len(fit.values) == 9:
             try:
@@ -184,22 +184,25 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
                 chosen = fit8
         values, rms = chosen.values, chosen.rms_px
 
-        def mono(chosen=chosen, o_s=o_s, i_s=i_s):
-            if distortion != "auto" or len(chosen.values) != 9:
-                return chosen.values, f"{PINHOLE_MODEL_NAMES[len(chosen.values) - 4]} (own views)"
-            keep, line = keep_k3(chosen.values[8], chosen.sigma[8] ** 2)
+        def mono(n=len(chosen.values) - 4, o_c=o_c, i_c=i_c):
+            # refitted on the cleaned views: these intrinsics are kept, not just a start
+            own = fit_pinhole(o_c, i_c, declared, n)
+            if distortion != "auto" or n != 5:
+                return own.values, f"{PINHOLE_MODEL_NAMES[n]} (own views)"
+            keep, line = keep_k3(own.values[8], own.sigma[8] ** 2)
             if keep:
-                return chosen.values, f"radtan5 (own views; {line})"
-            return fit_pinhole(o_s, i_s, declared, 4).values, f"radtan4 (own views; {line})"
+                return own.values, f"radtan5 (own views; {line})"
+            return fit_pinhole(o_c, i_c, declared, 4).values, f"radtan4 (own views; {line})"
     return MonoInit(values, pnp_views(obj, img, values, declared.model), notes, rms, mono)
 
 
-def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tuple[MonoFit, list, list]:
+def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tuple[MonoFit, list, list, list, list]:
     """OpenCV fit of `n_dist` coefficients without gross outlier corners: a few wrong
     corners would otherwise decide the rational test and skew the start. Corners beyond
     5 robust sigmas go, and so do views left with too few corners; the fit is redone
     only if what went carried over 5 % of its cost. Falls back to fewer coefficients
-    when OpenCV fails (very few views)."""
+    when OpenCV fails (very few views). Returns (fit, the views it was fitted on, the
+    cleaned views)."""
     last = None
     for n in [n_dist] + [m for m in (4, 2) if m < n_dist]:
         try:
@@ -218,11 +221,11 @@ def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tupl
     # corners that carried under 5 % of the cost cannot have pulled the fit far: keep it,
     # with the views it was fitted on (the rational test compares fits on the same corners)
     if np.isfinite(e2).all() and e2[~kept].sum() <= 0.05 * e2.sum():
-        return fit, obj, img
+        return fit, obj, img, o2, i2
     try:
-        return fit_pinhole(o2, i2, declared, n), o2, i2
+        return fit_pinhole(o2, i2, declared, n), o2, i2, o2, i2
     except CalibrationError:
-        return fit, obj, img
+        return fit, obj, img, obj, img
 
 
 def _init_fisheye(obj: list, img: list, declared: CameraModel) -> tuple[np.ndarray, float]:
