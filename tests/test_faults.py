@@ -431,6 +431,27 @@ stereo_pairs: [[left, right]]
     assert cal.stereo_pairs[0].baseline_m * 1000 == pytest.approx(120.05, abs=0.5)
 
 
+def test_square_chessboard_is_refused_for_a_rig(tmp_path):
+    """7x7 inner corners: a quarter turn maps the board onto itself, so two cameras may
+    number it differently; refused with the reason before any image is read."""
+    ds = tmp_path / "sq"
+    for cam in ("left", "right"):
+        (ds / "images" / cam).mkdir(parents=True)
+        (ds / "images" / cam / "000001.png").write_bytes(b"not read")
+    (ds / "rig.yaml").write_text("""rig: pair
+cameras:
+  left: {model: pinhole, resolution: [640, 480], intrinsics: {focal: 520.0}, position: [0, 0.06, 0], look: forward}
+  right: {model: pinhole, resolution: [640, 480], intrinsics: {focal: 520.0}, position: [0, -0.06, 0], look: forward}
+""")
+    (ds / "target.yaml").write_text("boards:\n  - {type: chessboard, inner_corners: [7, 7], square_length: 0.03}\n")
+    r = cli("calibrate", ds, "--out", tmp_path / "out.yaml", "--jobs", 1)
+    no_traceback(r.stdout, r.stderr)
+    assert r.exit_code == 2
+    assert "target.yaml: boards[0].inner_corners: [7, 7] is square" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "out.yaml").exists()
+
+
 # ----------------------------------------------------------------------------- interrupts
 
 

@@ -13,7 +13,7 @@ from rich.table import Table
 
 from . import __version__
 from .core import Calibration, ViewIn, calibrate_views
-from .errors import CalibrationError, DatasetError, OutputError
+from .errors import CalibrationError, DatasetError, OutputError, TargetFileError
 from .rig import Rig, StereoPair, dump_rig, load_rig
 from .io import atomic_write_texts
 
@@ -61,7 +61,9 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     if report_path is not None:
         check_output_path(report_path)
     rig = load_rig(dataset_rig_path(dataset, rig_path))
-    target = load_target(dataset_target_path(dataset, target_path))
+    target_file = dataset_target_path(dataset, target_path)
+    target = load_target(target_file)
+    _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
     det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True)
     console = _err()
@@ -100,6 +102,22 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     for n in cal.notes:
         console.print(f"note: {n}")
     return console_summary(cal, out_rig, det, timings, out_path, report_path)
+
+
+def _refuse_square_chessboard(target, rig: Rig, target_file) -> None:
+    """A chessboard with as many inner corners along x as along y looks the same turned
+    by 90 degrees: its corner order could differ between the cameras of one frame by a
+    quarter turn, which the 180-degree resolution cannot undo. One camera does not care
+    (any order is just another board pose); a rig is refused, as dataset.md allows."""
+    if len(rig.cameras) < 2:
+        return
+    for k, b in enumerate(target.boards):
+        if b.type == "chessboard" and b.inner_corners[0] == b.inner_corners[1]:
+            nx, ny = b.inner_corners
+            raise TargetFileError(
+                f"{target_file}: boards[{k}].inner_corners: [{nx}, {ny}] is square, so the board looks the same "
+                f"turned by 90 degrees and its corner order cannot be matched between cameras; a rig of "
+                f"{len(rig.cameras)} cameras needs a chessboard with different counts along x and y")
 
 
 def _apply_image_sizes(rig: Rig, det, allow_resize: bool) -> Rig:
