@@ -56,7 +56,19 @@ FLAT_STD = 2.0  # grey-level std below which an image cannot hold a board (all b
 COLLINEAR_RATIO = 0.02  # second / first singular value of centred corners below which a view is a line
 # Symmetric refinement: arm length in squares, blur margin kept off the markers, sampling.
 ARM_SQUARES = 0.6
-MARGIN_PX = 1.0
+# The margin is 3 sigma of a typical blur (lens and the pixel's area: 0.65-0.8 px).
+# At 1 px the markers' blurred edges reach into the cross (~5 % of the contrast); that
+# cancels between the two sides of a frontal corner, but on a board seen at an angle
+# the far side's gap is narrower: a bias towards the board's near side (0.001 px on
+# surround-6 rendered rooms, 0.005 px on close wide-angle views) that moves every
+# oblique board's PnP range by ~+10 ppm and the rig's scale by +200 ppm (+6 ppm at
+# 2-2.5 px; bench/bias_detect.py). The cost is 5 % more corner noise on frontal
+# views (a narrower cross). Where the gap is too narrow for that,
+# the margin shrinks to MIN_MARGIN_PX so the cross keeps CROSS_KEEP_PX (as many corners
+# are refined as before).
+MARGIN_PX = 2.5
+MIN_MARGIN_PX = 1.0
+CROSS_KEEP_PX = 1.0
 STEP_PX = 0.8
 MAX_SAMPLES_PER_ARM = 24
 # A chessboard's cross half-width in squares: keeps clear of dot codes printed inside
@@ -352,7 +364,9 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     by 180 degrees about itself; that holds under any affine view and any symmetric blur,
     so the estimate needs no model of the edge profile, contrast or PSF. d runs over a
     cross of half-width `half` squares (less `margin_px` of blur) around the two edge
-    lines, `arm` squares long, placed with the local axes ax, ay. Lens distortion bends
+    lines, `arm` squares long, placed with the local axes ax, ay; `margin_px` (down to
+    MIN_MARGIN_PX where the gap is narrow) keeps it off the markers' blurred edges, which
+    are not point-symmetric once perspective narrows the far gap. Lens distortion bends
     the edge lines, and a bent line is not point-symmetric: b(d) = bend_u u^2 n_u +
     bend_v v^2 n_v moves each pair's centre along the arm normals n_u, n_v by the bends
     the corner grid shows (local_grid). A linear shading gradient (vignetting, light) is
@@ -368,7 +382,9 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         return out, ok
     sq = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
     good = np.isfinite(sq) & (sq > 4.0) & np.isfinite(bend_u) & np.isfinite(bend_v)
-    half_k = np.where(half >= arm, arm, half - margin_px / np.where(good, sq, 1.0))
+    sq_safe = np.where(good, sq, 1.0)
+    margin_k = np.clip(half * sq_safe - CROSS_KEEP_PX, min(MIN_MARGIN_PX, margin_px), margin_px)
+    half_k = np.where(half >= arm, arm, half - margin_k / sq_safe)
     good &= half_k * sq >= 0.5
     if not good.any():
         return out, ok
