@@ -171,7 +171,7 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
         sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
         o_s, i_s = [obj[i] for i in sel], [img[i] for i in sel]
         n_want = 5 if distortion == "auto" else DISTORTION_CHOICES[distortion]
-        fit, o_s, i_s, o_c, i_c = _clean_fit(o_s, i_s, declared, n_want)
+        fit, o_s, i_s, _, _ = _clean_fit(o_s, i_s, declared, n_want)
         chosen = fit
         if distortion == "auto" and len(fit.values) == 9:
             try:
@@ -184,9 +184,10 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
                 chosen = fit8
         values, rms = chosen.values, chosen.rms_px
 
-        def mono(n=len(chosen.values) - 4, o_c=o_c, i_c=i_c):
-            # refitted on the cleaned views: these intrinsics are kept, not just a start
-            own = fit_pinhole(o_c, i_c, declared, n)
+        def mono(n=len(chosen.values) - 4):
+            # refitted on every view of the camera, cleaned: these intrinsics are kept,
+            # not just a start
+            own, _, _, o_c, i_c = _clean_fit(obj, img, declared, n)
             if distortion != "auto" or n != 5:
                 return own.values, f"{PINHOLE_MODEL_NAMES[n]} (own views)"
             keep, line = keep_k3(own.values[8], own.sigma[8] ** 2)
