@@ -65,6 +65,21 @@ def test_jacobian_matches_central_differences(drone):
     assert np.max(np.abs(J - Jn) / scale) < 1e-5
 
 
+def test_jacobian_pattern_built_once_serves_every_x(drone):
+    """jacobian() builds its CSR pattern on the first call and only refills the values:
+    at a second point it must equal a fresh problem's Jacobian, entry for entry."""
+    rng = np.random.default_rng(8)
+    obs, state = _small_problem(drone, rng)
+    pb = Problem(obs, state, gauge_cam=0, gauge_board=0)
+    pb.jacobian(pb.x0())
+    x1 = pb.x0() + rng.normal(0, 1e-3, pb.layout.size)
+    fresh = Problem(obs, state, gauge_cam=0, gauge_board=0).jacobian(x1)
+    again = pb.jacobian(x1)
+    assert (again != fresh).nnz == 0 and again.nnz == fresh.nnz
+    coo = again.tocoo()
+    assert len(set(zip(coo.row.tolist(), coo.col.tolist()))) == again.nnz  # no duplicate entries
+
+
 def test_levenberg_marquardt_reaches_scipy_least_squares_minimum(drone):
     rng = np.random.default_rng(4)
     obs, state = _small_problem(drone, rng)

@@ -117,6 +117,14 @@ def make_layout(state: State, gauge_cam: int, gauge_board: int, fix_intrinsics: 
     return Layout(tuple(intr), tuple(cam), tuple(frame), tuple(board), k)
 
 
+def _csr_structure(rows: np.ndarray, cols: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CSR layout of entries given as (rows, cols): the permutation that puts their data
+    in CSR order, the column indices and the row pointer. Each (row, col) occurs once."""
+    order = np.lexsort((cols, rows))
+    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n_rows))])
+    return order, cols[order], indptr
+
+
 def _left_jacobian(phi: np.ndarray) -> np.ndarray:
     """SO(3) left Jacobian J_l(phi) for (..., 3): d/d(phi) [exp(phi) v] = -[exp(phi) v]x J_l(phi)."""
     th2 = np.sum(phi * phi, axis=-1)[..., None, None]
@@ -141,6 +149,7 @@ class Problem:
         self.layout = make_layout(state, gauge_cam, gauge_board, self.fix_intr)
         self.gauge_cam, self.gauge_board = gauge_cam, gauge_board
         self._sparsity = None
+        self._csr_structure = None  # (order, indices, indptr) of the Jacobian, see jacobian()
 
     # -- parameter vector <-> state
 
@@ -222,18 +231,20 @@ class Problem:
         J_p, J_intr = projection_jacobians(ch["p"], o.cam, vals, models)  # (M,2,3), list per cam (Mc,2,ni)
         rows, cols, data = [], [], []
         row2 = np.arange(M) * 2
+        need_structure = self._csr_structure is None
 
         def add_block(mask: np.ndarray, start: np.ndarray, D: np.ndarray):
             """D (m, 2, k) for observations `mask` into columns start[m] + 0..k-1."""
             m_idx = np.nonzero(mask)[0]
             if len(m_idx) == 0:
                 return
-            k = D.shape[2]
-            r = (row2[m_idx][:, None, None] + np.arange(2)[None, :, None]) + np.zeros((1, 1, k), int)
-            c = (start[:, None, None] + np.arange(k)[None, None, :]) + np.zeros((1, 2, 1), int)
-            rows.append(r.ravel())
-            cols.append(c.ravel())
             data.append(D.ravel())
+            if need_structure:  # the pattern is the same at every x: built once
+                k = D.shape[2]
+                r = (row2[m_idx][:, None, None] + np.arange(2)[None, :, None]) + np.zeros((1, 1, k), int)
+                c = (start[:, None, None] + np.arange(k)[None, None, :]) + np.zeros((1, 2, 1), int)
+                rows.append(r.ravel())
+                cols.append(c.ravel())
 
         # intrinsics
         for c, s in enumerate(self.layout.intr):
@@ -255,9 +266,13 @@ class Problem:
         Jl_b = _left_jacobian(ch["db"])
         D_rot_b = RcRf @ (-geo.skew(ch["w_rot"])) @ Jl_b[o.board]
         self._add_pose(add_block, J_p, D_rot_b, RcRf, o.board, self.layout.board)
-        J = sp.csr_matrix((np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(2 * M, self.layout.size))
-        return J
+        shape = (2 * M, self.layout.size)
+        if not data:
+            return sp.csr_matrix(shape)
+        if need_structure:
+            self._csr_structure = _csr_structure(np.concatenate(rows), np.concatenate(cols), shape[0])
+        order, indices, indptr = self._csr_structure
+        return sp.csr_matrix((np.concatenate(data)[order], indices, indptr), shape=shape)
 
     @staticmethod
     def _add_pose(add_block, J_p, D_rot, D_trans, idx, slices):
