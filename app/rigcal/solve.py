@@ -380,7 +380,9 @@ class NormalEquations:
 
     def __init__(self, J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, split: int):
         sw = np.sqrt(w)
-        Jw = (sp.diags(sw) @ J).tocsc()
+        J = sp.csr_matrix(J)
+        # row scaling straight on the CSR values (a diagonal matrix product copies twice)
+        Jw = sp.csr_matrix((J.data * np.repeat(sw, np.diff(J.indptr)), J.indices, J.indptr), shape=J.shape).tocsc()
         rw = sw * r
         Ja = Jw[:, :split]
         Jd = Jw[:, split:]
