@@ -4,6 +4,7 @@
     python bench/bias_detect.py --seeds 0 1 --modes symmetric none
     python bench/bias_detect.py --dataset DIR         # an existing `rigcal simulate` folder
     python bench/bias_detect.py --frames 30 --calibrate --margin-px 1 2   # before / after, with the rig's scale
+    python bench/bias_detect.py --rig fisheye-stereo --scene board --frames 20   # fisheye (PnP undistorts first)
 
 Renders `rigcal simulate` datasets (or reads one), detects every board with each
 refinement mode and compares each corner with its exact projection from truth.yaml.
@@ -19,6 +20,8 @@ side of the board). It reports
   the detected ones about the board's centre: its scale error in ppm (mean, spread);
 - per view, the board's distance from a PnP on the detected corners with the true
   camera model, against the true distance: range error in ppm (what scales a rig);
+- the per-view offset RMS as bench/noise_limit.py reports it (each view's mean error)
+  against its white-noise expectation, and how many corners are gross errors;
 - with --calibrate, the rig's scale error (ppm) after `calibrate_views` on the detected
   corners (bench.common.rig_scale_ppm). A board range error of e ppm moves a camera
   e x 1.5 m along its axis, i.e. ~15 e ppm of a 0.1 m rig: corner biases of 0.001 px
@@ -118,7 +121,11 @@ def pnp_range(entry: dict, ids: np.ndarray, uv: np.ndarray) -> float:
     obj = entry["obj"][ids].astype(np.float64)
     T = entry["T"]
     rv0, _ = cv2.Rodrigues(T[:3, :3])
-    ok, rv, tv = cv2.solvePnP(obj, uv.astype(np.float64), entry["K"], entry["D"], rv0.copy(), T[:3, 3].copy(),
+    K, D, uv = entry["K"], entry["D"], uv.astype(np.float64)
+    if entry["model"] == "fisheye":  # solvePnP reads D as OpenCV's pinhole distortion: undistort first
+        uv = cv2.fisheye.undistortPoints(uv.reshape(-1, 1, 2), K, D).reshape(-1, 2)
+        K, D = np.eye(3), np.zeros(4)
+    ok, rv, tv = cv2.solvePnP(obj, uv, K, D, rv0.copy(), T[:3, 3].copy(),
                               useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)
     if not ok:
         return float("nan")
@@ -162,10 +169,11 @@ def analyse(dataset: Path, modes: list[str], jobs: int, label: str, calibrate: b
     results = {}
     for mode in modes:
         res = detect_dataset(images, target, jobs=jobs, progress=False, refine=mode)
-        rows, scales, ranges, obl_view = [], [], [], []
+        rows, scales, ranges, obl_view, offsets = [], [], [], [], []
         for v in res.views:
             t = truth[(v.camera, v.frame, v.board)]
             e = v.uv - t["uv"][v.ids]
+            offsets.append((e.mean(0), len(e)))
             f = t["f"][v.ids]
             ef = (e * f).sum(1)
             ep = e[:, 0] * -f[:, 1] + e[:, 1] * f[:, 0]
@@ -181,6 +189,13 @@ def analyse(dataset: Path, modes: list[str], jobs: int, label: str, calibrate: b
         print(f"{label} refine={mode}: {len(res.views)} views, {len(R)} corners, {res.seconds:.1f} s; "
               f"RMS {np.sqrt((R[:, 6:] ** 2).sum(1).mean()):.4f} px; mean along f {ef.mean():+.4f} px "
               f"(across {ep.mean():+.4f}); mean bias_f / grad {np.mean(ef * grad) / np.mean(grad ** 2):+.4f}")
+        # bench.noise_limit's per-view offset: RMS per axis of each view's mean error, and
+        # what white noise of this RMS would give (sigma / sqrt(corners in the view))
+        sigma = np.sqrt((R[:, 6:] ** 2).mean())
+        gross = (np.abs(R[:, 6:]) > 10 * np.median(np.abs(R[:, 6:]))).any(1).sum()
+        print(f"  per-view offset RMS {np.sqrt(np.mean([(m ** 2).mean() for m, _ in offsets])):.4f} px (white "
+              f"{np.sqrt(np.mean([sigma ** 2 / n for _, n in offsets])):.4f}); {gross} corners off by > 10x the "
+              f"median component, max {np.abs(R[:, 6:]).max():.3f} px")
         if calibrate:
             print(f"  rig scale after calibration: {rig_scale(dataset, res.views):+.0f} ppm")
         print(f"  per-view similarity scale: mean {1e6 * scales.mean():+.0f} ppm, median {1e6 * np.median(scales):+.0f}, "

@@ -21,7 +21,9 @@ Pipeline per image:
    centre of point symmetry of the image inside a cross around the corner's two edge
    lines, kept narrower than the white gap between squares and markers, with each
    arm's bend (lens distortion) and a shading gradient fitted alongside; a corner it
-   cannot place is left out. "subpix" is cv2.cornerSubPix with a window fitted to the
+   cannot place is left out. The cross's axes and bends come from finite differences
+   along the corner grid, or, for a corner with no neighbour along a board axis, from
+   a fit of the corners around it (corner_grid). "subpix" is cv2.cornerSubPix with a window fitted to the
    gap; "none" keeps OpenCV's corners. Measured against exact truth (README, bench/
    bench_detect.py --accuracy): OpenCV's ChArUco corners are off by 0.04-0.08 px RMS
    on `rigcal simulate` renders (0.15 fisheye) with a per-view common offset of up to
@@ -85,6 +87,10 @@ BEND_REACH_PX = 0.3
 BEND_REL = 1.0
 BEND_SIGMA = 1.0
 BEND_UNKNOWN = 1.0
+# A corner with no neighbour along a board axis takes its axes and bends from a quadratic
+# fit of the detected corners within this many squares (a 5x5 block at most).
+LOCAL_FIT_SQUARES = 2
+LOCAL_H_CORNERS = 8  # ... else a homography of the nearest 8 corners gives its axes
 
 INVERTED_UNLESS = 4  # markers found as printed, below which the inverted image is searched too
 MIN_CLAIM_MARKERS = 3  # a lone decode in clutter or noise does not name a dictionary
@@ -311,15 +317,93 @@ def homography_axes(xy_board: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, n
     return ax, ay
 
 
+def quadratic_axes(cr: np.ndarray, uv: np.ndarray, at: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The local image of the grid at corners `at` from a quadratic fit of the detected
+    corners within LOCAL_FIT_SQUARES of each (board squares): uv ~ c + J d + (d^T B d).
+
+    A corner with no neighbour along a board axis (markers missed beside it) has no
+    finite difference for it; one homography for the whole view is no substitute through
+    a fisheye, whose local scale and axes change by 2x and 30 degrees across a board.
+
+    cr: (N, 2) grid (column, row) of every detected corner; uv: (N, 2); at: (M,) rows of
+    the corners to fit. Returns ax, ay (M, 2), bend_u, bend_v (M,) as local_grid's, and
+    (M,) bool: False where the neighbours cannot hold a quadratic (too few, or all on
+    one line); those rows are NaN."""
+    d = cr[None, :, :] - cr[at, None, :]  # (M, N, 2) neighbours' offsets in squares
+    near = (np.abs(d) <= LOCAL_FIT_SQUARES).all(-1)
+    A = np.stack([np.ones(d.shape[:2]), d[..., 0], d[..., 1], d[..., 0] ** 2, d[..., 0] * d[..., 1],
+                  d[..., 1] ** 2], axis=-1) * near[..., None]  # (M, N, 6), far corners zeroed
+    H = A.transpose(0, 2, 1) @ A
+    # each axis needs three distinct offsets for its curvature, and the cross term a 2-D spread
+    ev = np.linalg.eigvalsh(H)
+    fits = (near.sum(1) >= 8) & (ev[:, 0] > 1e-6 * np.maximum(ev[:, -1], 1e-12))
+    coef = np.full((len(at), 6, 2), np.nan)
+    if fits.any():
+        coef[fits] = np.linalg.solve(H[fits], A[fits].transpose(0, 2, 1) @ uv[None, :, :])
+    ax, ay = coef[:, 1], coef[:, 2]
+    n_u = _unit(np.column_stack([-ax[:, 1], ax[:, 0]]))
+    n_v = _unit(np.column_stack([-ay[:, 1], ay[:, 0]]))
+    bend_u = np.einsum("nk,nk->n", coef[:, 3], n_u)  # half the second derivative along the line
+    bend_v = np.einsum("nk,nk->n", coef[:, 5], n_v)
+    return ax, ay, bend_u, bend_v, fits
+
+
+def local_homography_axes(cr: np.ndarray, uv: np.ndarray, at: np.ndarray, k: int = LOCAL_H_CORNERS
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ax, ay (M, 2) at corners `at` from a homography of the k corners nearest each in
+    the grid (DLT), and (M,) bool, False where those are (nearly) collinear (rows NaN).
+    For corners whose neighbourhood is too sparse for quadratic_axes.
+
+    cr: (N, 2) grid (column, row) of every detected corner; uv: (N, 2)."""
+    d = cr[None, :, :] - cr[at, None, :]  # (M, N, 2)
+    # nearest by the grid's ring (Chebyshev distance), the straight neighbours first
+    order = np.argsort(np.abs(d).max(-1) + 1e-3 * np.linalg.norm(d, axis=-1), axis=1)[:, :min(k, len(cr))]
+    x = np.take_along_axis(d, order[..., None], axis=1)  # (M, K, 2) squares
+    y = uv[order] - uv[at, None, :]  # (M, K, 2) px
+    s = np.sqrt(np.mean(np.sum(y ** 2, -1), axis=1, keepdims=True))[..., None]
+    y = y / np.maximum(s, 1e-9)
+    one = np.ones(x.shape[:2])
+    X = np.stack([x[..., 0], x[..., 1], one], -1)  # (M, K, 3)
+    Z = np.zeros_like(X)
+    rows_u = np.concatenate([X, Z, -y[..., :1] * X], -1)
+    rows_v = np.concatenate([Z, X, -y[..., 1:] * X], -1)
+    _, sv, vt = np.linalg.svd(np.concatenate([rows_u, rows_v], axis=1))
+    H = vt[:, -1].reshape(-1, 3, 3)
+    ok = (sv[:, -2] > 1e-6 * sv[:, 0]) & (np.abs(H[:, 2, 2]) > 1e-12) & (x.shape[1] >= 4)
+    # at the corner itself (board offset 0): p0 = H[:2, 2] / H[2, 2], dp/dx_j = (H[:2, j] - p0 H[2, j]) / H[2, 2]
+    h22 = np.where(ok, H[:, 2, 2], 1.0)[:, None]
+    p0 = H[:, :2, 2] / h22
+    ax = s[:, 0] * (H[:, :2, 0] - p0 * H[:, 2, 0, None]) / h22
+    ay = s[:, 0] * (H[:, :2, 1] - p0 * H[:, 2, 1, None]) / h22
+    return np.where(ok[:, None], ax, np.nan), np.where(ok[:, None], ay, np.nan), ok
+
+
 def corner_grid(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, ...]:
-    """local_grid, with axes from the view's homography (and no bend) where a corner has
-    too few neighbours."""
+    """local_grid; where a corner has no neighbour along a board axis, its axes and bends
+    come from a quadratic fit of the corners around it (quadratic_axes), else its axes
+    from a homography of its nearest corners (local_homography_axes; no bend), else the
+    view's homography."""
     ax, ay, bu, bv, spread = local_grid(ids, uv, board.inner_corners)
     missing = ~(np.isfinite(ax).all(1) & np.isfinite(ay).all(1))
-    if missing.any():
+    if not missing.any():
+        return ax, ay, bu, bv, spread
+    at = np.flatnonzero(missing)
+    nx = board.inner_corners[0]
+    cr = np.column_stack([ids % nx, ids // nx]).astype(float)
+    fx, fy, fbu, fbv, fits = quadratic_axes(cr, uv, at)
+    k = at[fits]
+    ax[k], ay[k], bu[k], bv[k] = fx[fits], fy[fits], fbu[fits], fbv[fits]
+    # as uncertain as local_grid's one-sided differences
+    spread[k] = BEND_REL * 2.0 * np.abs(np.column_stack([fbu[fits], fbv[fits]])) + BEND_SIGMA
+    at = at[~fits]
+    if len(at):
+        hx, hy, hok = local_homography_axes(cr, uv, at)
+        ax[at[hok]], ay[at[hok]] = hx[hok], hy[hok]
+        at = at[~hok]
+    if len(at):
         h = homography_axes(board.corners[ids, :2] / board.square_length, uv)
         if h is not None:
-            ax[missing], ay[missing] = h[0][missing], h[1][missing]
+            ax[at], ay[at] = h[0][at], h[1][at]
     return ax, ay, bu, bv, spread
 
 
