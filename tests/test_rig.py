@@ -336,3 +336,20 @@ def test_deep_nesting_is_refused_not_crashed(depth):
     text = BASE + "calibration: {x: " + "[" * depth + "]" * depth + "}\n"
     with pytest.raises(RigFileError, match="deep.yaml: not valid YAML: nested too deeply"):
         parse_rig(text, "deep.yaml")
+
+
+def test_fast_and_pure_python_yaml_loaders_agree():
+    """load_yaml takes libyaml's parser for texts that cannot nest deeply (rig._loader_for)
+    and the pure-Python one otherwise: same document, same errors."""
+    from rigcal import rig as rig_mod
+
+    assert rig_mod._loader_for(BASE) is rig_mod._FastStrictLoader
+    long_line = BASE + "# " + "x" * (rig_mod.FAST_YAML_MAX_LINE + 1) + "\n"
+    assert rig_mod._loader_for(long_line) is rig_mod._StrictLoader
+    many = BASE + "calibration: {x: [" + "[], " * rig_mod.FAST_YAML_MAX_BRACKETS + "]}\n"
+    assert rig_mod._loader_for(many) is rig_mod._StrictLoader
+    assert parse_rig(BASE, "a.yaml") == parse_rig(long_line, "a.yaml")
+    dup = edit("    model: pinhole", "    model: pinhole\n    model: fisheye")
+    for text in (dup, dup + "# " + "x" * (rig_mod.FAST_YAML_MAX_LINE + 1) + "\n"):
+        with pytest.raises(RigFileError, match="duplicate"):
+            parse_rig(text, "dup.yaml")
