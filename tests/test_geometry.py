@@ -227,3 +227,21 @@ def test_heading_is_clockwise_from_north():
     T = geo.T_nav_body_from_heading([0, 0, 0], 45.0)
     np.testing.assert_allclose(T[:3, 0], [np.sqrt(0.5), np.sqrt(0.5), 0], atol=1e-15)
     np.testing.assert_allclose(T[:3, 2], [0, 0, 1])
+
+
+@pytest.mark.parametrize("n", [1, 2])
+def test_robust_mean_pose_shortcut_for_one_or_two_equals_the_iteration(n):
+    """With one or two poses the reweighting cannot change anything (two residual angles
+    are equal); the shortcut must give what the iteration gives."""
+    rng = np.random.default_rng(n)
+    for _ in range(20):
+        Ts = np.array([geo.make_T(geo.R_from_rotvec(rng.normal(0, 0.3, 3)), rng.normal(0, 1, 3)) for _ in range(n)])
+        R, w = geo.mean_rotation(Ts[:, :3, :3]), np.ones(n)
+        for _ in range(3):
+            ang = geo.rotation_angles(np.einsum("ji,njk->nik", R, Ts[:, :3, :3]))
+            scale = 3.0 * max(np.median(ang), 1e-4)
+            w = 1.0 / (1.0 + (ang / scale) ** 2)
+            w[ang > 3 * scale] = 0.0
+            R = geo.mean_rotation(Ts[:, :3, :3], w)
+        expected = geo.make_T(R, np.median(Ts[w > 0, :3, 3], axis=0))
+        assert np.allclose(geo.robust_mean_pose(Ts), expected, atol=1e-12)

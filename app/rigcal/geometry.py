@@ -275,7 +275,12 @@ def robust_mean_pose(Ts: np.ndarray, iters: int = 3) -> np.ndarray:
     (weights fall off past 3x the median angular residual), translation by the
     element-wise median. Used to average one graph edge over many observations."""
     Ts = np.asarray(Ts, dtype=float)
+    if len(Ts) == 1:
+        return Ts[0].copy()
     R = mean_rotation(Ts[:, :3, :3])
+    if len(Ts) == 2:
+        # two residual angles are equal, so every weight is: the plain means are the answer
+        return make_T(R, Ts[:, :3, 3].mean(axis=0))
     w = np.ones(len(Ts))
     for _ in range(iters):
         ang = rotation_angles(np.einsum("ji,njk->nik", R, Ts[:, :3, :3]))
