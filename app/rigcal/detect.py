@@ -27,7 +27,7 @@ Pipeline per image:
    gap; "none" keeps OpenCV's corners. Measured against exact truth (README, bench/
    bench_detect.py --accuracy): OpenCV's ChArUco corners are off by 0.04-0.08 px RMS
    on `rigcal simulate` renders (0.15 fisheye) with a per-view common offset of up to
-   0.04 px; "symmetric" 0.012 px (0.046 fisheye), per-view offset 0.003-0.005.
+   0.04 px; "symmetric" 0.011 px (0.018 fisheye), per-view offset 0.002-0.003.
 4. Views with fewer than `min_corners` corners, or with (nearly) collinear corners,
    are dropped and counted.
 
