@@ -128,7 +128,9 @@ def calibrate(
     report: Optional[Path] = typer.Option(None, help="write a self-contained HTML report here"),
     jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
     reference: str = typer.Option("aligned", help="body frame: 'aligned' (fit to the declared rig) or 'camera:NAME'"),
-    distortion: Distortion = typer.Option(Distortion.auto, help="pinhole distortion model; auto: radtan4, plus k3 or the rational terms when the data show them"),
+    distortion: Distortion = typer.Option(
+        Distortion.auto, help="pinhole distortion model; auto: radtan4, plus k3 or the rational terms when the data "
+                              "show them"),
     fix_intrinsics: bool = typer.Option(False, help="keep the declared intrinsics and distortion"),
     allow_resize: bool = typer.Option(False, help="accept images whose size differs from the rig's resolution (intrinsics are scaled)"),
 ):
