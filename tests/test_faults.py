@@ -27,7 +27,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import yaml
 from typer.testing import CliRunner
 
 from rigcal import geometry as geo
@@ -38,7 +37,7 @@ from rigcal.core import ViewIn, calibrate_views
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset
 from rigcal.io import atomic_dir, atomic_write_text
-from rigcal.rig import dump_rig, load_rig
+from rigcal.rig import load_rig
 from rigcal.simulate import simulate_dataset
 from rigcal.target import load_target
 
