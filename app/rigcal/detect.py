@@ -49,7 +49,7 @@ import cv2
 import numpy as np
 
 from .target import Board, Target
-from .workers import interrupts_deferred, pool_context
+from .workers import interrupts_deferred, worker_pool
 
 REFINE_MODES = ("symmetric", "subpix", "none")
 SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
@@ -827,27 +827,15 @@ def _detect_serial(paths: list[str], target: Target, min_corners: int, refine: s
 
 def _detect_parallel(paths: list[str], target: Target, jobs: int, min_corners: int, refine: str,
                      bar) -> list[_ImageOut]:
-    from concurrent.futures import ProcessPoolExecutor
-
     chunk = max(1, min(8, len(paths) // (jobs * 6)))
-    ex = None
-    try:
+    with worker_pool(jobs, "rigcal.detect", _init_worker, (target, min_corners, refine)) as ex:
         with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
-            ex = ProcessPoolExecutor(max_workers=jobs, mp_context=pool_context("rigcal.detect"), initializer=_init_worker,
-                                     initargs=(target, min_corners, refine))
             results = ex.map(_work, paths, chunksize=chunk)  # submits all, workers start now; yields in order
         bar.start()  # after the workers started: no progress-bar thread is copied into them
         out = []
         for r in results:
             out.append(r)
             bar.advance()
-    except BaseException:
-        # wait: workers finish their chunk and exit; a process still starting when this one
-        # exits finds its queue's semaphore gone and prints a traceback
-        if ex is not None:
-            ex.shutdown(wait=True, cancel_futures=True)
-        raise
-    ex.shutdown(wait=True)
     return out
 
 

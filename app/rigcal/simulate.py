@@ -29,7 +29,7 @@ import math
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_completed
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -45,7 +45,7 @@ from .errors import InputError, OutputError
 from .io import atomic_dir
 from .rig import Camera, Rig, load_rig, rig_to_dict
 from .target import Board, Target, dump_target, load_target
-from .workers import interrupts_deferred, pool_context
+from .workers import interrupts_deferred, worker_pool
 
 SCENES = ("room", "board")
 DEFAULT_FRAMES = {"room": 60, "board": 40}
@@ -671,22 +671,14 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
 
 def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> float:
     """Render in forkserver workers (rigcal.workers); each receives the ray maps once, pickled."""
-    pool = None
     cpu = 0.0
-    try:
+    with worker_pool(min(jobs, len(tasks)), "rigcal.simulate", _set_state, (state,)) as pool:
         with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
-            pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=pool_context("rigcal.simulate"),
-                                       initializer=_set_state, initargs=(state,))
             futures = [pool.submit(_render_and_write, *t) for t in tasks]
         for fut in as_completed(futures):
             cpu += fut.result()
             if bar:
                 bar.advance()
-    except BaseException:
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
-        raise
-    pool.shutdown(wait=True)
     return cpu
 
 

@@ -65,3 +65,27 @@ def interrupts_deferred():
                 handler(caught[0], None)
             elif handler == signal.SIG_DFL:
                 signal.raise_signal(caught[0])
+
+
+@contextlib.contextmanager
+def worker_pool(max_workers: int, preload: str, initializer, initargs: tuple):
+    """A ProcessPoolExecutor of `preload` workers (pool_context), stopped in order.
+
+    Submit inside `interrupts_deferred()`: a worker interrupted while it starts prints a
+    traceback. On any exception, Ctrl-C included, queued work is cancelled and the pool is
+    waited for before the exception goes on: workers finish their chunk and exit, where a
+    process still starting when this one exits would find its queue's semaphore gone and
+    print a traceback."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    pool = None
+    try:
+        with interrupts_deferred():
+            pool = ProcessPoolExecutor(max_workers=max_workers, mp_context=pool_context(preload),
+                                       initializer=initializer, initargs=initargs)
+        yield pool
+    except BaseException:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
