@@ -320,6 +320,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     fix = np.full(len(cam_names), fix_intrinsics)
     res = bundle_adjust(obs, state, gauge_cam, gauge_board, fix)
     solve_s = res.seconds
+    covariance = None  # camera_covariance() of the current `res` once computed
     unsynced = None if fix_intrinsics else rigidity_check(res, inits, cam_names)
     if unsynced is not None:
         # intrinsics from each camera's own views, then the rig with them held fixed
@@ -333,12 +334,14 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         res = bundle_adjust(obs, st, gauge_cam, gauge_board, fix)
         solve_s += res.seconds
     elif distortion == "auto" and not fix_intrinsics:
-        reduced, logs = _reduce_models(res)
+        covariance = _covariance(res)
+        reduced, logs = _reduce_models(res, covariance)
         for c, log in logs.items():
             selection[cam_names[c]].extend(log)
         if reduced is not None:
             res = bundle_adjust(obs, reduced, gauge_cam, gauge_board, fix, inliers=res.inliers)
             solve_s += res.seconds
+            covariance = None
     timings["solve_s"] = solve_s
     if not res.converged:
         notes.append("bundle adjustment stopped at its iteration limit before converging")
@@ -346,7 +349,8 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     # 5. body frame and outputs
     T_body_cam_solve = np.array([geo.inv_T(T) for T in res.state.T_cam_body])
     T_out_solve = reference_transform(T_body_cam_solve, rig, reference)
-    cov = _extrinsic_covariance(res, rig, reference, T_body_cam_solve)
+    cov = _extrinsic_covariance(res, rig, reference, T_body_cam_solve,
+                                covariance if covariance is not None else _covariance(res))
     cams = []
     stats = {}
     inl_obs = obs.subset(res.inliers)
@@ -414,13 +418,20 @@ def rigidity_check(res, inits: list[MonoInit], cam_names: list[str]) -> str | No
             f"stay rigid? Intrinsics were taken from each camera's own views and held fixed for the extrinsics")
 
 
-def _reduce_models(res) -> tuple[State | None, dict[int, list[str]]]:
-    """The joint solve's radtan5 cameras without k3 where it is not significant (keep_k3);
-    None when every camera keeps its model."""
+def _covariance(res) -> tuple | None:
+    """camera_covariance(res), or None when the Schur complement is singular."""
     try:
-        cov, intr_sl, _ = camera_covariance(res)
+        return camera_covariance(res)
     except np.linalg.LinAlgError:
+        return None
+
+
+def _reduce_models(res, covariance: tuple | None) -> tuple[State | None, dict[int, list[str]]]:
+    """The joint solve's radtan5 cameras without k3 where it is not significant (keep_k3);
+    None when every camera keeps its model. covariance: _covariance(res)."""
+    if covariance is None:
         return None, {}
+    cov, intr_sl, _ = covariance
     state = res.state.copy()
     logs, changed = {}, False
     for c, intr in enumerate(state.intrinsics):
@@ -499,17 +510,17 @@ def _pose_error_vector(T_body_cam: np.ndarray, T_ref: np.ndarray) -> np.ndarray:
     return np.concatenate([geo.rotvec_from_R(T_body_cam[:3, :3] @ T_ref[:3, :3].T), T_body_cam[:3, 3]])
 
 
-def _extrinsic_covariance(res, rig: Rig, reference: str, T_body_cam_solve: np.ndarray):
+def _extrinsic_covariance(res, rig: Rig, reference: str, T_body_cam_solve: np.ndarray, covariance: tuple | None):
     """Covariance of every camera's output pose, propagated from the solver's gauge.
 
     The solver fixes one camera; the output frame is a function of all cameras (aligned)
     or of one (camera:NAME). Propagating the joint covariance through that function
     (numerically, over the extrinsic parameters only) gives each camera's sigma in the
-    frame the user actually receives, so no camera gets a spurious zero."""
-    try:
-        cov, intr_sl, cam_sl = camera_covariance(res)
-    except np.linalg.LinAlgError:
+    frame the user actually receives, so no camera gets a spurious zero. covariance:
+    _covariance(res)."""
+    if covariance is None:
         return None
+    cov, intr_sl, cam_sl = covariance
     C = len(cam_sl)
     T_out = reference_transform(T_body_cam_solve, rig, reference)
     ref_poses = [T_out @ T for T in T_body_cam_solve]
