@@ -410,6 +410,10 @@ def _disconnected_message(views, missing, cam_names, board_names) -> str:
     gauge camera: when the gauge sits in the smaller group, the others are not at fault."""
     seen = {v.cam for v in views}
     groups = [g for g in camera_groups(views, len(cam_names)) if g & seen]
+
+    def boards_of(c: int) -> str:
+        return ", ".join(sorted({board_names[v.board] for v in views if v.cam == c}))
+
     head = "cannot connect every camera to the rig: "
     parts = [f"{cam_names[c]}: no usable board views" for c in missing if c not in seen]
     if len(groups) > 1:
@@ -422,10 +426,9 @@ def _disconnected_message(views, missing, cam_names, board_names) -> str:
             if g is main:
                 continue
             for c in sorted(g):
-                boards = sorted({board_names[v.board] for v in views if v.cam == c})
                 if len(g) == 1:
                     parts.append(f"{cam_names[c]}: never in a frame with another camera that sees a board, and its "
-                                 f"boards ({', '.join(boards)}) are seen by no other camera")
+                                 f"boards ({boards_of(c)}) are seen by no other camera")
                 else:
                     parts.append(f"{cam_names[c]}: linked only to {names(g - {c})}; no frame or board is shared "
                                  f"with {names(main)}")
@@ -433,7 +436,6 @@ def _disconnected_message(views, missing, cam_names, board_names) -> str:
     for c in missing:
         if c not in seen:
             continue
-        boards = sorted({board_names[v.board] for v in views if v.cam == c})
-        parts.append(f"{cam_names[c]}: its boards ({', '.join(boards)}) are never linked to the rest "
+        parts.append(f"{cam_names[c]}: its boards ({boards_of(c)}) are never linked to the rest "
                      f"of the rig (no posed frame shows them to a calibrated camera)")
     return head + "; ".join(parts)
