@@ -26,6 +26,7 @@ import sys
 import time
 import tomllib
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -114,16 +115,31 @@ def linked(name: str, log=say) -> Path | None:
     return dst
 
 
-def wideangle(log=say) -> dict | None:
-    d = linked("wideangle", log)
+class LinkedRun(NamedTuple):
+    rig: rigcal.Rig
+    corners: dict
+    views: list
+    head: dict  # set, images, detection_s, seconds (of the auto calibration)
+    cal: object  # the calibration with --distortion auto
+
+
+def _linked_run(name: str, log) -> LinkedRun | None:
+    """A linked set detected (cached) and calibrated with auto; None when the set is absent."""
+    d = linked(name, log)
     if d is None:
         return None
-    rig, corners, views, n, det_s = detections(d, "wideangle", log)
+    rig, corners, views, n, det_s = detections(d, name, log)
     with Timer() as t:
         cal = calibrate(views, rig, corners)
-    return {"set": "wideangle", "images": n, "detection_s": det_s, "seconds": t.wall,
-            "baseline_mm": 1000 * _baseline(cal.rig, "left", "right"), "reference_mm": WIDEANGLE_REF_MM,
-            **_cal_row(cal)}
+    return LinkedRun(rig, corners, views, {"set": name, "images": n, "detection_s": det_s, "seconds": t.wall}, cal)
+
+
+def wideangle(log=say) -> dict | None:
+    run = _linked_run("wideangle", log)
+    if run is None:
+        return None
+    return {**run.head, "baseline_mm": 1000 * _baseline(run.cal.rig, "left", "right"),
+            "reference_mm": WIDEANGLE_REF_MM, **_cal_row(run.cal)}
 
 
 def _caliscope_doc() -> dict:
@@ -180,33 +196,26 @@ def _intrinsics_vs(cal, ref_rig) -> dict:
 
 
 def caliscope(log=say) -> dict | None:
-    d = linked("caliscope", log)
-    if d is None:
+    run = _linked_run("caliscope", log)
+    if run is None:
         return None
-    rig, corners, views, n, det_s = detections(d, "caliscope", log)
-    with Timer() as t:
-        cal = calibrate(views, rig, corners)
+    rig, corners, views, head, cal = run
     ref = caliscope_reference()
     ref_rig = caliscope_intrinsics_rig(rig)
     # diagnostic: the same detections with caliscope's intrinsics held fixed (extrinsics only)
     fixed = calibrate_views(views, ref_rig, corners, fix_intrinsics=True)
-    return {"set": "caliscope", "images": n, "detection_s": det_s, "seconds": t.wall,
-            "pairs": _caliscope_pairs(cal, ref), "intrinsics": _intrinsics_vs(cal, ref_rig),
+    return {**head, "pairs": _caliscope_pairs(cal, ref), "intrinsics": _intrinsics_vs(cal, ref_rig),
             "fixed_reference_intrinsics": {"pairs": _caliscope_pairs(fixed, ref), "rms_px": fixed.rms_px},
             **_cal_row(cal)}
 
 
 def trinocular(log=say) -> dict | None:
-    d = linked("trinocular", log)
-    if d is None:
+    run = _linked_run("trinocular", log)
+    if run is None:
         return None
-    rig, corners, views, n, det_s = detections(d, "trinocular", log)
-    with Timer() as t:
-        cal = calibrate(views, rig, corners)
-    base = {f"{a}/{b}": {"squares": _baseline(cal.rig, a, b), "opencv_pairwise": ref}
+    base = {f"{a}/{b}": {"squares": _baseline(run.cal.rig, a, b), "opencv_pairwise": ref}
             for (a, b), ref in TRINOCULAR_REF_SQUARES.items()}
-    return {"set": "trinocular", "images": n, "detection_s": det_s, "seconds": t.wall, "baselines": base,
-            **_cal_row(cal)}
+    return {**run.head, "baselines": base, **_cal_row(run.cal)}
 
 
 SETS = {"bumblebee2": bumblebee2, "opencv_stereo": opencv_stereo, "wideangle": wideangle, "caliscope": caliscope,
