@@ -31,6 +31,7 @@ from .errors import CalibrationError
 # halves the initialisation (0.9 -> 0.5 s on the 60-frame demo rig).
 MAX_INIT_VIEWS = 20
 CHESS_FLIP_DEG = 20.0
+PNP_AMBIGUITY = 1.5  # IPPE's two solutions count as ambiguous within this error ratio
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,8 +151,13 @@ def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str,
         n, rvecs, tvecs, errs = cv2.solvePnPGeneric(o, xn, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
     except cv2.error:
         return None
-    for r, t in zip(rvecs, tvecs):
-        r, t = cv2.solvePnPRefineLM(o, xn, np.eye(3), None, r.copy(), t.copy())
+    errs = np.ravel(errs)[: len(rvecs)] if errs is not None and np.size(errs) >= len(rvecs) else np.zeros(len(rvecs))
+    for j in np.argsort(errs, kind="stable"):
+        # IPPE's second solution is the planar mirror ambiguity, usually several times worse;
+        # refining it (the LM polish is 90 % of PnP's time) only pays when the two are close
+        if best is not None and errs[j] > PNP_AMBIGUITY * errs.min() + 1e-12:
+            break
+        r, t = cv2.solvePnPRefineLM(o, xn, np.eye(3), None, rvecs[j].copy(), tvecs[j].copy())
         proj = cv2.projectPoints(o, r, t, np.eye(3), None)[0].reshape(-1, 2)
         err = float(np.sqrt(np.mean(np.sum((proj - xn) ** 2, axis=1))))
         T = geo.make_T(cv2.Rodrigues(r)[0], t.ravel())
@@ -362,25 +368,40 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
 
 
 def _refine_all(views, T_bc, T_wB, T_wb, gauge_cam: int, gauge_board: int) -> None:
-    """One pass of robust re-averaging: frames, then boards, then cameras (gauges fixed)."""
-    est = defaultdict(list)
-    for v in views:
-        if T_bc[v.cam] is not None and T_wb[v.board] is not None and T_wB[v.frame] is not None:
-            est[v.frame].append(T_wb[v.board] @ geo.inv_T(v.T_cam_board) @ geo.inv_T(T_bc[v.cam]))
-    for f, e in est.items():
-        T_wB[f] = geo.robust_mean_pose(np.array(e))
-    est_b, est_c = defaultdict(list), defaultdict(list)
-    for v in views:
-        if T_wB[v.frame] is None or T_bc[v.cam] is None or T_wb[v.board] is None:
-            continue
-        est_b[v.board].append(T_wB[v.frame] @ T_bc[v.cam] @ v.T_cam_board)
-        est_c[v.cam].append(geo.inv_T(T_wB[v.frame]) @ T_wb[v.board] @ geo.inv_T(v.T_cam_board))
-    for b, e in est_b.items():
+    """One pass of robust re-averaging: frames, then boards, then cameras (gauges fixed).
+    The per-view products are batched; only the averages loop, once per unknown."""
+    cam = np.array([v.cam for v in views])
+    frame = np.array([v.frame for v in views])
+    board = np.array([v.board for v in views])
+    T_cb = np.array([v.T_cam_board for v in views])
+
+    def stacked(Ts):
+        return np.array([T is not None for T in Ts]), np.array([np.eye(4) if T is None else T for T in Ts])
+
+    known_c, Tbc = stacked(T_bc)
+    known_b, Twb = stacked(T_wb)
+    known_f, _ = stacked(T_wB)
+    ok = known_c[cam] & known_b[board] & known_f[frame]
+    est = Twb[board[ok]] @ geo.inv_T(T_cb[ok]) @ geo.inv_T(Tbc[cam[ok]])
+    for f, e in _groups(frame[ok], est):
+        T_wB[f] = geo.robust_mean_pose(e)
+    _, TwB = stacked(T_wB)
+    est_b = TwB[frame[ok]] @ Tbc[cam[ok]] @ T_cb[ok]
+    est_c = geo.inv_T(TwB[frame[ok]]) @ Twb[board[ok]] @ geo.inv_T(T_cb[ok])
+    for b, e in _groups(board[ok], est_b):
         if b != gauge_board:
-            T_wb[b] = geo.robust_mean_pose(np.array(e))
-    for c, e in est_c.items():
+            T_wb[b] = geo.robust_mean_pose(e)
+    for c, e in _groups(cam[ok], est_c):
         if c != gauge_cam:
-            T_bc[c] = geo.robust_mean_pose(np.array(e))
+            T_bc[c] = geo.robust_mean_pose(e)
+
+
+def _groups(keys: np.ndarray, values: np.ndarray):
+    """(key, values of that key in their original order) for each distinct key, ascending."""
+    order = np.argsort(keys, kind="stable")
+    uniq, start = np.unique(keys[order], return_index=True)
+    for k, chunk in zip(uniq, np.split(values[order], start[1:])):
+        yield int(k), chunk
 
 
 def camera_groups(views, n_cams: int) -> list[set[int]]:
