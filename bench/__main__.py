@@ -9,6 +9,7 @@ Sections (each also runs alone: python -m bench.<name>):
   montecarlo   share of true errors inside the reported 2 sigma (synthetic + rendered)
   scale        solver time and memory, 6 cameras x 100 .. 1000 frames
   real         real photographs vs published references
+  indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
@@ -22,10 +23,10 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import accuracy, montecarlo, noise_limit, peer_opencv, real, scale, speed
+from . import accuracy, indie, montecarlo, noise_limit, peer_opencv, real, scale, speed
 from .common import OUT, machine, say, write_json
 
-SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real")
+SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie")
 
 
 def main(argv=None) -> None:
@@ -96,6 +97,12 @@ def main(argv=None) -> None:
             write_json("real", {"results": r, "machine": info})
             return real.tables(r)
         section("real", rl)
+    if "indie" in todo:
+        def ind():
+            r = indie.run()
+            write_json("indie", {"results": r, "machine": info})
+            return indie.tables(r)
+        section("indie", ind)
     total = time.perf_counter() - t0
     head = (f"# rigcal benchmarks\n\n{info['date']}; {info['cpus']} CPUs; load average at start "
             f"{info['load_avg_1_5_15']}; {info['platform']}; Python {info['python']}, OpenCV {info['opencv']}, "
