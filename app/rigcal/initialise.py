@@ -11,7 +11,9 @@
    Starting from one camera and one board, unknown poses are set from every
    available observation at once by a robust average (chordal rotation mean with
    outlier down-weighting, median translation), so the back camera joins the front
-   pair through the boards even when no frame shows one board to both.
+   pair through the boards even when no frame shows one board to both. A camera whose
+   boards no other camera sees is placed by the rig's own motion (hand-eye, AX = XB)
+   from the frames the others posed.
 """
 
 from __future__ import annotations
@@ -32,6 +34,12 @@ from .errors import CalibrationError
 MAX_INIT_VIEWS = 20
 CHESS_FLIP_DEG = 20.0
 PNP_AMBIGUITY = 1.5  # IPPE's two solutions count as ambiguous within this error ratio
+# hand-eye start (a camera whose boards no other camera sees): posed frames it needs, the
+# frames it uses at most (pairs grow as their square), and the rotation (RMS over frame
+# pairs) the rig must make about a second axis for the pose to be determined
+HAND_EYE_MIN_FRAMES = 4
+HAND_EYE_MAX_FRAMES = 40
+HAND_EYE_MIN_SPREAD_DEG = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -347,10 +355,33 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
                 progress = True
         return progress
 
+    def hand_eye_step() -> bool:
+        # a camera whose boards no posed camera sees: the rig's own motion places it
+        # (boards are static, dataset.md), as in robot hand-eye calibration
+        for c in range(n_cams):
+            if T_bc[c] is not None:
+                continue
+            by_board = defaultdict(list)
+            for v in views:
+                if v.cam == c and T_wB[v.frame] is not None:
+                    by_board[v.board].append(v)
+            for b in sorted(by_board, key=lambda b: -len(by_board[b])):
+                vs = by_board[b]
+                if len(vs) < HAND_EYE_MIN_FRAMES:
+                    break
+                vs = [vs[k] for k in np.linspace(0, len(vs) - 1, min(len(vs), HAND_EYE_MAX_FRAMES)).round().astype(int)]
+                X = hand_eye(np.array([T_wB[v.frame] for v in vs]), np.array([v.T_cam_board for v in vs]))
+                if X is not None:
+                    T_bc[c] = X
+                    return True
+        return False
+
     while True:
         if sweep(min_obs):
             continue
-        if not sweep(1):
+        if sweep(1):
+            continue
+        if not hand_eye_step():
             break
     # The search posed each unknown from whatever was known at that moment (a frame may
     # rest on one view). Re-average everything from all views now that all is known.
@@ -365,6 +396,53 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
     T_body_world = np.array([geo.inv_T(T) if T is not None else np.eye(4) for T in T_wB])
     T_world_board = np.array([T if T is not None else np.eye(4) for T in T_wb])
     return T_cam_body, T_body_world, T_world_board, posed, gauge_board, missing_b
+
+
+def hand_eye(T_world_body: np.ndarray, T_cam_board: np.ndarray) -> np.ndarray | None:
+    """T_body_cam from one camera's views of one static board in frames whose body pose is
+    known: AX = XB with A the body's motion and B the camera's between two frames (rotation
+    axes aligned by Kabsch, then translation by least squares, each once re-fitted without
+    the pairs a bad PnP spoilt). T_world_body, T_cam_board: (n, 4, 4), n >= 3.
+
+    None when the rig rotated about one axis only (or barely at all): the camera's rotation
+    about that axis and its position along it are then not determined."""
+    i, j = np.triu_indices(len(T_world_body), 1)
+    A = geo.inv_T(T_world_body[j]) @ T_world_body[i]
+    B = T_cam_board[j] @ geo.inv_T(T_cam_board[i])
+    a, b = _rotvecs(A[:, :3, :3]), _rotvecs(B[:, :3, :3])
+    # the body and the camera turn by the same angle between two frames
+    gap = np.abs(np.linalg.norm(a, axis=1) - np.linalg.norm(b, axis=1))
+    keep = gap <= max(np.deg2rad(2.0), 3.0 * np.median(gap))
+    R = None
+    for _ in range(2):
+        if keep.sum() < 3:
+            return None
+        U, S, Vt = np.linalg.svd(b[keep].T @ a[keep])
+        if np.sqrt(S[1] / keep.sum()) < np.deg2rad(HAND_EYE_MIN_SPREAD_DEG):
+            return None
+        d = np.sign(np.linalg.det(Vt.T @ U.T))
+        R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
+        err = np.linalg.norm(a - b @ R.T, axis=1)
+        keep = keep & (err <= 3.0 * np.median(err[keep]) + 1e-9)
+    M = A[keep, :3, :3] - np.eye(3)
+    rhs = B[keep, :3, 3] @ R.T - A[keep, :3, 3]
+    t = np.linalg.lstsq(M.reshape(-1, 3), rhs.reshape(-1), rcond=None)[0]
+    res = np.linalg.norm(np.einsum("nij,j->ni", M, t) - rhs, axis=1)
+    ok = res <= 3.0 * np.median(res) + 1e-9
+    t = np.linalg.lstsq(M[ok].reshape(-1, 3), rhs[ok].reshape(-1), rcond=None)[0]
+    return geo.make_T(R, t)
+
+
+def _rotvecs(Rs: np.ndarray) -> np.ndarray:
+    """Rotation vectors of (n, 3, 3) rotations; the exact per-rotation form near pi."""
+    ang = geo.rotation_angles(Rs)
+    v = np.stack([Rs[:, 2, 1] - Rs[:, 1, 2], Rs[:, 0, 2] - Rs[:, 2, 0], Rs[:, 1, 0] - Rs[:, 0, 1]], axis=1)
+    s = np.sin(ang)
+    scale = np.where(s > 1e-9, ang / np.where(s > 1e-9, s, 1.0), 1.0)
+    out = 0.5 * v * scale[:, None]
+    for k in np.flatnonzero(ang > np.deg2rad(170.0)):
+        out[k] = geo.rotvec_from_R(Rs[k])
+    return out
 
 
 def _refine_all(views, T_bc, T_wB, T_wb, gauge_cam: int, gauge_board: int) -> None:
@@ -458,5 +536,7 @@ def _disconnected_message(views, missing, cam_names, board_names) -> str:
         if c not in seen:
             continue
         parts.append(f"{cam_names[c]}: its boards ({boards_of(c)}) are never linked to the rest "
-                     f"of the rig (no posed frame shows them to a calibrated camera)")
+                     f"of the rig (no posed frame shows them to a calibrated camera), and the rig's motion "
+                     f"cannot place it either (that needs {HAND_EYE_MIN_FRAMES} or more posed frames of one of "
+                     f"its boards, turning about two axes)")
     return head + "; ".join(parts)
