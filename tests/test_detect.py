@@ -352,7 +352,7 @@ def test_corners_missing_a_neighbour_are_refined_as_well_through_a_fisheye():
     tex = render.BoardTexture(CHARUCO)
     det = BoardDetector(Target((CHARUCO,)))
     rng = np.random.default_rng(3)
-    errs, lone = [], []
+    errs, lone, predicted = [], [], []
     for off, tilt, dist in ((60.0, 20.0, 0.3), (45.0, 30.0, 0.25)):
         for k in range(4):
             R, t = _fisheye_view(model, rays, tex, CHARUCO, off, k * math.pi / 2 + 0.4, tilt, dist)
@@ -367,15 +367,43 @@ def test_corners_missing_a_neighbour_are_refined_as_well_through_a_fisheye():
             keep = rng.random(len(ids)) > 1.0 / 3.0
             ids, uv = ids[keep], uv[keep]
             ax, ay = local_grid(ids, uv, board.inner_corners)[:2]
-            q, ok = refine_corners(gray, board, ids, uv, "symmetric")
+            q, ok, s = refine_corners(gray, board, ids, uv, "symmetric")
             true = model.project(np.column_stack([board.corners[ids, :2], np.zeros(len(ids))]) @ R.T + t)[0]
             errs.append((q - true)[ok])
             lone.append(~(np.isfinite(ax).all(1) & np.isfinite(ay).all(1))[ok])
-    e, lone = np.concatenate(errs), np.concatenate(lone)
+            predicted.append(s[ok])
+    e, lone, s = np.concatenate(errs), np.concatenate(lone), np.concatenate(predicted)
     assert lone.sum() >= 50 and (~lone).sum() >= 100, (lone.sum(), (~lone).sum())
     sigma = np.sqrt(np.mean(e[~lone] ** 2))
     z = norm.isf(0.5e-3 / e[lone].size)  # two-sided, 1e-3 over all components
     assert np.abs(e[lone]).max() < z * sigma, (np.abs(e[lone]).max() / sigma, z)
+    # each corner's own sigma (the fit's covariance) is on the scale of its true error
+    assert np.isfinite(s).all() and (s > 0).all()
+    assert 0.5 < np.sqrt(np.mean(e ** 2) / np.mean(s ** 2)) < 2.0, np.sqrt(np.mean(e ** 2) / np.mean(s ** 2))
+
+
+def test_corner_sigma_follows_the_image_noise():
+    """The refinement's per-corner sigma (View.sigma) is on the scale of the true error at 2 and at 8 grey levels of noise, and a corner of a
+    noisier image is predicted noisier than the same corner of a cleaner one."""
+    det = BoardDetector(Target((CHARUCO,)))
+    rng = np.random.default_rng(12)
+    rms, pred, ratio = {}, {}, []
+    for k in range(3):
+        H = view_homography(rng, CHARUCO)
+        by_noise = {}
+        for noise in (2.0, 8.0):
+            (_, ids, uv, _, s), = det.detect_with_sigma(render(CHARUCO, H, rng, noise=noise))[0]
+            e = uv - truth(CHARUCO, H, ids)
+            by_noise[noise] = dict(zip(ids.tolist(), s))
+            rms.setdefault(noise, []).append(e)
+            pred.setdefault(noise, []).append(s)
+        both = sorted(set(by_noise[2.0]) & set(by_noise[8.0]))
+        ratio.extend(by_noise[8.0][i] / by_noise[2.0][i] for i in both)
+    for noise in (2.0, 8.0):
+        e, s = np.concatenate(rms[noise]), np.concatenate(pred[noise])
+        assert 0.5 < np.sqrt(np.mean(e ** 2) / np.mean(s ** 2)) < 2.0, (noise, np.sqrt(np.mean(e ** 2)),
+                                                                        np.sqrt(np.mean(s ** 2)))
+    assert np.mean(np.array(ratio) > 1.0) > 0.95 and 2.0 < np.median(ratio) < 6.0, np.median(ratio)
 
 
 # ----------------------------------------------------------------------------- datasets and faults

@@ -28,6 +28,10 @@ Pipeline per image:
    bench_detect.py --accuracy): OpenCV's ChArUco corners are off by 0.04-0.08 px RMS
    on `rigcal simulate` renders (0.15 fisheye) with a per-view common offset of up to
    0.04 px; "symmetric" 0.011 px (0.018 fisheye), per-view offset 0.002-0.003.
+   "symmetric" also estimates each corner's own 1-sigma error (View.sigma: the fit's
+   residual variance x its inverse normal matrix). On fisheye renders it tracks the true
+   error (0.007-0.03 px); on pinhole renders it spreads 2.2x where the true error spreads
+   1.3x, so the calibration does not weight corners by it (README, Accuracy and speed).
 4. Views with fewer than `min_corners` corners, or with (nearly) collinear corners,
    are dropped and counted.
 
@@ -114,13 +118,17 @@ class View:
     ids: np.ndarray  # (N,) int64 corner ids, rows of Board.corners
     uv: np.ndarray  # (N, 2) float64 pixels, OpenCV pixel-centre convention
     ambiguous: bool = False  # 180-degree-symmetric chessboard: the order may be reversed
+    # (N,) each corner's own 1-sigma error in px as the refinement estimates it (NaN: unknown)
+    sigma: np.ndarray | None = None
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, View):
             return NotImplemented
         return ((self.camera, self.frame, self.board, self.ambiguous)
                 == (other.camera, other.frame, other.board, other.ambiguous)
-                and np.array_equal(self.ids, other.ids) and np.array_equal(self.uv, other.uv))
+                and np.array_equal(self.ids, other.ids) and np.array_equal(self.uv, other.uv)
+                and ((self.sigma is None) == (other.sigma is None))
+                and (self.sigma is None or np.array_equal(self.sigma, other.sigma, equal_nan=True)))
 
 
 @dataclass
@@ -441,7 +449,8 @@ def image_gradients(gray: np.ndarray) -> np.ndarray:
 
 def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, bend_u: np.ndarray,
                      bend_v: np.ndarray, half: float, arm: float = ARM_SQUARES, margin_px: float = MARGIN_PX,
-                     iters: int = 25, tol: float = 2e-3, bend_spread: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     iters: int = 25, tol: float = 2e-3, bend_spread: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Corners as centres of point symmetry: q minimising sum_d (I(q + b(d) + d) - I(q + b(d) - d))^2.
 
     A chessboard corner, and a ChArUco corner out to its markers, looks the same turned
@@ -459,11 +468,19 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     stack: image_gradients(gray); uv, ax, ay: (N, 2); bend_u, bend_v: (N,). Returns (N, 2)
     corners and (N,) bool: True where refined, False where the start was kept (too
     little room, no convergence, moved too far, or under half the cross in the image).
-    Pairs of samples with a point outside the image are left out."""
+    Pairs of samples with a point outside the image are left out.
+
+    Also returns (N,) sigma: each refined corner's own 1-sigma error (px, per axis), the
+    fit's covariance residual variance x (J^T W J)^-1 where it stopped, NaN where not
+    refined. It grows with image noise, blur, low contrast, fewer or shorter samples
+    (small, foreshortened or cut crosses) and with any misfit of the model (markers,
+    wrong bends). On rendered fisheye views it tracks the true error (0.007 px in the
+    lowest tenth, 0.030 px in the highest; README, bench/fisheye_excess.py)."""
     n = len(uv)
     out, ok = uv.astype(np.float64).copy(), np.zeros(n, bool)
+    sigma = np.full(n, np.nan)
     if n == 0:
-        return out, ok
+        return out, ok, sigma
     sq = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
     good = np.isfinite(sq) & (sq > 4.0) & np.isfinite(bend_u) & np.isfinite(bend_v)
     sq_safe = np.where(good, sq, 1.0)
@@ -471,7 +488,7 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     half_k = np.where(half >= arm, arm, half - margin_k / sq_safe)
     good &= half_k * sq >= 0.5
     if not good.any():
-        return out, ok
+        return out, ok, sigma
     idx = np.flatnonzero(good)
     sq_g, half_g = sq[idx], half_k[idx]
     delta = max(STEP_PX / float(np.median(sq_g)), arm / MAX_SAMPLES_PER_ARM)
@@ -500,6 +517,7 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     if fit_bend:
         p[:, 4:] = prior
     done, failed, full = (np.zeros(len(idx), bool) for _ in range(3))
+    cov_q = np.full((len(idx), 2, 2), np.nan)
     act = np.arange(len(idx))  # corners still moving
     for _ in range(iters):
         pa = p[act]
@@ -547,6 +565,12 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         p[act] += step
         failed[act[bad]] = True
         stop = bad | (np.abs(step[:, :2]).max(1) < tol)
+        # the fit's own covariance of q where it stops: residual variance x (J^T W J)^-1
+        nw = wa.sum(1)
+        var_dof = (wa * r * r).sum(1) / np.maximum(nw - n_par, 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            Hq = np.linalg.inv(H)[:, :2, :2]
+        cov_q[act[stop]] = (var_dof[:, None, None] * Hq)[stop]
         done[act[stop]] = True
         act = act[~stop]
         if len(act) == 0:
@@ -557,7 +581,8 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     accept = done & ~failed & full & (moved < np.maximum(1.0, 0.15 * sq_g))
     out[idx[accept]] = q[accept]
     ok[idx[accept]] = True
-    return out, ok
+    sigma[idx[accept]] = np.sqrt(0.5 * np.trace(cov_q[accept], axis1=1, axis2=2))
+    return out, ok, sigma
 
 
 def refine_subpix(gray: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, half: float) -> np.ndarray:
@@ -574,20 +599,22 @@ def refine_subpix(gray: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarr
 
 
 def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarray,
-                   mode: str) -> tuple[np.ndarray, np.ndarray]:
-    """Re-estimate a view's corners (see the module docstring): (N, 2) corners and (N,) bool,
-    False where "symmetric" could not refine a corner (it keeps OpenCV's estimate).
+                   mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Re-estimate a view's corners (see the module docstring): (N, 2) corners, (N,) bool,
+    False where "symmetric" could not refine a corner (it keeps OpenCV's estimate), and
+    (N,) each corner's own 1-sigma error in px (refine_symmetric; NaN for the other modes).
 
     "symmetric" runs twice: the second pass takes the grid's axes and bends from the
     corners of the first, which are ten times more accurate than OpenCV's."""
     all_ok = np.ones(len(ids), bool)
+    unknown = np.full(len(ids), np.nan)
     if mode == "none" or len(ids) == 0:
-        return uv, all_ok
+        return uv, all_ok, unknown
     half = symmetric_half_width(board)
     if mode == "subpix":
         ax, ay = corner_grid(ids, uv, board)[:2]
-        return refine_subpix(gray, uv, ax, ay, half), all_ok
-    q, ok = uv, ~all_ok
+        return refine_subpix(gray, uv, ax, ay, half), all_ok, unknown
+    q, ok, sigma = uv, ~all_ok, unknown
     stack, origin = None, None
     for _ in range(SYMMETRIC_PASSES):
         ax, ay, bu, bv, spread = corner_grid(ids, q, board)
@@ -595,16 +622,16 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
             # Gradients only over the view's bounding box plus the reach of its crosses.
             reach = ARM_SQUARES * (np.nanmax(np.abs(ax).sum(1)) + np.nanmax(np.abs(ay).sum(1))) + 4.0
             if not np.isfinite(reach):
-                return uv, ~all_ok
+                return uv, ~all_ok, unknown
             h, w = gray.shape
             x0, y0 = (max(0, int(np.floor(uv[:, k].min() - reach))) for k in (0, 1))
             x1 = min(w, int(np.ceil(uv[:, 0].max() + reach)) + 1)
             y1 = min(h, int(np.ceil(uv[:, 1].max() + reach)) + 1)
             # The crop holds every cross with room for the gradient kernel: only true image edges cut one.
             stack, origin = image_gradients(gray[y0:y1, x0:x1]), np.array([x0, y0], float)
-        q, ok = refine_symmetric(stack, q - origin, ax, ay, bu, bv, half, bend_spread=spread)
+        q, ok, sigma = refine_symmetric(stack, q - origin, ax, ay, bu, bv, half, bend_spread=spread)
         q = q + origin
-    return q, ok
+    return q, ok, sigma
 
 
 def is_degenerate(ids: np.ndarray, uv: np.ndarray, board: Board) -> bool:
@@ -755,6 +782,11 @@ class BoardDetector:
 
     def detect(self, gray: np.ndarray) -> tuple[list[tuple[str, np.ndarray, np.ndarray, bool]], int]:
         """Usable views (board name, ids (N,), uv (N, 2), ambiguous) and how many were dropped."""
+        views, dropped = self.detect_with_sigma(gray)
+        return [v[:4] for v in views], dropped
+
+    def detect_with_sigma(self, gray: np.ndarray) -> tuple[list[tuple[str, np.ndarray, np.ndarray, bool, np.ndarray]], int]:
+        """As detect, each view with (N,) its corners' own 1-sigma errors (refine_corners)."""
         if float(gray.std()) < FLAT_STD:
             return [], 0
         views, dropped = [], 0
@@ -764,14 +796,14 @@ class BoardDetector:
             if len(ids) < self.min_corners or is_degenerate(ids, uv, board):
                 dropped += 1
                 continue
-            uv, ok = refine_corners(gray, board, ids, uv, self.refine)
+            uv, ok, sigma = refine_corners(gray, board, ids, uv, self.refine)
             # A corner the refinement could not place (blurred, occluded, on the image
             # border) is ten times less accurate than the rest: leave it out.
-            ids, uv = ids[ok], uv[ok]
+            ids, uv, sigma = ids[ok], uv[ok], sigma[ok]
             if len(ids) < self.min_corners or is_degenerate(ids, uv, board):
                 dropped += 1
                 continue
-            views.append((board.name, ids, uv, amb))
+            views.append((board.name, ids, uv, amb, sigma))
         return views, dropped
 
 
@@ -806,7 +838,7 @@ def _work(path: str) -> _ImageOut:
     gray, reason = read_gray(path)
     if gray is None:
         return _ImageOut(None, reason, [], 0)
-    views, dropped = _WORKER.detect(gray)
+    views, dropped = _WORKER.detect_with_sigma(gray)
     return _ImageOut((gray.shape[1], gray.shape[0]), None, views, dropped)
 
 
@@ -913,8 +945,8 @@ def detect_dataset(images, target: Target, rig=None, jobs: int | None = None, pr
         res.dropped[cam] += o.dropped
         if not o.views:
             res.no_board[cam] += 1
-        for name, ids, uv, amb in o.views:
-            res.views.append(View(cam, frame, name, ids, uv, amb))
+        for name, ids, uv, amb, sigma in o.views:
+            res.views.append(View(cam, frame, name, ids, uv, amb, sigma))
     res.seconds = time.perf_counter() - t0
     return res
 
