@@ -98,6 +98,37 @@ def test_levenberg_marquardt_reaches_scipy_least_squares_minimum(drone):
     assert np.all(np.abs(x_lm - ref.x) < 0.01 * sd), np.max(np.abs(x_lm - ref.x) / sd)
 
 
+def test_weighted_solve_is_least_squares_on_whitened_residuals_with_its_own_covariance(drone):
+    """Corner weights (Observations.weight, from the detector's per-corner sigma): the LM
+    minimum is scipy's on sqrt(w) r; the reported sigma stays the unweighted RMS in px; the
+    covariance is the weighted problem's, variance_factor (J^T W J)^-1."""
+    from dataclasses import replace
+
+    from rigcal.solve import bundle_adjust, camera_covariance, corner_weights
+
+    rng = np.random.default_rng(5)
+    obs, state = _small_problem(drone, rng)
+    sigma = np.where(rng.random(len(obs)) < 0.3, 0.4, 0.1)  # 30 % of corners said four times noisier
+    obs_w = replace(obs, weight=corner_weights(sigma))
+    assert np.allclose(obs_w.weight, (0.1 / sigma) ** 2)  # the median corner has weight 1
+    pb = Problem(obs_w, state, gauge_cam=0, gauge_board=0)
+    x_lm, _, converged = levenberg_marquardt(pb)
+    sw = obs_w.sqrt_weights()
+    ref = least_squares(lambda x: sw * pb.residuals(x), pb.x0(), jac=lambda x: sw[:, None] * pb.jacobian(x).toarray(),
+                        method="lm", x_scale="jac", ftol=1e-15, xtol=1e-15, gtol=1e-15, max_nfev=2000)
+    assert converged and 0.5 * np.sum((sw * pb.residuals(x_lm)) ** 2) <= ref.cost * (1 + 1e-9)
+    res = bundle_adjust(obs_w, state, 0, 0)
+    r = res.residuals
+    dof = r.size - res.problem.layout.size
+    assert res.sigma_px == pytest.approx(np.sqrt(np.sum(r ** 2) / dof))
+    w_in = res.problem.obs.sqrt_weights()
+    assert res.variance_factor == pytest.approx(np.sum((w_in * r.ravel()) ** 2) / dof)
+    cov, _, cam_sl = camera_covariance(res)
+    J = res.problem.jacobian(res.problem.x0()).toarray()
+    full = res.variance_factor * np.linalg.inv(J.T @ (w_in[:, None] ** 2 * J))
+    s1 = cam_sl[1]
+    assert np.allclose(cov[s1, s1], full[s1, s1], rtol=1e-6)
+
 def _pair_errors(cal_rig, truth):
     return compare_rigs(cal_rig, truth)["pairs"]
 

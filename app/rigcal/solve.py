@@ -16,6 +16,11 @@ analytic in the poses (with the SO(3) left Jacobian, so it is exact away from
 delta = 0 too) and central-differenced only through the per-point projection,
 which costs a handful of vectorised projections; it is assembled as a sparse
 matrix, so a solve is linear in the number of frames.
+
+Corners may carry weights (Observations.weight: relative inverse variances from the
+detector's own per-corner sigma); the solve is then least squares on sqrt(w) r, outliers
+are judged on those whitened residuals, the reported sigma_px stays the plain RMS in px,
+and the covariance is variance_factor (J^T W J)^-1.
 """
 
 from __future__ import annotations
@@ -34,7 +39,9 @@ POSE_DIM = 6
 @dataclass(frozen=True)
 class Observations:
     """Corner observations, one row each. cam/frame/board index into the problem's lists;
-    p_board (M, 3) board-frame corner positions (metres); uv (M, 2) measured pixels."""
+    p_board (M, 3) board-frame corner positions (metres); uv (M, 2) measured pixels;
+    weight (M,) or None: each corner's relative inverse variance (1 = a typical corner,
+    see corner_weights), None for all equal."""
 
     cam: np.ndarray
     frame: np.ndarray
@@ -42,12 +49,37 @@ class Observations:
     p_board: np.ndarray
     uv: np.ndarray
     view: np.ndarray  # (M,) index of the (cam, frame, board) view the corner belongs to
+    weight: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.cam)
 
     def subset(self, mask: np.ndarray) -> "Observations":
-        return Observations(*(a[mask] for a in (self.cam, self.frame, self.board, self.p_board, self.uv, self.view)))
+        w = None if self.weight is None else self.weight[mask]
+        return Observations(*(a[mask] for a in (self.cam, self.frame, self.board, self.p_board, self.uv, self.view)), w)
+
+    def sqrt_weights(self) -> np.ndarray:
+        """(2M,) the square root of each residual row's weight (ones without weights)."""
+        if self.weight is None:
+            return np.ones(2 * len(self))
+        return np.repeat(np.sqrt(self.weight), 2)
+
+
+# Corner weights: the detector's own per-corner sigma is floored at this fraction of the
+# median, so no corner a fit calls exceptionally clean can dominate its neighbours.
+WEIGHT_FLOOR = 0.25
+
+
+def corner_weights(sigma_px: np.ndarray) -> np.ndarray | None:
+    """(M,) relative inverse variances from each corner's own 1-sigma estimate (px, NaN
+    where unknown: those get the median's weight, 1). None when no corner has one."""
+    s = np.asarray(sigma_px, float)
+    known = np.isfinite(s) & (s > 0)
+    if not known.any():
+        return None
+    med = float(np.median(s[known]))
+    s = np.where(known, np.maximum(s, WEIGHT_FLOOR * med), med)
+    return (med / s) ** 2
 
 
 @dataclass(frozen=True)
@@ -361,11 +393,14 @@ class SolveResult:
     problem: Problem  # linearised at the solution (reference = solution), inliers only
     inliers: np.ndarray  # (M_all,) bool over the observations given to bundle_adjust()
     residuals: np.ndarray  # (M_inliers, 2) px at the solution
-    sigma_px: float  # residual-based 1-sigma per coordinate (dof-corrected)
+    sigma_px: float  # residual-based 1-sigma per coordinate (dof-corrected), unweighted px
     n_iterations: int
     seconds: float
     converged: bool = True
     history: list = field(default_factory=list)
+    # weighted solves: the residual variance of a corner of weight 1 (px^2); the covariance
+    # is variance_factor (J^T W J)^-1. None: unweighted, sigma_px^2 (J^T J)^-1.
+    variance_factor: float | None = None
 
 
 def _frame_split(layout: Layout) -> int:
@@ -465,18 +500,19 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
     are far below what the data can tell. Returns (x, iterations, converged)."""
     x = problem.x0()
     split = _frame_split(problem.layout)
-    r = problem.residuals(x)
+    sw = problem.obs.sqrt_weights()  # weighted least squares = plain LS on sw * r
+    r = sw * problem.residuals(x)
     cost = _cost(r, scale)
     dof = max(r.size - problem.layout.size, 1)
     lam = lam0
     for it in range(1, max_iter + 1):
         J = problem.jacobian(x)
-        ne = NormalEquations(J, r, _robust_weights(r, scale), split)
+        ne = NormalEquations(J, r / np.where(sw > 0, sw, 1.0), sw**2 * _robust_weights(r, scale), split)
         improved = False
         for _ in range(12):
             dx, _ = ne.solve(lam)
             x_new = x + dx
-            r_new = problem.residuals(x_new)
+            r_new = sw * problem.residuals(x_new)
             cost_new = _cost(r_new, scale)
             if np.isfinite(cost_new) and cost_new <= cost:
                 improved = True
@@ -530,7 +566,8 @@ def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: 
     ls_solved = len(history) > 0 and history[0][0] == "warm"  # cur is the LS solution on `inliers`
     for _ in range(max_rounds):
         pb_all = Problem(obs, cur, gauge_cam, gauge_board, fix_intrinsics)
-        e = np.linalg.norm(pb_all.residuals(pb_all.x0()).reshape(-1, 2), axis=1)
+        # judged in units of each corner's own expected noise (weighted residuals)
+        e = np.linalg.norm((obs.sqrt_weights() * pb_all.residuals(pb_all.x0())).reshape(-1, 2), axis=1)
         # median |e| = sigma sqrt(2 ln 2) for isotropic Gaussian noise (Rayleigh)
         sigma = np.median(e[inliers]) / np.sqrt(2 * np.log(2))
         new_inliers = e < reject_sigma * max(sigma, 1e-4)
@@ -549,7 +586,9 @@ def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: 
     r = final.residuals(final.x0()).reshape(-1, 2)
     dof = max(r.size - final.layout.size, 1)
     sigma_px = float(np.sqrt(np.sum(r**2) / dof))
-    return SolveResult(cur, final, inliers, r, sigma_px, nit, time.perf_counter() - t0, conv, history)
+    # the weighted problem's variance of unit weight (px^2 for a corner of weight 1)
+    vf = None if obs.weight is None else float(np.sum((final.obs.sqrt_weights() * r.ravel()) ** 2) / dof)
+    return SolveResult(cur, final, inliers, r, sigma_px, nit, time.perf_counter() - t0, conv, history, vf)
 
 
 # ----------------------------------------------------------------------------- covariance
@@ -558,11 +597,14 @@ def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: 
 def camera_covariance(result: SolveResult) -> tuple[np.ndarray, list, list]:
     """Covariance of the camera and board parameters with the frames marginalised:
     cov = sigma^2 S^-1, S the Schur complement of the frame block of J^T J (no dense
-    inverse of the whole problem). Returns (cov, intr_slices, cam_slices) indexing cov."""
+    inverse of the whole problem); for a weighted solve J^T W J and its variance factor.
+    Returns (cov, intr_slices, cam_slices) indexing cov."""
     pb = result.problem
     x = pb.x0()
     J = pb.jacobian(x)
     split = _frame_split(pb.layout)
-    _, S = schur_solve(J, np.zeros(J.shape[0]), np.ones(J.shape[0]), 0.0, split)
-    cov = result.sigma_px**2 * np.linalg.inv(S)
+    weighted = result.variance_factor is not None and pb.obs.weight is not None
+    w = pb.obs.sqrt_weights() ** 2 if weighted else np.ones(J.shape[0])
+    _, S = schur_solve(J, np.zeros(J.shape[0]), w, 0.0, split)
+    cov = (result.variance_factor if weighted else result.sigma_px**2) * np.linalg.inv(S)
     return cov, list(pb.layout.intr), list(pb.layout.cam)
