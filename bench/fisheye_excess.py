@@ -23,6 +23,8 @@ error into per-corner contributions to the rotation error; summing them with ran
 signs per corner, per view and per camera gives what independent corners (or views, or
 cameras) with these very errors would produce: how far the observed ratio is beyond it.
 
+A pixel-phase regression (pixel locking) of the detected error closes the output.
+
 The relative rotation error of the pair is a vector (left camera frame, deg); errors
 are nearly linear in e, so the parts of a split add up to 'full'. The table gives the RMS
 angle over seeds and its ratio to the RMS Cramér-Rao bound, and per axis the RMS error
@@ -147,16 +149,45 @@ def parts(cal, truth, truth_boards, uv_true: np.ndarray, sigma: float, rng: np.r
             "affine resid": e - vaff, "shuffled": shuf, "white": rng.normal(0.0, sigma, e.shape)}
 
 
-def influence(cal, truth) -> np.ndarray:
+PHASE_TERMS = ("sin u", "cos u", "sin v", "cos v", "sin 2u", "cos 2u", "sin 2v", "cos 2v")
+
+
+def phase_design(uv: np.ndarray) -> np.ndarray:
+    """(M, 9) a constant and the first two harmonics of each pixel coordinate's fractional
+    part (pixel locking: a bias that repeats with the pixel grid)."""
+    a, b = 2 * np.pi * (uv[:, 0] % 1.0), 2 * np.pi * (uv[:, 1] % 1.0)
+    return np.column_stack([np.ones(len(uv)), np.sin(a), np.cos(a), np.sin(b), np.cos(b),
+                            np.sin(2 * a), np.cos(2 * a), np.sin(2 * b), np.cos(2 * b)])
+
+
+def phase_regression(e: np.ndarray, uv_true: np.ndarray) -> dict:
+    """Least-squares fit of each error component on phase_design (corners beyond 5 robust
+    sigma left out): {"u"|"v": (coefficients (8,), standard errors (8,), R^2)}, px."""
+    X = phase_design(uv_true)
+    out = {}
+    for j, comp in enumerate("uv"):
+        y = e[:, j]
+        keep = np.abs(y - np.median(y)) < 5 * 1.4826 * np.median(np.abs(y - np.median(y)))
+        coef, *_ = np.linalg.lstsq(X[keep], y[keep], rcond=None)
+        res = y[keep] - X[keep] @ coef
+        s2 = res @ res / max(keep.sum() - X.shape[1], 1)
+        se = np.sqrt(np.diag(s2 * np.linalg.inv(X[keep].T @ X[keep])))
+        out[comp] = (coef[1:], se[1:], float(1 - res.var() / y[keep].var()))
+    return out
+
+
+def influence(cal, truth, weighted: bool = True) -> np.ndarray:
     """(3, 2M') d(pair rotation error, deg) / d(inlier corner pixels): one Gauss-Newton
-    step of the bundle adjustment at the true state (the calibration's inliers)."""
+    step of the bundle adjustment at the true state (the calibration's inliers, weighted
+    by the detector's per-corner sigma as the solve was)."""
     st = true_state(cal, truth)
     pb = Problem(cal.obs.subset(cal.inliers), st, cal.problem.gauge_cam, cal.problem.gauge_board,
                  cal.problem.fix_intr)
-    J = pb.jacobian(pb.x0()).toarray()
+    w = pb.obs.sqrt_weights()[:, None] if weighted else np.ones((2 * len(pb.obs), 1))
+    J = w * pb.jacobian(pb.x0()).toarray()
     free = [c for c in range(len(cal.cam_names)) if pb.layout.cam[c] is not None]
     G = _relative_pose_jacobian(st.T_cam_body, 0, 1, free)[:3]
-    return np.degrees(G @ np.linalg.solve(J.T @ J, J.T)[pb.layout.cam[free[0]]])
+    return np.degrees(G @ np.linalg.solve(J.T @ J, (w * J).T)[pb.layout.cam[free[0]]])
 
 
 def flip_null(runs: list[dict], draws: int = 4000, seed: int = 0) -> str:
@@ -197,7 +228,11 @@ def run_seed(name: str, frames: int, seed: int) -> dict:
     out["contrib"] = np.einsum("kmj,mj->mk", K.reshape(3, -1, 2), e_in).tolist()
     out["contrib_view"] = cal.obs.view[cal.inliers].tolist()
     out["contrib_cam"] = cal.obs.cam[cal.inliers].tolist()
-    out["crb_trace"] = float(sigma**2 * np.trace(K @ K.T))
+    K0 = influence(cal, ds.truth, weighted=False)  # the bound: one sigma, unweighted (rigcal.bounds)
+    out["crb_trace"] = float(sigma**2 * np.trace(K0 @ K0.T))
+    out["phase_e"] = (cal.obs.uv - uv_true).tolist()
+    out["phase_uv"] = uv_true.tolist()
+    out["phase_cam"] = cal.obs.cam.tolist()
     rng = np.random.default_rng([seed, 11])
     boards = {b.name: b for b in load_target(ds.path / "target.yaml").boards}
     for k, p in parts(cal, ds.truth, boards, uv_true, sigma, rng).items():
@@ -211,7 +246,8 @@ def summary(runs: list[dict]) -> str:
     B = np.array([r["bound_cov"] for r in runs])
     b_rms = np.sqrt(np.mean(np.trace(B, axis1=1, axis2=2)))
     b_ax = np.sqrt(np.mean(np.diagonal(B, axis1=1, axis2=2), 0))
-    skip = ("seed", "sigma", "bound_cov", "contrib", "contrib_view", "contrib_cam", "crb_trace")
+    skip = ("seed", "sigma", "bound_cov", "contrib", "contrib_view", "contrib_cam", "crb_trace", "phase_e", "phase_uv",
+            "phase_cam")
     keys = [k for k in runs[0] if k not in skip and not k.endswith(" rms px")]
     rows = []
     for k in keys:
@@ -225,6 +261,18 @@ def summary(runs: list[dict]) -> str:
                     f"{b_rms:.5f} deg, per axis {np.array2string(b_ax, precision=5)})")
 
 
+def phase_table(runs: list[dict]) -> str:
+    """Pixel locking per camera over all seeds (phase_regression), milli-pixels."""
+    e, uv, cam = (np.concatenate([np.array(r[k]) for r in runs]) for k in ("phase_e", "phase_uv", "phase_cam"))
+    rows = []
+    for c in np.unique(cam):
+        for comp, (coef, se, r2) in phase_regression(e[cam == c], uv[cam == c]).items():
+            rows.append([int(c), comp, f"{100 * r2:.2f} %",
+                         *(f"{1e3 * a:+.2f} ({1e3 * b:.2f})" for a, b in zip(coef, se))])
+    return md_table(["camera", "error", "R^2", *PHASE_TERMS], rows,
+                    "pixel-phase regression of the detected corner error (mpx, standard error)")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--scenario", default="fisheye-stereo")
@@ -233,10 +281,11 @@ def main(argv=None) -> None:
     runs = run_pool(run_seed, [(a.scenario, FRAMES[a.scenario], s) for s in range(a.seeds)])
     say(summary(runs))
     say(flip_null(runs))
+    say(phase_table(runs))
     for r in runs:
         say(r["seed"], " ".join(f"{k}={np.linalg.norm(r[k]):.5f}" for k in ("detected", "full", "view mean",
                                                                           "radial trend", "white")))
-    slim = [{k: v for k, v in r.items() if not k.startswith("contrib")} for r in runs]
+    slim = [{k: v for k, v in r.items() if not k.startswith(("contrib", "phase_"))} for r in runs]
     write_json("fisheye_excess", {"runs": slim, "cache_reused": os.environ.get("BENCH_REUSE_CACHE") == "1"})
 
 
