@@ -218,6 +218,18 @@ def test_image_size_differs_from_rig_resolution(sim, tmp_path):
     assert not (tmp_path / "out.yaml").exists()
 
 
+def test_image_turned_by_90_degrees_is_named_even_with_allow_resize(sim, tmp_path):
+    """A portrait image of a landscape camera (e.g. a phone photo saved with an EXIF
+    orientation tag applied) is not a resize: scaling fx and fy apart would be nonsense."""
+    ds = copy_dataset(sim, tmp_path / "ds", frames=["000000", "000001", "000002"])
+    p = ds / "images" / "back" / "000002.png"
+    cv2.imwrite(str(p), cv2.rotate(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE), cv2.ROTATE_90_CLOCKWISE))
+    for extra in ([], ["--allow-resize"]):
+        r = cli("calibrate", ds, "--out", tmp_path / "out.yaml", "--jobs", 1, *extra)
+        error_line(r, 2, str(p), "camera back", "480x640", "turned by 90 degrees", "EXIF")
+    assert not (tmp_path / "out.yaml").exists()
+
+
 def test_allow_resize_calibrates_images_of_another_size(sim, clean_det, tmp_path):
     ds = copy_dataset(sim, tmp_path / "ds", frames=frames_with_views(clean_det, "back")[:7])
     for p in (ds / "images" / "back").iterdir():

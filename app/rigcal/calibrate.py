@@ -125,6 +125,12 @@ def _apply_image_sizes(rig: Rig, det, allow_resize: bool) -> Rig:
     scale that camera's declared intrinsics to the images."""
     if not det.size_mismatch:
         return rig
+    for cam, path, got, expected in det.size_mismatch:
+        if tuple(got) == tuple(expected)[::-1]:
+            # not a resize: scaling the intrinsics by w and h apart would be nonsense
+            raise DatasetError(f"{path}: camera {cam}: image is {got[0]}x{got[1]}, the rig's {expected[0]}x"
+                               f"{expected[1]} turned by 90 degrees; rigcal reads the pixels as stored (an EXIF "
+                               f"orientation tag is not applied), so declare the resolution as stored")
     if not allow_resize:
         cam, path, got, expected = det.size_mismatch[0]
         more = f" (and {len(det.size_mismatch) - 1} more)" if len(det.size_mismatch) > 1 else ""
