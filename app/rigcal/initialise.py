@@ -34,9 +34,9 @@ from .errors import CalibrationError
 MAX_INIT_VIEWS = 20
 CHESS_FLIP_DEG = 20.0
 PNP_AMBIGUITY = 1.5  # IPPE's two solutions count as ambiguous within this error ratio
-# hand-eye start (a camera whose boards no other camera sees): posed frames it needs, the
-# frames it uses at most (pairs grow as their square), and the rotation (RMS over frame
-# pairs) the rig must make about a second axis for the pose to be determined
+# hand-eye start (a camera whose boards no other camera sees): posed views it needs, the
+# views of one board it uses at most (pairs grow as their square), and the rotation (RMS
+# over frame pairs) the rig must make about a second axis for the pose to be determined
 HAND_EYE_MIN_FRAMES = 4
 HAND_EYE_MAX_FRAMES = 40
 HAND_EYE_MIN_SPREAD_DEG = 1.0
@@ -365,15 +365,16 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
             for v in views:
                 if v.cam == c and T_wB[v.frame] is not None:
                     by_board[v.board].append(v)
-            for b in sorted(by_board, key=lambda b: -len(by_board[b])):
-                vs = by_board[b]
-                if len(vs) < HAND_EYE_MIN_FRAMES:
-                    break
-                vs = [vs[k] for k in np.linspace(0, len(vs) - 1, min(len(vs), HAND_EYE_MAX_FRAMES)).round().astype(int)]
-                X = hand_eye(np.array([T_wB[v.frame] for v in vs]), np.array([v.T_cam_board for v in vs]))
-                if X is not None:
-                    T_bc[c] = X
-                    return True
+            # pairs of frames within each board (its pose is unknown but fixed)
+            vs = [bv[k] for bv in by_board.values() if len(bv) >= 2
+                  for k in np.linspace(0, len(bv) - 1, min(len(bv), HAND_EYE_MAX_FRAMES)).round().astype(int)]
+            if len(vs) < HAND_EYE_MIN_FRAMES:
+                continue
+            X = hand_eye(np.array([T_wB[v.frame] for v in vs]), np.array([v.T_cam_board for v in vs]),
+                         np.array([v.board for v in vs]))
+            if X is not None:
+                T_bc[c] = X
+                return True
         return False
 
     while True:
@@ -398,15 +399,21 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
     return T_cam_body, T_body_world, T_world_board, posed, gauge_board, missing_b
 
 
-def hand_eye(T_world_body: np.ndarray, T_cam_board: np.ndarray) -> np.ndarray | None:
-    """T_body_cam from one camera's views of one static board in frames whose body pose is
-    known: AX = XB with A the body's motion and B the camera's between two frames (rotation
-    axes aligned by Kabsch, then translation by least squares, each once re-fitted without
-    the pairs a bad PnP spoilt). T_world_body, T_cam_board: (n, 4, 4), n >= 3.
+def hand_eye(T_world_body: np.ndarray, T_cam_board: np.ndarray, board: np.ndarray | None = None) -> np.ndarray | None:
+    """T_body_cam from one camera's views of static boards in frames whose body pose is
+    known: AX = XB with A the body's motion and B the camera's between two frames that show
+    it the same board (rotation axes aligned by Kabsch, then translation by least squares,
+    each once re-fitted without the pairs a bad PnP spoilt). T_world_body, T_cam_board:
+    (n, 4, 4); board: (n,) the board of each view (default: all one board).
 
     None when the rig rotated about one axis only (or barely at all): the camera's rotation
     about that axis and its position along it are then not determined."""
     i, j = np.triu_indices(len(T_world_body), 1)
+    if board is not None:
+        same = board[i] == board[j]
+        i, j = i[same], j[same]
+    if len(i) < 3:
+        return None
     A = geo.inv_T(T_world_body[j]) @ T_world_body[i]
     B = T_cam_board[j] @ geo.inv_T(T_cam_board[i])
     a, b = _rotvecs(A[:, :3, :3]), _rotvecs(B[:, :3, :3])
@@ -537,6 +544,6 @@ def _disconnected_message(views, missing, cam_names, board_names) -> str:
             continue
         parts.append(f"{cam_names[c]}: its boards ({boards_of(c)}) are never linked to the rest "
                      f"of the rig (no posed frame shows them to a calibrated camera), and the rig's motion "
-                     f"cannot place it either (that needs {HAND_EYE_MIN_FRAMES} or more posed frames of one of "
-                     f"its boards, turning about two axes)")
+                     f"cannot place it either (that needs {HAND_EYE_MIN_FRAMES} or more posed frames showing "
+                     f"it its boards, the rig turning about two axes between them)")
     return head + "; ".join(parts)
