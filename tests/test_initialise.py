@@ -60,6 +60,22 @@ def test_hand_eye_survives_a_wrong_view():
     assert np.linalg.norm(Y[:3, 3] - X[:3, 3]) < 0.03
 
 
+def test_hand_eye_pairs_frames_only_within_a_board():
+    """Two boards, each seen in a few frames: every pair of frames showing the same board
+    is an AX = XB equation; a pair across boards is not (their poses differ)."""
+    rng = np.random.default_rng(8)
+    X = geo.make_T(geo.R_from_rotvec([0.0, np.pi, 0.0]), [-0.2, 0.0, 0.05])
+    T_wb = [geo.make_T(geo.R_from_rotvec(rng.normal(0, 2, 3)), rng.normal(0, 3, 3)) for _ in range(2)]
+    TwB = _motion(rng, 8, tilt_deg=10)
+    board = np.array([0, 1] * 4)
+    T_cb = np.array([_views_of_static_board(TwB[k:k + 1], X, T_wb[board[k]], rng, deg=0.0, m=0.0)[0]
+                     for k in range(8)])
+    assert np.allclose(hand_eye(TwB, T_cb, board), X, atol=1e-9)
+    # one board's four frames alone also place it; across boards there are no equations
+    assert np.allclose(hand_eye(TwB[board == 0], T_cb[board == 0]), X, atol=1e-9)
+    assert hand_eye(TwB[:2], T_cb[:2], board[:2]) is None
+
+
 def test_hand_eye_refuses_rotation_about_one_axis():
     """Yaw only: the camera's rotation about the yaw axis and its height are not
     determined, so there is no start rather than a wrong one."""
