@@ -406,6 +406,21 @@ def test_corner_sigma_follows_the_image_noise():
     assert np.mean(np.array(ratio) > 1.0) > 0.95 and 2.0 < np.median(ratio) < 6.0, np.median(ratio)
 
 
+def test_a_view_no_corner_of_which_can_be_refined_is_kept_as_found_without_a_warning():
+    """Two corners with no grid to refine along (not neighbours, or one on the other's
+    axis only): the corners are kept as found, not refined, sigma unknown, and no
+    RuntimeWarning (All-NaN slice) leaks out."""
+    import warnings
+
+    gray = np.full((480, 640), 128, np.uint8)
+    uv = np.array([[100.0, 100.0], [140.0, 100.0]])
+    for ids in ([0, 1], [0, 20]):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            q, ok, s = refine_corners(gray, CHESS, np.array(ids), uv, "symmetric")
+        assert np.array_equal(q, uv) and not ok.any() and np.isnan(s).all()
+
+
 # ----------------------------------------------------------------------------- datasets and faults
 
 

@@ -31,7 +31,9 @@ Pipeline per image:
    "symmetric" also estimates each corner's own 1-sigma error (View.sigma: the fit's
    residual variance x its inverse normal matrix). On fisheye renders it tracks the true
    error (0.007-0.03 px); on pinhole renders it spreads 2.2x where the true error spreads
-   1.3x, so the calibration does not weight corners by it (README, Accuracy and speed).
+   1.3x. Calibrated per camera on the residuals (solve.NoiseModel) it can weight the
+   corners, but only on request (core.calibrate_views(weight_corners=True)): it did not
+   help every rig (README, Accuracy and speed).
 4. Views with fewer than `min_corners` corners, or with (nearly) collinear corners,
    are dropped and counted.
 
@@ -318,10 +320,13 @@ def homography_axes(xy_board: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, n
         return None
     X = np.column_stack([xy_board, np.ones(len(xy_board))])
     w = X @ H[2]
-    p = (X @ H[:2].T) / w[:, None]
-    # d(p)/d(x_board) = (H[:2, j] - p * H[2, j]) / w
-    ax = (H[:2, 0][None] - p * H[2, 0]) / w[:, None]
-    ay = (H[:2, 1][None] - p * H[2, 1]) / w[:, None]
+    # a degenerate fit can put a point on the horizon (w = 0): its axes come out
+    # non-finite and refine_corners leaves the view unrefined
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = (X @ H[:2].T) / w[:, None]
+        # d(p)/d(x_board) = (H[:2, j] - p * H[2, j]) / w
+        ax = (H[:2, 0][None] - p * H[2, 0]) / w[:, None]
+        ay = (H[:2, 1][None] - p * H[2, 1]) / w[:, None]
     return ax, ay
 
 
@@ -620,7 +625,10 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
         ax, ay, bu, bv, spread = corner_grid(ids, q, board)
         if stack is None:
             # Gradients only over the view's bounding box plus the reach of its crosses.
-            reach = ARM_SQUARES * (np.nanmax(np.abs(ax).sum(1)) + np.nanmax(np.abs(ay).sum(1))) + 4.0
+            span_u, span_v = np.abs(ax).sum(1), np.abs(ay).sum(1)
+            if np.isnan(span_u).all() or np.isnan(span_v).all():
+                return uv, ~all_ok, unknown  # no corner has a grid to refine along (2-corner views)
+            reach = ARM_SQUARES * (np.nanmax(span_u) + np.nanmax(span_v)) + 4.0
             if not np.isfinite(reach):
                 return uv, ~all_ok, unknown
             h, w = gray.shape
