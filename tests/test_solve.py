@@ -99,18 +99,17 @@ def test_levenberg_marquardt_reaches_scipy_least_squares_minimum(drone):
 
 
 def test_weighted_solve_is_least_squares_on_whitened_residuals_with_its_own_covariance(drone):
-    """Corner weights (Observations.weight, from the detector's per-corner sigma): the LM
-    minimum is scipy's on sqrt(w) r; the reported sigma stays the unweighted RMS in px; the
-    covariance is the weighted problem's, variance_factor (J^T W J)^-1."""
+    """Corner weights (Observations.weight, inverse variances): the LM minimum is scipy's
+    on sqrt(w) r; the reported sigma stays the unweighted RMS in px; the covariance is the
+    weighted problem's, variance_factor (J^T W J)^-1."""
     from dataclasses import replace
 
-    from rigcal.solve import bundle_adjust, camera_covariance, corner_weights
+    from rigcal.solve import bundle_adjust, camera_covariance
 
     rng = np.random.default_rng(5)
     obs, state = _small_problem(drone, rng)
     sigma = np.where(rng.random(len(obs)) < 0.3, 0.4, 0.1)  # 30 % of corners said four times noisier
-    obs_w = replace(obs, weight=corner_weights(sigma))
-    assert np.allclose(obs_w.weight, (0.1 / sigma) ** 2)  # the median corner has weight 1
+    obs_w = replace(obs, weight=1.0 / sigma**2)
     pb = Problem(obs_w, state, gauge_cam=0, gauge_board=0)
     x_lm, _, converged = levenberg_marquardt(pb)
     sw = obs_w.sqrt_weights()
@@ -128,6 +127,114 @@ def test_weighted_solve_is_least_squares_on_whitened_residuals_with_its_own_cova
     full = res.variance_factor * np.linalg.inv(J.T @ (w_in[:, None] ** 2 * J))
     s1 = cam_sl[1]
     assert np.allclose(cov[s1, s1], full[s1, s1], rtol=1e-6)
+
+def _noise_sample(rng, n, gamma, scale):
+    """(s_det, r2) of n corners: detector sigmas spread 3x (log-normal), true 1-sigma
+    scale * s_det^gamma, r2 = |r|^2 / 2 of Gaussian residuals of that sigma."""
+    s_det = 0.01 * np.exp(rng.normal(0.0, 0.45, n))
+    s_true = scale * s_det**gamma
+    return s_det, np.sum(rng.normal(0.0, 1.0, (n, 2)) ** 2, axis=1) / 2 * s_true**2
+
+
+@pytest.mark.parametrize("gamma, scale", [(0.5, 0.12), (1.0, 1.3), (0.0, 0.02)])
+def test_noise_model_recovers_how_the_true_noise_follows_the_detector_sigma(gamma, scale):
+    """fit_noise_model: gamma and scale of s_eff = scale * s_det^gamma from residuals;
+    weights 1 / s_eff^2 span at most WEIGHT_RATIO_MAX; too few corners give no model."""
+    from rigcal.solve import NOISE_MIN_CORNERS, WEIGHT_RATIO_MAX, fit_noise_model, noise_weights
+
+    rng = np.random.default_rng(int(10 * gamma) + 3)
+    s_det, r2 = _noise_sample(rng, 20000, gamma, scale)
+    m = fit_noise_model(s_det, r2)
+    assert m.gamma == pytest.approx(gamma, abs=0.06)
+    s_mid = scale * np.median(s_det) ** gamma
+    assert m.s_mid == pytest.approx(s_mid, rel=0.03)
+    s_det[:10] = np.nan  # unknown sigma: the camera's median
+    w = noise_weights(s_det, np.zeros(len(s_det), int), [m])
+    assert w.max() / w.min() <= WEIGHT_RATIO_MAX * (1 + 1e-9)
+    assert np.allclose(w[:10], 1 / m.sigma(np.array([m.s_ref])) ** 2)
+    assert fit_noise_model(s_det[:NOISE_MIN_CORNERS - 1], r2[:NOISE_MIN_CORNERS - 1]) is None
+
+
+def test_noise_model_does_not_follow_a_detector_sigma_that_tells_nothing():
+    """Residuals independent of s_det: gamma near 0, weights nearly equal; a steeper
+    dependence than s_det's own is clipped at gamma 1."""
+    from rigcal.solve import fit_noise_model
+
+    rng = np.random.default_rng(4)
+    s_det, _ = _noise_sample(rng, 20000, 0.0, 1.0)
+    r2 = _noise_sample(rng, 20000, 0.0, 0.05)[1]
+    assert fit_noise_model(s_det, r2).gamma < 0.05
+    r2_steep = np.sum(rng.normal(0.0, 1.0, (20000, 2)) ** 2, axis=1) / 2 * (50 * s_det**2) ** 2
+    assert fit_noise_model(s_det, r2_steep).gamma == 1.0
+
+
+def _heteroscedastic_room(drone, seed, base=0.05, spread=0.8, n_frames=12):
+    """Room views of a perturbed drone rig whose corners each have their own noise
+    (log-normal about `base` px, `spread` in log) and the detector's sigma says so
+    (ViewIn.sigma)."""
+    rng = np.random.default_rng(seed)
+    truth = perturb(drone, rng)
+    views, corners = noisy_room(truth, rng, 0.0, n_frames=n_frames)
+    out = []
+    for v in views:
+        s = base * np.exp(rng.normal(0.0, spread, len(v.ids)))
+        out.append(ViewIn(v.camera, v.frame, v.board, v.ids, v.uv + rng.normal(0, 1, v.uv.shape) * s[:, None],
+                          sigma=s))
+    return truth, out, corners
+
+
+def test_corners_are_weighted_by_their_calibrated_sigma_and_the_covariance_stays_honest(drone):
+    """weight_corners: core weights each camera's corners by its NoiseModel fitted on
+    ViewIn.sigma (gamma near 1: this sigma is right); without sigma, or by default,
+    everything stays unweighted. Weighted,
+    the pair errors come out smaller than unweighted (summed over seeds), and each
+    camera's reported sigma still explains its errors."""
+    from dataclasses import replace as _replace
+
+    err_w, err_u, z = 0.0, 0.0, []
+    for seed in (21, 22):
+        truth, views, corners = _heteroscedastic_room(drone, seed)
+        cal = calibrate_views(views, drone, corners, weight_corners=True)
+        plain = calibrate_views([_replace(v, sigma=None) for v in views], drone, corners, weight_corners=True)
+        assert cal.obs.weight is not None and plain.obs.weight is None
+        assert all(m is not None and m.gamma > 0.8 for m in cal.noise_models)
+        err_w += sum(e["rot_deg"] ** 2 for e in _pair_errors(cal.rig, truth).values())
+        err_u += sum(e["rot_deg"] ** 2 for e in _pair_errors(plain.rig, truth).values())
+        rel = compare_rigs(cal.rig, truth)["pairs"]
+        for (a, b), e in rel.items():
+            sa, sb = cal.stats[a].sigma_rotation_deg, cal.stats[b].sigma_rotation_deg
+            z.append(e["rot_deg"] / np.sqrt(np.sum(sa**2) + np.sum(sb**2)))
+    assert err_w < err_u
+    assert max(z) < 3.0
+
+
+def test_weighted_solve_does_not_depend_on_where_the_solve_started(drone):
+    """core.weighted_solve is a function of the unweighted solve's inlier set: from two
+    different starts (the calibration's own and one nudged off it) the same corners and
+    the same rig to 1e-9 (an iterated rejection on weighted residuals could settle either
+    side of a corner near its threshold)."""
+    from dataclasses import replace as _replace
+
+    from rigcal.core import weighted_solve
+    from rigcal.solve import bundle_adjust
+
+    truth, views, corners = _heteroscedastic_room(drone, 23)
+    cal = calibrate_views(views, drone, corners)
+    assert cal.obs.weight is None and cal.corner_sigma_detected is not None  # weighting is opt-in
+    obs = cal.obs
+    g = (cal.problem.gauge_cam, cal.problem.gauge_board, cal.problem.fix_intr)
+    inliers = bundle_adjust(obs, cal.state, *g).inliers
+    nudged = cal.state.copy()
+    nudged.T_body_world[:, :3, 3] += 0.002
+    res = []
+    for start in (cal.state, nudged):
+        r0 = bundle_adjust(obs, start, *g, inliers=inliers, max_rounds=0)
+        res.append(weighted_solve(r0, obs, cal.corner_sigma_detected, *g)[0])
+    assert np.array_equal(res[0].inliers, res[1].inliers) and not res[0].inliers.all()
+    for c in range(len(drone.names)):
+        d = res[0].state.T_cam_body[c] @ geo.inv_T(res[1].state.T_cam_body[c])
+        assert geo.rotation_angle_deg(d[:3, :3]) < 1e-7 and np.linalg.norm(d[:3, 3]) < 1e-9
+
 
 def _pair_errors(cal_rig, truth):
     return compare_rigs(cal_rig, truth)["pairs"]

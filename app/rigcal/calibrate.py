@@ -70,7 +70,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     for path, reason in det.unreadable:
         console.print(f"warning: {path}: skipped ({reason})")
     rig = _apply_image_sizes(rig, det, allow_resize)
-    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous)
+    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous, v.sigma)
              for v in det.views]
     for cam in rig.names:
         n_img = det.n_images.get(cam, 0)

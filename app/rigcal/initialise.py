@@ -53,6 +53,7 @@ class PosedView:
     uv: np.ndarray
     T_cam_board: np.ndarray
     rms_px: float
+    sigma: np.ndarray | None = None  # (N,) the detector's own 1-sigma per corner, px (core.ViewIn)
 
 
 @dataclass
