@@ -34,6 +34,9 @@ CACHE = OUT / "cache"
 RIGS = ROOT / "rigs"
 JOBS = 2  # the machine the figures are quoted for has 2 cores
 CODE_FILES = ("simulate.py", "render.py", "detect.py", "target.py", "camera.py")
+# what a cached detection holds: 2 = (camera, frame, board, ids, uv, ambiguous, sigma);
+# 1 had no sigma. Part of the cache key, so no old file is read as the new format.
+CACHE_FORMAT = 2
 
 
 @dataclass(frozen=True)
@@ -95,7 +98,7 @@ class Dataset:
 
 def code_hash() -> str:
     """Short hash of the code whose output the cache holds."""
-    h = hashlib.sha256(rigcal.__version__.encode())
+    h = hashlib.sha256(f"{rigcal.__version__} cache {CACHE_FORMAT}".encode())
     src = Path(rigcal.__file__).parent
     for name in CODE_FILES:
         h.update((src / name).read_bytes())
@@ -142,9 +145,7 @@ def get_dataset(scn: Scenario, seed: int, keep_images: bool = False, log=None, j
     target = load_target(d / "target.yaml")
     images = list_dataset(d, rig)
     det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=False)
-    views = [(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), bool(v.ambiguous))
-             for v in det.views]
-    meta = {"views": views, "n_images": images.n_images, "sim_s": sim_s, "det_s": det.seconds}
+    meta = {"views": view_tuples(det.views), "n_images": images.n_images, "sim_s": sim_s, "det_s": det.seconds}
     tmp = meta_path.with_suffix(".tmp")
     with open(tmp, "wb") as f:
         pickle.dump(meta, f)
@@ -152,6 +153,12 @@ def get_dataset(scn: Scenario, seed: int, keep_images: bool = False, log=None, j
     if not keep_images:
         shutil.rmtree(d / "images", ignore_errors=True)
     return _dataset_from(scn, seed, d, meta, cached=False, images_kept=keep_images)
+
+
+def view_tuples(views) -> list[tuple]:
+    """detect.View -> the cache's plain tuples (CACHE_FORMAT 2)."""
+    return [(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), bool(v.ambiguous),
+             None if v.sigma is None else np.asarray(v.sigma, float)) for v in views]
 
 
 def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, images_kept: bool) -> Dataset:
@@ -167,8 +174,9 @@ def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, i
 # ----------------------------------------------------------------------------- calibration + errors
 
 
-def calibrate(views: list[ViewIn], rig: Rig, corners: dict, distortion: str = "auto") -> Calibration:
-    return calibrate_views(views, rig, corners, distortion=distortion)
+def calibrate(views: list[ViewIn], rig: Rig, corners: dict, distortion: str = "auto",
+              weight_corners: bool = False) -> Calibration:
+    return calibrate_views(views, rig, corners, distortion=distortion, weight_corners=weight_corners)
 
 
 def truth_in_output_frame(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:

@@ -15,6 +15,13 @@ first seeds two more diagnostics run: distortion fixed to the truth's own model
 (is model selection to blame?) and the bundle adjustment restarted from the true
 state on the detected corners (did the solver stop at the minimum?).
 
+Corner weighting (rigcal.core.calibrate_views(weight_corners=True): each corner weighted
+by the detector's own sigma, calibrated per camera on the residuals, rigcal.solve's
+NoiseModel) runs on the same detections as a variant, with its own restart and the
+honesty of its reported sigmas. The 'hetero CRB' is the bound for corners whose noise
+differs as the detector's sigma can tell (the NoiseModel fitted on the TRUE errors):
+when it is no lower than the plain bound, no weighting by that sigma can gain much.
+
 Frames are reduced from the accuracy scenarios (drone 30, stereo-forward 20,
 surround-6 30, fisheye 20) so 10 seeds of 4 scenes fit the benchmark's budget; the
 bound is computed per seed for its own scene, so the ratio keeps its meaning.
@@ -25,13 +32,16 @@ bound is computed per seed for its own scene, so the ratio keeps its meaning.
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 
 from rigcal import geometry as geo
 from rigcal.errors import RigcalError
-from rigcal.bounds import measured_corner_noise, true_state
-from rigcal.solve import Intrinsics, State, bundle_adjust
+from rigcal.bounds import _relative_pose_jacobian, measured_corner_noise, true_state
+from rigcal.core import weighted_solve
+from rigcal.solve import (Intrinsics, Problem, SolveResult, State, bundle_adjust, camera_covariance, fit_noise_model,
+                          noise_weights)
 
 from .common import (SCENARIOS, Timer, calibrate, crb_pairs, gaussian_views, get_dataset, md_table, pose_errors_body,
                      rig_errors, rig_scale_ppm, run_pool, say, scenario, true_projections, write_json)
@@ -51,6 +61,56 @@ def _pair_stats(cal, truth, sigma: float) -> dict:
         out[k] = {"rot_deg": v["rot_deg"], "trans_mm": v["trans_mm"], "bound_rot_deg": bb["rot_deg"],
                   "bound_trans_mm": bb["trans_mm"]}
     return out
+
+
+def hetero_weights(cal, uv_true: np.ndarray) -> np.ndarray | None:
+    """(M,) 1 / s^2 per corner, s the NoiseModel (rigcal.solve) fitted per camera on the
+    TRUE corner errors against the detector's own sigma: the best a weighting by that
+    sigma can know. None without detector sigmas."""
+    s_det = cal.corner_sigma_detected
+    if s_det is None:
+        return None
+    e2 = np.sum((cal.obs.uv - uv_true) ** 2, axis=1) / 2.0
+    inl = cal.inliers
+    models = [fit_noise_model(s_det[inl & (cal.obs.cam == c)], e2[inl & (cal.obs.cam == c)])
+              for c in range(len(cal.cam_names))]
+    if all(m is None for m in models):
+        return None
+    return noise_weights(s_det, cal.obs.cam, models)
+
+
+def hetero_pair_bounds(cal, truth, weights: np.ndarray) -> dict:
+    """rigcal.bounds.pair_bounds for corners whose noise differs (1 / weights px^2 each):
+    the Cramér-Rao bound of the weighted solve with those very weights (variance factor 1)."""
+    st = true_state(cal, truth)
+    obs = replace(cal.obs, weight=weights).subset(cal.inliers)
+    pb = Problem(obs, st, cal.problem.gauge_cam, cal.problem.gauge_board, cal.problem.fix_intr)
+    res = SolveResult(st, pb, np.ones(len(obs), bool), np.zeros((len(obs), 2)), 1.0, 0, 0.0, variance_factor=1.0)
+    cov, _, cam_sl = camera_covariance(res)
+    free = [c for c in range(len(cal.cam_names)) if cam_sl[c] is not None]
+    idx = np.concatenate([np.arange(cam_sl[c].start, cam_sl[c].stop) for c in free])
+    out = {}
+    for i in range(len(cal.cam_names)):
+        for j in range(i + 1, len(cal.cam_names)):
+            G = _relative_pose_jacobian(st.T_cam_body, i, j, free)
+            S = G @ cov[np.ix_(idx, idx)] @ G.T
+            out[f"{cal.cam_names[i]}/{cal.cam_names[j]}"] = {
+                "rot_deg": float(np.degrees(np.sqrt(np.trace(S[:3, :3])))),
+                "trans_mm": float(1000 * np.sqrt(np.trace(S[3:, 3:])))}
+    return out
+
+
+def _hetero_stats(cal, truth, uv_true: np.ndarray, auto: dict) -> dict | None:
+    """The calibration's pair errors (auto) against hetero_pair_bounds."""
+    w = hetero_weights(cal, uv_true)
+    if w is None:
+        return None
+    try:
+        b = hetero_pair_bounds(cal, truth, w)
+    except np.linalg.LinAlgError:
+        return None
+    return {k: {"rot_deg": v["rot_deg"], "trans_mm": v["trans_mm"], "bound_rot_deg": b[k]["rot_deg"],
+                "bound_trans_mm": b[k]["trans_mm"]} for k, v in auto.items() if k in b}
 
 
 def _coverage_samples(cal, truth_rig) -> dict:
@@ -85,7 +145,8 @@ def _relative(T_cam_body: np.ndarray, i: int, j: int) -> np.ndarray:
 
 def restart_from_truth(cal, truth) -> dict | None:
     """Bundle adjustment of the same detected corners started at the true state (the
-    calibrated distortion model, true values): the largest difference from the
+    calibrated distortion model, true values; corner weighting as rigcal.core does it,
+    core.weighted_solve): the largest difference from the
     calibration's own relative poses (deg, mm) says whether the solver stopped short."""
     st = true_state(cal, truth)
     if st is None:
@@ -97,7 +158,12 @@ def restart_from_truth(cal, truth) -> dict | None:
         v[:k] = it_true.values[:k]
         intr.append(Intrinsics(it_cal.model, v))
     start = State(intr, st.T_cam_body, st.T_body_world, st.T_world_board)
-    res = bundle_adjust(cal.obs, start, cal.problem.gauge_cam, cal.problem.gauge_board)
+    # the whole solve again: unweighted (its outlier rejection), then the corner weighting
+    obs = replace(cal.obs, weight=None)
+    gauge = (cal.problem.gauge_cam, cal.problem.gauge_board)
+    res = bundle_adjust(obs, start, *gauge, cal.problem.fix_intr)
+    if cal.obs.weight is not None:
+        res = weighted_solve(res, obs, cal.corner_sigma_detected, *gauge, cal.problem.fix_intr)[0]
     C = len(cal.cam_names)
     drot, dtr = 0.0, 0.0
     for i in range(C):
@@ -139,6 +205,12 @@ def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
            "sigma_reported": all(st.sigma_position_mm is not None for st in cal.stats.values()),
            "corners_used": len(cal.obs), "corners_detected": int(sum(len(v.ids) for v in ds.views)),
            **view_offsets(cal, uv_true, sigma)}
+    out["hetero"] = _hetero_stats(cal, ds.truth, uv_true, out["auto"])
+    # the same detections with corner weighting (core.calibrate_views(weight_corners=True))
+    wcal = calibrate(ds.views, ds.rig, ds.corners, weight_corners=True)
+    out["weighted_used"] = wcal.obs.weight is not None
+    out["weighted"] = _pair_stats(wcal, ds.truth, sigma)
+    out["weighted_coverage"] = _coverage_samples(wcal, ds.truth.rig)
     rng = np.random.default_rng([seed, 7])
     gcal = calibrate(gaussian_views(cal, uv_true, ds.corners, sigma, rng), ds.rig, ds.corners)
     out["gauss"] = _pair_stats(gcal, ds.truth, sigma)
@@ -150,6 +222,7 @@ def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
             out["truth_model"] = _pair_stats(calibrate(ds.views, ds.rig, ds.corners, model), ds.truth, sigma)
             out["truth_model_name"] = model
         out["restart"] = restart_from_truth(cal, ds.truth)
+        out["restart_weighted"] = restart_from_truth(wcal, ds.truth)
     return out
 
 
@@ -186,11 +259,14 @@ def summarise(runs: list[dict]) -> dict:
     out = {}
     for name, rs in by.items():
         s = {}
-        for variant in ("auto", "gauss", "truth_model"):
+        for variant in ("auto", "gauss", "truth_model", "hetero", "weighted"):
             s[variant] = {q: _ratio(rs, variant, q) for q in ("rot_deg", "trans_mm")}
         restarts = [r["restart"] for r in rs if r.get("restart")]
         s["restart_max_rot_diff_deg"] = max((x["max_rot_diff_deg"] for x in restarts), default=None)
         s["restart_max_trans_diff_mm"] = max((x["max_trans_diff_mm"] for x in restarts), default=None)
+        rw = [r["restart_weighted"] for r in rs if r.get("restart_weighted")]
+        s["restart_weighted_max_rot_diff_deg"] = max((x["max_rot_diff_deg"] for x in rw), default=None)
+        s["restart_weighted_max_trans_diff_mm"] = max((x["max_trans_diff_mm"] for x in rw), default=None)
         s["sigma_px"] = float(np.mean([r["sigma_px"] for r in rs]))
         s["view_offset_rms_px"] = float(np.sqrt(np.mean([r["view_offset_rms_px"] ** 2 for r in rs])))
         s["white_expectation_px"] = float(np.sqrt(np.mean([r["white_expectation_px"] ** 2 for r in rs])))
@@ -201,8 +277,30 @@ def summarise(runs: list[dict]) -> dict:
         s["corners_used_share"] = float(sum(r["corners_used"] for r in rs) / sum(r["corners_detected"] for r in rs))
         s["sigma_reported"] = int(sum(r.get("sigma_reported", False) for r in rs))
         s["seeds"] = len(rs)
+        s["weighted_used"] = int(sum(r.get("weighted_used", False) for r in rs))
+        s["coverage"] = coverage_summary([r["coverage"] for r in rs])
+        s["weighted_coverage"] = coverage_summary([r["weighted_coverage"] for r in rs if "weighted_coverage" in r])
         s["frames"] = rs[0]["frames"]
         out[name] = s
+    return out
+
+
+def coverage_summary(samples: list[dict]) -> dict:
+    """How honest the reported per-camera sigmas are, over cameras, axes and seeds: RMS of
+    error / reported sigma (1 = honest) and the share within 2 sigma (95 % if Gaussian),
+    rotation and position apart. The gauge camera's tiny sigmas are left out (aligned
+    frame: none is exactly zero, but those under 1e-9 would dominate)."""
+    out = {}
+    for name, sl in (("rot", slice(0, 3)), ("pos", slice(3, 6))):
+        z = []
+        for smp in samples:
+            for v in smp.values():
+                e, sd = np.array(v["error"])[sl], np.array(v["sigma"])[sl]
+                ok = sd > 1e-9
+                z.extend((e[ok] / sd[ok]).tolist())
+        z = np.array(z)
+        out[f"{name}_z_rms"] = float(np.sqrt(np.mean(z**2))) if len(z) else None
+        out[f"{name}_within_2sigma"] = float(np.mean(np.abs(z) < 2)) if len(z) else None
     return out
 
 
@@ -212,14 +310,21 @@ def tables(res: dict) -> str:
         for k, rot in s["auto"]["rot_deg"].items():
             tr = s["auto"]["trans_mm"][k]
             grot, gtr = s["gauss"]["rot_deg"].get(k, {}), s["gauss"]["trans_mm"].get(k, {})
+            hrot, htr = s["hetero"]["rot_deg"].get(k, {}), s["hetero"]["trans_mm"].get(k, {})
+            wrot, wtr = s["weighted"]["rot_deg"].get(k, {}), s["weighted"]["trans_mm"].get(k, {})
             rows.append([name, k, rot["rms_error"], rot["rms_bound"], rot["ratio"], tr["rms_error"], tr["rms_bound"],
-                         tr["ratio"], grot.get("ratio"), gtr.get("ratio")])
+                         tr["ratio"], grot.get("ratio"), gtr.get("ratio"), hrot.get("ratio"), htr.get("ratio"),
+                         wrot.get("ratio"), wtr.get("ratio")])
     seeds = max(s["seeds"] for s in res["summary"].values())
     parts = [md_table(["scenario", "pair", "rot RMS deg", "CRB deg", "rot ratio", "trans RMS mm", "CRB mm",
-                       "trans ratio", "rot ratio, white noise", "trans ratio, white noise"], rows,
+                       "trans ratio", "rot ratio, white noise", "trans ratio, white noise", "rot ratio, hetero CRB",
+                       "trans ratio, hetero CRB", "rot ratio, weighted", "trans ratio, weighted"], rows,
                       f"Noise limit: RMS error over {seeds} seeds vs Cramér-Rao bound (ratio 1 = efficient; "
-                      f"'white noise' = same corners, true projections + Gaussian noise of the measured sigma)")]
-    rows = []
+                      f"'white noise' = same corners, true projections + Gaussian noise of the measured sigma; "
+                      f"'hetero CRB' = the bound for each corner's own noise as the detector's sigma can tell it, "
+                      f"noise_limit.hetero_weights; 'weighted' = calibrate_views(weight_corners=True) on the "
+                      f"same detections)")]
+    rows, wrows = [], []
     for name, s in res["summary"].items():
         tm = s["truth_model"]
         worst_auto = max(max(v["ratio"] for v in s["auto"][q].values()) for q in ("rot_deg", "trans_mm"))
@@ -232,11 +337,23 @@ def tables(res: dict) -> str:
                      f"{s['scale_ppm_mean']:+.0f} +- {s['scale_ppm_std']:.0f}",
                      f"{s['gauss_scale_ppm_mean']:+.0f} +- {s['gauss_scale_ppm_std']:.0f}",
                      worst_auto, f"{worst_tm:.2f} ({n_tm} seeds)" if worst_tm is not None else "- (fisheye)",
-                     s["restart_max_rot_diff_deg"], s["restart_max_trans_diff_mm"]])
+                     s["restart_max_rot_diff_deg"], s["restart_max_trans_diff_mm"],
+                     s["coverage"]["rot_z_rms"], s["coverage"]["rot_within_2sigma"], s["coverage"]["pos_z_rms"],
+                     s["coverage"]["pos_within_2sigma"]])
+        wc = s["weighted_coverage"]
+        wrows.append([name, f"{s['weighted_used']}/{s['seeds']}", s["restart_weighted_max_rot_diff_deg"],
+                      s["restart_weighted_max_trans_diff_mm"], wc["rot_z_rms"], wc["rot_within_2sigma"],
+                      wc["pos_z_rms"], wc["pos_within_2sigma"]])
     parts.append(md_table(["scenario", "frames", "seeds", "sigma reported", "detected corners used", "corner noise px",
                            "per-view offset RMS px", "same if white px", "rig scale ppm", "rig scale ppm, white",
                            "worst ratio (auto)", "worst ratio (truth's model)", "restart from truth: max rot diff deg",
-                           "max trans diff mm"], rows, "Noise-limit diagnostics"))
+                           "max trans diff mm", "rot error/sigma RMS", "rot within 2 sigma",
+                           "pos error/sigma RMS", "pos within 2 sigma"], rows,
+                          "Noise-limit diagnostics (error/sigma: each camera's pose error against its reported "
+                          "sigma, 1 and 95 % when honest)"))
+    parts.append(md_table(["scenario", "seeds weighted", "restart from truth: max rot diff deg", "max trans diff mm",
+                           "rot error/sigma RMS", "rot within 2 sigma", "pos error/sigma RMS", "pos within 2 sigma"],
+                          wrows, "Corner weighting (weight_corners=True): restart and reported sigma"))
     failed = [f"{r['scenario']} seed {r['seed']}: {r.get('failed') or r.get('gauss_failed')}" for r in res["runs"]
               if "failed" in r or "gauss_failed" in r]
     if failed:

@@ -34,7 +34,7 @@ import rigcal
 from rigcal import geometry as geo
 from rigcal.core import ViewIn, calibrate_views
 
-from .common import CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, md_table, say, write_json
+from .common import CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, md_table, say, view_tuples, write_json
 
 SAMPLES = ROOT / "samples" / "real"
 SHARED = ROOT.parent / "shared" / "data" / "real"
@@ -63,8 +63,7 @@ def detections(dataset: Path, tag: str, log=say):
         log(f"  detecting {dataset} ...")
         images = list_dataset(dataset, rig)
         det = detect_dataset(images, target, rig=rig, jobs=JOBS, progress=False)
-        meta = {"views": [(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), bool(v.ambiguous))
-                          for v in det.views], "n_images": images.n_images, "det_s": det.seconds}
+        meta = {"views": view_tuples(det.views), "n_images": images.n_images, "det_s": det.seconds}
         cache.parent.mkdir(parents=True, exist_ok=True)
         tmp = cache.with_suffix(".tmp")
         with open(tmp, "wb") as f:
