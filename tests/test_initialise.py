@@ -97,8 +97,11 @@ def test_camera_sharing_no_board_calibrates_from_the_rig_motion():
     lonely = [ViewIn(v.camera, v.frame, "back_" + v.board, v.ids, v.uv) if v.camera == "back" else v
               for v in views]
     corners = dict(corners, **{"back_" + b: p for b, p in corners.items()})
-    shared = compare_rigs(calibrate_views(views, drone, corners).rig, truth)["pairs"]
-    alone = compare_rigs(calibrate_views(lonely, drone, corners).rig, truth)["pairs"]
+    cal_shared, cal_alone = calibrate_views(views, drone, corners), calibrate_views(lonely, drone, corners)
+    assert not any("hand-eye" in n for n in cal_shared.notes)
+    assert any(n.startswith("back: no other camera sees its boards") for n in cal_alone.notes), cal_alone.notes
+    shared = compare_rigs(cal_shared.rig, truth)["pairs"]
+    alone = compare_rigs(cal_alone.rig, truth)["pairs"]
     for pair, e in alone.items():
         # the bounds of the shared-board round trip (test_solve): with shared boards this scene
         # gives 0.002-0.015 deg / 0.1-0.4 mm, with the back camera's boards its own 0.002-0.022 / 0.1-0.65

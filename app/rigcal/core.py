@@ -323,8 +323,11 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     # 3. pose graph; the gauge camera is the one with the most views (best conditioned)
     counts = np.bincount([p.cam for p in posed], minlength=len(cam_names))
     gauge_cam = int(np.argmax(counts))
-    T_cam_body, T_body_world, T_world_board, frame_posed, gauge_board, missing_b = pose_graph(
+    T_cam_body, T_body_world, T_world_board, frame_posed, gauge_board, missing_b, by_hand_eye = pose_graph(
         posed, len(cam_names), len(frames), len(board_names), gauge_cam, cam_names, board_names)
+    for c in by_hand_eye:
+        notes.append(f"{cam_names[c]}: no other camera sees its boards; its start came from the rig's own "
+                     f"motion (hand-eye), and the joint solve placed it from there")
     for b in missing_b:
         notes.append(f"board {board_names[b]}: could not be linked to the rig; its views are not used")
     t1 = time.perf_counter()

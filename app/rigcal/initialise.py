@@ -310,7 +310,8 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
                cam_names: list[str], board_names: list[str], min_obs: int = 3):
     """Chain poses through the camera-frame-board graph with robust averages per unknown.
 
-    Returns (T_cam_body, T_body_world, T_world_board, frame_posed, gauge_board)."""
+    Returns (T_cam_body, T_body_world, T_world_board, frame_posed, gauge_board, missing
+    boards, cameras placed by hand-eye)."""
     T_bc = [None] * n_cams  # T_body_cam
     T_wB = [None] * n_frames  # T_world_body
     T_wb = [None] * n_boards  # T_world_board
@@ -356,6 +357,8 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
                 progress = True
         return progress
 
+    by_hand_eye: list[int] = []
+
     def hand_eye_step() -> bool:
         # a camera whose boards no posed camera sees: the rig's own motion places it
         # (boards are static, dataset.md), as in robot hand-eye calibration
@@ -375,6 +378,7 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
                          np.array([v.board for v in vs]))
             if X is not None:
                 T_bc[c] = X
+                by_hand_eye.append(c)
                 return True
         return False
 
@@ -397,7 +401,7 @@ def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int
     T_cam_body = np.array([geo.inv_T(T) for T in T_bc])
     T_body_world = np.array([geo.inv_T(T) if T is not None else np.eye(4) for T in T_wB])
     T_world_board = np.array([T if T is not None else np.eye(4) for T in T_wb])
-    return T_cam_body, T_body_world, T_world_board, posed, gauge_board, missing_b
+    return T_cam_body, T_body_world, T_world_board, posed, gauge_board, missing_b, by_hand_eye
 
 
 def hand_eye(T_world_body: np.ndarray, T_cam_board: np.ndarray, board: np.ndarray | None = None) -> np.ndarray | None:
