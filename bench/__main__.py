@@ -10,6 +10,7 @@ Sections (each also runs alone: python -m bench.<name>):
   scale        solver time and memory, 6 cameras x 100 .. 1000 frames
   real         real photographs vs published references
   indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
+  indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
@@ -23,10 +24,10 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import accuracy, indie, montecarlo, noise_limit, peer_opencv, real, scale, speed
+from . import accuracy, indie, indie_noise, montecarlo, noise_limit, peer_opencv, real, scale, speed
 from .common import OUT, machine, say, write_json
 
-SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie")
+SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise")
 
 
 def main(argv=None) -> None:
@@ -103,6 +104,12 @@ def main(argv=None) -> None:
             write_json("indie", {"results": r, "machine": info})
             return indie.tables(r)
         section("indie", ind)
+    if "indie_noise" in todo:
+        def ind_noise():
+            r = indie_noise.run(seeds=3 if a.quick else 10)
+            write_json("indie_noise", {**r, "machine": info})
+            return indie_noise.tables(r)
+        section("indie_noise", ind_noise)
     total = time.perf_counter() - t0
     head = (f"# rigcal benchmarks\n\n{info['date']}; {info['cpus']} CPUs; load average at start "
             f"{info['load_avg_1_5_15']}; {info['platform']}; Python {info['python']}, OpenCV {info['opencv']}, "

@@ -145,6 +145,9 @@ class Camera:
     K: np.ndarray
     dist: np.ndarray
     T_body_cam: np.ndarray
+    # a fisheye's field is cut at this angle from the axis (None: wherever the model inverts);
+    # past where theta_d(theta) stops increasing the ray field is singular
+    max_theta_deg: float | None = None
 
 
 @dataclass(frozen=True)
@@ -192,6 +195,8 @@ def pixel_rays(cam: Camera, S: int) -> tuple[np.ndarray, np.ndarray]:
     grid = np.column_stack([ug.ravel(), vg.ravel()])
     rays_g = unproject(cam, grid)
     ok_g = np.linalg.norm(project(cam, rays_g) - grid, axis=1) < 1e-3
+    if cam.max_theta_deg is not None:
+        ok_g &= rays_g[:, 2] > np.cos(np.radians(cam.max_theta_deg))
     rays_g = rays_g.reshape(ug.shape + (3,))
     ok_g = ok_g.reshape(ug.shape)
     off = (np.arange(S) + 0.5) / S - 0.5
@@ -464,8 +469,14 @@ def room_scene(n_frames: int = 16, seed: int = 0, headings: str = "all") -> Scen
                  {s: dict(T_world_board) for s in stems}, True, photometry)
 
 
-def waved_scene(n_frames: int = 12, seed: int = 0) -> Scene:
-    """A forward pinhole stereo pair standing still while one board is waved in front of it."""
+def waved_scene(n_frames: int = 12, seed: int = 0, fisheye: bool = False) -> Scene:
+    """A forward pinhole stereo pair standing still while one board is waved in front of it.
+
+    fisheye: instead a forward pair of ~180 degree equidistant fisheye cameras (800 x 800,
+    f = 250 px, 0.08 m baseline) and a big board (11 x 8 squares of 0.216 m) waved at
+    0.5-3 m, its poses spread over both image circles (_waved_fisheye)."""
+    if fisheye:
+        return _waved_fisheye(n_frames, seed)
     rng = np.random.default_rng(seed + 1000)
     declared = {
         "rig": "indie-waved", "body_frame": "FLU",
@@ -495,6 +506,110 @@ def waved_scene(n_frames: int = 12, seed: int = 0) -> Scene:
     return Scene(declared, cameras, (board,), stems, {s: np.eye(4) for s in stems}, moving, False, photometry)
 
 
+FISHEYE_DECLARED = {
+    "rig": "indie-waved-fisheye", "body_frame": "FLU",
+    "cameras": {
+        "left": {"model": "fisheye", "resolution": [800, 800],
+                 "intrinsics": {"fx": 250.0, "fy": 250.0, "cx": 400.0, "cy": 400.0},
+                 "distortion": [0.01, -0.005, 0.001, -0.0005], "position": [0.12, 0.04, 0.0], "look": "forward"},
+        "right": {"model": "fisheye", "resolution": [800, 800],
+                  "intrinsics": {"fx": 250.0, "fy": 250.0, "cx": 400.0, "cy": 400.0},
+                  "distortion": [0.012, -0.004, 0.0008, -0.0004], "position": [0.12, -0.04, 0.0],
+                  "axes": ["-L", "-U", "F"]},
+    },
+    "stereo_pairs": [["left", "right"]],
+}
+FISHEYE_GRID = 4  # image coverage cells per side when choosing board poses
+
+
+def _waved_fisheye(n_frames: int, seed: int) -> Scene:
+    """waved_scene(fisheye=True): true cameras off the declared ones by ~1 % focal, +-5 px
+    principal point, a little lens and ~5 mm / ~1 deg mounting error. Each frame's board
+    pose is the best of 40 random candidates (centred on a random pixel's ray, 0.3-1.3
+    image widths across, tilted up to 50 and rolled up to 30 degrees), scored by the
+    cameras that see >= 6 corners and the still-empty image cells they fill."""
+    rng = np.random.default_rng(seed + 2000)
+    cameras = []
+    for name, d in FISHEYE_DECLARED["cameras"].items():
+        it = d["intrinsics"]
+        f = it["fx"] * (1 + rng.normal(0, 0.01, 2))
+        c = np.array([it["cx"], it["cy"]]) + rng.uniform(-5, 5, 2)
+        K = np.array([[f[0], 0, c[0]], [0, f[1], c[1]], [0, 0, 1.0]])
+        k = np.array(d["distortion"]) * (1 + rng.normal(0, 0.2, 4))
+        T = _perturbed(pose(axes_R(LOOK["forward"]), d["position"]), rng, 5.0, 1.0)
+        cameras.append(Camera(name, "fisheye", tuple(d["resolution"]), K, k, T, _fisheye_limit_deg(k)))
+    board = Board("wand", (11, 8), 0.216, 0.151, 0)
+    stems = _stems(n_frames)
+    hits = np.zeros((len(cameras), FISHEYE_GRID ** 2))
+    moving = {}
+    for s in stems:
+        cand = [_fisheye_candidate(rng, cameras, board) for _ in range(40)]
+        cells = np.array([[_cells_seen(cam, T, board) for cam in cameras] for T in cand])  # (40, C, G*G)
+        seen = cells.sum(axis=2) >= 6
+        score = (seen * (3.0 + ((cells > 0) / (1.0 + hits)).sum(axis=2))).sum(axis=1) + 3.0 * seen.all(axis=1)
+        best = int(np.argmax(score))
+        hits += (cells[best] > 0) * seen[best][:, None]
+        moving[s] = {board.name: cand[best]}
+    photometry = {"left": Photometry(0.6, 2.0, 1.0, 2.2, 0.25), "right": Photometry(0.6, 2.0, 0.95, 2.2, 0.25)}
+    return Scene(FISHEYE_DECLARED, tuple(cameras), (board,), stems, {s: np.eye(4) for s in stems}, moving, False,
+                 photometry)
+
+
+def _fisheye_limit_deg(k: np.ndarray, cap_deg: float = 110.0) -> float:
+    """Angle from the axis (deg) up to which theta_d(theta) increases, at most cap_deg."""
+    th = np.linspace(0, np.radians(cap_deg), 4001)
+    t2 = th * th
+    td = th * (1 + t2 * (k[0] + t2 * (k[1] + t2 * (k[2] + t2 * k[3]))))
+    bad = np.nonzero(np.diff(td) <= 0)[0]
+    return float(np.degrees(th[bad[0]] if len(bad) else th[-1]))
+
+
+def _fisheye_candidate(rng: np.random.Generator, cameras, board: Board) -> np.ndarray:
+    """T_body_board (4, 4) of one random board pose in front of a random camera."""
+    cam = cameras[int(rng.integers(len(cameras)))]
+    w_px, h_px = cam.size
+    w, h = board.squares[0] * board.square_length, board.squares[1] * board.square_length
+    uv = np.array([[rng.uniform(-0.1, 1.1) * w_px, rng.uniform(-0.1, 1.1) * h_px]])
+    ray = unproject(cam, uv)[0]
+    if not np.all(np.isfinite(ray)):
+        ray = np.array([0.0, 0.0, 1.0])
+    d = float(np.clip(w * cam.K[0, 0] / (rng.uniform(0.3, 1.3) * w_px), 0.5, 3.0))
+    x = np.array([1.0, 0, 0]) - ray[0] * ray  # board x along the camera's x, z along the ray
+    if np.linalg.norm(x) < 1e-6:
+        x = np.array([0.0, 1.0, 0.0]) - ray[1] * ray
+    x /= np.linalg.norm(x)
+    R = np.column_stack([x, np.cross(ray, x), ray])
+    a = rng.normal(size=2)
+    a /= np.linalg.norm(a)
+    R = R @ rotvec_R(np.array([a[0], a[1], 0.0]) * np.radians(rng.uniform(0, 50))) \
+        @ rotvec_R([0, 0, np.radians(rng.uniform(-30, 30))])
+    T_cam_board = pose(R, d * ray - R @ np.array([w / 2, h / 2, 0.0]))
+    return cam.T_body_cam @ T_cam_board
+
+
+def _cells_seen(cam: Camera, T_body_board: np.ndarray, board: Board) -> np.ndarray:
+    """(G*G,) inner corners of the board that `cam` sees well in each image cell: inside the
+    image (3 px margin), printed face towards the camera, seen less obliquely than 75
+    degrees, squares at least 10 px."""
+    nx, ny = board.squares
+    gx, gy = np.meshgrid(np.arange(1, nx), np.arange(1, ny))
+    P = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)]) * board.square_length
+    T = inv(cam.T_body_cam) @ T_body_board
+    p = P @ T[:3, :3].T + T[:3, 3]
+    n = T[:3, 2]  # into the print: points away from a camera that sees the printed face
+    cos_view = (p @ n) / np.linalg.norm(p, axis=1)
+    uv = project(cam, p)
+    uv_dx = project(cam, p + 0.5 * board.square_length * T[:3, 0])
+    w, h = cam.size
+    in_field = p[:, 2] / np.linalg.norm(p, axis=1) > np.cos(np.radians(cam.max_theta_deg or 180.0))
+    ok = (in_field & (cos_view > np.cos(np.radians(75))) & (uv[:, 0] > 3) & (uv[:, 0] < w - 4) & (uv[:, 1] > 3)
+          & (uv[:, 1] < h - 4) & (np.linalg.norm(uv_dx - uv, axis=1) >= 5.0) & (np.linalg.norm(p, axis=1) > 0.1))
+    uv_ok = uv[ok]
+    cell = (np.clip((uv_ok[:, 1] / h * FISHEYE_GRID).astype(int), 0, FISHEYE_GRID - 1) * FISHEYE_GRID
+            + np.clip((uv_ok[:, 0] / w * FISHEYE_GRID).astype(int), 0, FISHEYE_GRID - 1))
+    return np.bincount(cell, minlength=FISHEYE_GRID ** 2).astype(float)
+
+
 # ----------------------------------------------------------------------------- writing
 
 
@@ -502,10 +617,12 @@ FORMATS = ((".png", False), (".jpg", True), (".bmp", False), (".tif", True), (".
            (".jpg", False), (".tif", False), (".bmp", True))
 
 
-def write_dataset(scene: Scene, out: Path, seed: int = 0, S: int = 4, drop: int = 2, corrupt: bool = True) -> dict:
+def write_dataset(scene: Scene, out: Path, seed: int = 0, S: int = 4, drop: int = 2, corrupt: bool = True,
+                  formats: tuple = FORMATS) -> dict:
     """Render `scene` into the dataset layout of dataset.md under `out`; write truth.yaml.
 
-    Image k of a camera is written in FORMATS[k % 8] (extension, colour); every third one
+    Image k of a camera is written in formats[k % len(formats)] (extension, colour; FORMATS
+    by default, e.g. ((".png", False),) for lossless grey only); every third one
     sits in out/store/ behind a relative symbolic link; `drop` frames per camera are left
     out (different ones per camera); with `corrupt`, one image of the last camera is a PNG
     cut short. Returns the truth as arrays plus what was written:
@@ -538,7 +655,7 @@ def write_dataset(scene: Scene, out: Path, seed: int = 0, S: int = 4, drop: int 
             hits = [(*textures[b], inv(scene.T_world_board[stem][b]) @ T_world_cam)
                     for b in scene.T_world_board[stem]]
             radiance = render_radiance(rays, valid, S, hits)
-            ext, colour = FORMATS[k % len(FORMATS)]
+            ext, colour = formats[k % len(formats)]
             img = develop(radiance, ph, colour, lighting_field(cam.size, rng), rng)
             link = k % 3 == 2
             target = (store if link else folder) / f"{stem}{ext}"

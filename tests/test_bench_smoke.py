@@ -13,7 +13,7 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
-MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "__main__")
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
