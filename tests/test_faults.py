@@ -499,6 +499,13 @@ def _wait_for(cond, timeout: float = 120.0, what: str = "") -> None:
         time.sleep(0.05)
 
 
+def _sigint_as_from_a_terminal() -> None:
+    """A command started from a terminal has SIGINT at its default. Under a test runner run
+    as a background job (`make test &`, nohup) it inherits SIGINT ignored, and Python then
+    never raises KeyboardInterrupt, as nohup intends; the test is about Ctrl-C at a terminal."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("command, sig, to_group, when", [
     # Ctrl-C: the terminal signals the whole process group; as the worker pool starts
     ("calibrate", signal.SIGINT, True, "starting"),
@@ -516,7 +523,7 @@ def test_interrupt_leaves_no_output_and_no_temporary_files(sim, tmp_path, comman
                                              "intrinsics: {focal: 400.0}, position: [0, 0, 0], look: forward}\n")
         args = ["simulate", str(rig), "--out", str(out), "--frames", "12", "--jobs", str(JOBS)]
     proc = subprocess.Popen([sys.executable, "-m", "rigcal", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, preexec_fn=_sigint_as_from_a_terminal)
     try:
         if command == "calibrate" and when == "starting":  # the first helper process appears
             _wait_for(lambda: _children(proc.pid) or proc.poll() is not None, what="the worker pool")
