@@ -189,14 +189,14 @@ def pixel_rays(cam: Camera, S: int) -> tuple[np.ndarray, np.ndarray]:
     interpolated to the samples with Catmull-Rom weights in float64 (cv2.remap's cubic
     kernel is not exact for linear fields); a random subset of samples is projected back
     through OpenCV to bound what that costs (asserted < 1e-3 px)."""
+    if cam.max_theta_deg is not None:
+        return _exact_rays(cam, S)
     w, h = cam.size
     pad = 2
     ug, vg = np.meshgrid(np.arange(-pad, w + pad, dtype=float), np.arange(-pad, h + pad, dtype=float))
     grid = np.column_stack([ug.ravel(), vg.ravel()])
     rays_g = unproject(cam, grid)
     ok_g = np.linalg.norm(project(cam, rays_g) - grid, axis=1) < 1e-3
-    if cam.max_theta_deg is not None:
-        ok_g &= rays_g[:, 2] > np.cos(np.radians(cam.max_theta_deg))
     rays_g = rays_g.reshape(ug.shape + (3,))
     ok_g = ok_g.reshape(ug.shape)
     off = (np.arange(S) + 0.5) / S - 0.5
@@ -222,6 +222,27 @@ def pixel_rays(cam: Camera, S: int) -> tuple[np.ndarray, np.ndarray]:
     err = np.abs(project(cam, rays[r, c][keep]) - uv).max()
     assert err < 1e-3, f"{cam.name}: interpolated rays are {err:.2g} px off"
     return rays.astype(np.float32), valid
+
+
+def _exact_rays(cam: Camera, S: int) -> tuple[np.ndarray, np.ndarray]:
+    """pixel_rays for a fisheye cut at max_theta_deg: every sample's ray by the model's own
+    inversion (no interpolation: near the cut theta_d(theta) flattens, and the ray field
+    bends too fast for a one-pixel grid), valid where it projects back within 1e-3 px."""
+    w, h = cam.size
+    off = (np.arange(S) + 0.5) / S - 0.5
+    u = (np.arange(w)[:, None] + off[None, :]).ravel()
+    v = (np.arange(h)[:, None] + off[None, :]).ravel()
+    rays = np.empty((h * S, w * S, 3), np.float32)
+    valid = np.empty((h * S, w * S), bool)
+    for r0 in range(0, h * S, 256):  # in bands: bounded float64 temporaries
+        uu, vv = np.meshgrid(u, v[r0:r0 + 256])
+        uv = np.column_stack([uu.ravel(), vv.ravel()])
+        ray = unproject(cam, uv)
+        ok = np.linalg.norm(project(cam, ray) - uv, axis=1) < 1e-3
+        ok &= ray[:, 2] > np.cos(np.radians(cam.max_theta_deg))
+        rays[r0:r0 + 256] = ray.reshape(uu.shape + (3,))
+        valid[r0:r0 + 256] = ok.reshape(uu.shape)
+    return rays, valid
 
 
 def _catmull_rom(t: float) -> tuple[float, float, float, float]:
