@@ -10,7 +10,7 @@ calibrates, the bound is crb_pairs with the measured corner noise (detected vs t
 projection, measured_corner_noise), and the same corners replaced by true projection +
 white noise of that sigma (gaussian_views) give the solver's own ratio.
 
-Four scenes per seed. Two are indie_render.waved_scene (a board waved before a static
+Five scenes per seed. Two are indie_render.waved_scene (a board waved before a static
 pair, 20 frames, lossless grey PNGs, no dropped or corrupt files):
   fisheye  fisheye=True: rigs/fisheye-stereo.yaml's pair (800 x 800, f 250, 0.08 m) and
            simulate.py's `board` scene board for it (11 x 8 squares of 0.216 m, 0.5-3 m)
@@ -21,22 +21,30 @@ and, the decisive pair, noise_limit's own fisheye-stereo datasets (bench.common.
 board and board poses rendered by indie_render:
   rigcal-render  rigcal's images (what noise_limit measures)
   rigcal-poses   indie_render's images of that very scene
+and the cross cell, which separates the planner's geometry from the renderer:
+  fisheye-rigcal-render  indie's waved fisheye truth (cameras, board, the 20 poses of
+                 `fisheye` above) rendered by rigcal's own renderer (rigcal.simulate's
+                 board-scene rendering, simulate_dataset's noise 2 and no blur)
 
-Ratios are RMS(error over seeds) / RMS(bound over seeds), as noise_limit reports them.
+Ratios are RMS(error over seeds) / RMS(bound over seeds), as noise_limit reports them;
+one seed's error / bound strays a lot (0.2-2.6 over 10 seeds), so a third table gives
+the per-seed quartiles and a 90 % bootstrap interval (over seeds) of the RMS ratio.
 The truth's distortion is cut to the length of the model rigcal chose when the cut
 coefficients are zero (indie's pinhole truth has k3 = 0, rigcal picks radtan4):
 rigcal.bounds.true_state takes the truth's length, and a bound with a free k3 the
 calibration did not have is too large (the ratio comes out too small).
 
-S = 4 (4 x 4 samples per pixel) by default: 10 seeds of the four scenes take ~10 min on
-2 processes.
+S = 4 (4 x 4 samples per pixel) by default: 10 seeds of the first four scenes take ~10 min
+on 2 processes; fisheye-rigcal-render costs ~12 s of CPU a seed. --scenes runs some scenes
+only and keeps the last JSON's runs of the others (same samples and frames).
 
-    python -m bench.indie_noise [--seeds 10] [--samples 4] [--tables]
+    python -m bench.indie_noise [--seeds 10] [--samples 4] [--scenes a,b] [--tables]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
 import sys
 from dataclasses import replace
@@ -58,7 +66,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import indie_render as ir  # noqa: E402
 
 FRAMES = 20
-SCENES = ("fisheye", "pinhole", "rigcal-render", "rigcal-poses")
+SCENES = ("fisheye", "pinhole", "rigcal-render", "rigcal-poses", "fisheye-rigcal-render")
 WORK = OUT / "indie_noise"
 
 
@@ -89,6 +97,29 @@ def scene_from_rigcal(seed: int) -> tuple:
     return ds, scene
 
 
+def render_indie_scene_with_rigcal(scene, out: Path, seed: int) -> None:
+    """Write `scene` (an indie_render Scene: true cameras, board, per-frame poses) as a
+    dataset under `out` whose images come from rigcal's own renderer (rigcal.simulate's
+    board-scene rendering with simulate_dataset's defaults: noise 2, no blur) instead of
+    rigcal's planner: the scene's truth.yaml is read back as rigcal's truth and its poses
+    become a simulate.Scene. rig.yaml, target.yaml and truth.yaml are indie_render's."""
+    from rigcal.simulate import RenderSettings, Scene, _render_all
+    from rigcal.target import load_target
+
+    out.mkdir(parents=True)
+    ir._write_yaml(out / "rig.yaml", scene.declared)
+    ir._write_yaml(out / "target.yaml", {"boards": [b.yaml_entry() for b in scene.boards]})
+    ir._write_yaml(out / "truth.yaml", ir._truth_doc(scene))
+    truth = load_truth(out / "truth.yaml")
+    target = load_target(out / "target.yaml")
+    stems = tuple(sorted(truth.T_world_body))
+    plan = Scene(name="board", target=target, frames=stems,
+                 T_world_body=np.stack([truth.T_world_body[s] for s in stems]),
+                 T_world_board=np.stack([[truth.board_pose(s, b.name) for b in target.boards] for s in stems]),
+                 moving_boards=True)
+    _render_all(truth.rig, plan, RenderSettings(seed=seed, noise=2.0, blur=0.0), out, jobs=1, progress=False)
+
+
 def _rigcal_dataset(seed: int) -> None:
     from .common import get_dataset, scenario
 
@@ -110,9 +141,12 @@ def render_and_detect(kind: str, seed: int, S: int) -> tuple:
     if kind == "rigcal-poses":
         scene = scene_from_rigcal(seed)[1]
     else:
-        scene = ir.waved_scene(n_frames=FRAMES, seed=seed, fisheye=kind == "fisheye")
+        scene = ir.waved_scene(n_frames=FRAMES, seed=seed, fisheye=kind.startswith("fisheye"))
     with Timer() as tr:
-        ir.write_dataset(scene, d, seed=seed, S=S, drop=0, corrupt=False, formats=((".png", False),))
+        if kind == "fisheye-rigcal-render":
+            render_indie_scene_with_rigcal(scene, d, seed)
+        else:
+            ir.write_dataset(scene, d, seed=seed, S=S, drop=0, corrupt=False, formats=((".png", False),))
     rig = rigcal.load_rig(d / "rig.yaml")
     target = load_target(d / "target.yaml")
     with Timer() as td:
@@ -172,15 +206,33 @@ def _run_seed(kind: str, seed: int, S: int) -> dict:
             **view_offsets(cal, uv_true, sigma), **periphery(cal, truth)}
 
 
-def run(seeds: int = 10, S: int = 4, log=say) -> dict:
-    tasks = [(k, s, S) for k in SCENES for s in range(seeds)]
+def run(seeds: int = 10, S: int = 4, scenes: tuple[str, ...] = SCENES, keep: list[dict] | None = None,
+        log=say) -> dict:
+    """Run `scenes` x range(seeds); `keep`: earlier runs (the last JSON's) of other scenes,
+    carried into the result so one scene can be added or extended without re-running all."""
+    tasks = [(k, s, S) for k in scenes for s in range(seeds)]
     log(f"indie noise: {len(tasks)} (scene, seed) runs, {S}x{S} samples per pixel: render, detect, calibrate 2x ...")
     with Timer() as t:
-        # rigcal's renders first (cached), so two tasks of one seed never render the same folder at once
-        run_pool(_rigcal_dataset, [(s,) for s in range(seeds)])
+        if {"rigcal-render", "rigcal-poses"} & set(scenes):
+            # rigcal's renders first (cached), so two tasks of one seed never render the same folder at once
+            run_pool(_rigcal_dataset, [(s,) for s in range(seeds)])
         runs = run_pool(run_seed, tasks)
+    runs = [r for r in keep or [] if r["scene"] not in scenes] + runs
     return {"runs": runs, "summary": summarise(runs), "seconds": t.wall, "seeds": seeds, "samples": S,
-            "frames": FRAMES}
+            "frames": FRAMES, "scenes_run": list(scenes)}
+
+
+def per_seed_spread(rs: list[dict], q: str = "rot_deg", pair: str = "left/right", n_boot: int = 2000) -> dict:
+    """How far one seed's error / its bound strays: quartiles and extremes of the per-seed
+    ratios, and a 90 % bootstrap interval (over seeds, seeded) of the RMS-over-seeds ratio,
+    which is what the tables quote."""
+    a = np.array([(r["auto"][pair][q], r["auto"][pair][f"bound_{q}"]) for r in rs if pair in r["auto"]])
+    per = a[:, 0] / a[:, 1]
+    idx = np.random.default_rng(0).integers(0, len(a), (n_boot, len(a)))
+    boot = np.sqrt(np.mean(a[idx, 0] ** 2, axis=1) / np.mean(a[idx, 1] ** 2, axis=1))
+    return {"min": float(per.min()), "q25": float(np.percentile(per, 25)), "median": float(np.median(per)),
+            "q75": float(np.percentile(per, 75)), "max": float(per.max()),
+            "rms_ratio_90": [float(np.percentile(boot, 5)), float(np.percentile(boot, 95))]}
 
 
 def summarise(runs: list[dict]) -> dict:
@@ -193,12 +245,13 @@ def summarise(runs: list[dict]) -> dict:
                      "view_offset_rms_px": float(np.sqrt(np.mean([r["view_offset_rms_px"] ** 2 for r in rs]))),
                      "white_expectation_px": float(np.sqrt(np.mean([r["white_expectation_px"] ** 2 for r in rs]))),
                      **{k: float(np.mean([r[k] for r in rs])) for k in ("share_theta_d_gt_1.0", "share_theta_d_gt_1.4")},
-                     **{v: {q: _ratio(rs, v, q) for q in ("rot_deg", "trans_mm")} for v in ("auto", "gauss")}}
+                     **{v: {q: _ratio(rs, v, q) for q in ("rot_deg", "trans_mm")} for v in ("auto", "gauss")},
+                     "spread": {q: per_seed_spread(rs, q) for q in ("rot_deg", "trans_mm")}}
     return out
 
 
 def tables(res: dict) -> str:
-    out = [f"\n## Noise limit on independent renders ({res['seeds']} seeds, {res['frames']} frames, "
+    out = [f"\n## Noise limit on independent renders (up to {res['seeds']} seeds, {res['frames']} frames, "
            f"{res['samples']}x{res['samples']} samples per pixel)\n"]
     rows = []
     for r in res["runs"]:
@@ -224,6 +277,16 @@ def tables(res: dict) -> str:
     out.append(md_table(["scene", "pair", "seeds", "sigma px", "rot / CRB", "trans / CRB", "white: rot / CRB",
                          "white: trans / CRB", "view offset px", "white expect. px", "theta_d > 1", "> 1.4"], rows,
                         "over seeds: RMS error / RMS bound (white: detected corners replaced by truth + white noise)"))
+    rows = []
+    for kind, s in res["summary"].items():
+        for q in ("rot_deg", "trans_mm"):
+            sp = s.get("spread", {}).get(q)
+            if sp:
+                rows.append([kind, q, s["seeds"], s["auto"][q]["left/right"]["ratio"], *sp["rms_ratio_90"], sp["min"],
+                             sp["q25"], sp["median"], sp["q75"], sp["max"]])
+    out.append(md_table(["scene", "quantity", "seeds", "RMS ratio", "90 % lo", "90 % hi", "seed min", "q25",
+                         "median", "q75", "seed max"], rows,
+                        "spread over seeds (left/right): bootstrap interval of the RMS ratio, per-seed error / bound"))
     out.append(f"\n{res['seconds']:.0f} s on 2 processes")
     return "\n".join(out)
 
@@ -233,14 +296,25 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--samples", type=int, default=4, help="S: S x S box-filtered samples per pixel")
+    ap.add_argument("--scenes", default=",".join(SCENES),
+                    help="comma-separated scenes to run; the last JSON's runs of the others are kept")
     ap.add_argument("--tables", action="store_true", help="reprint the tables of the last run's JSON")
     a = ap.parse_args(argv)
+    last = OUT / "indie_noise.json"
     if a.tables:
-        import json
-
-        say(tables(json.loads((OUT / "indie_noise.json").read_text(encoding="utf-8"))))
+        res = json.loads(last.read_text(encoding="utf-8"))
+        res["summary"] = summarise(res["runs"])  # JSONs from before the spread columns
+        say(tables(res))
         return
-    res = run(a.seeds, a.samples)
+    scenes = tuple(x for x in a.scenes.split(",") if x)
+    if not scenes or set(scenes) - set(SCENES):
+        ap.error(f"--scenes: expected some of {', '.join(SCENES)}, got {a.scenes!r}")
+    keep = None
+    if set(scenes) != set(SCENES) and last.is_file():
+        old = json.loads(last.read_text(encoding="utf-8"))
+        if old.get("samples") == a.samples and old.get("frames") == FRAMES:
+            keep = old["runs"]
+    res = run(a.seeds, a.samples, scenes, keep)
     write_json("indie_noise", res)
     say(tables(res))
 
