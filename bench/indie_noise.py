@@ -35,10 +35,10 @@ rigcal.bounds.true_state takes the truth's length, and a bound with a free k3 th
 calibration did not have is too large (the ratio comes out too small).
 
 S = 4 (4 x 4 samples per pixel) by default: 10 seeds of the first four scenes take ~10 min
-on 2 processes; fisheye-rigcal-render costs ~12 s of CPU a seed. --scenes runs some scenes
-only and keeps the last JSON's runs of the others (same samples and frames).
+on 2 processes; fisheye-rigcal-render costs ~12 s of CPU a seed. --scenes and --first-seed
+run some scenes and seeds only and keep the last JSON's other runs (same samples, frames).
 
-    python -m bench.indie_noise [--seeds 10] [--samples 4] [--scenes a,b] [--tables]
+    python -m bench.indie_noise [--seeds 10] [--first-seed 0] [--samples 4] [--scenes a,b] [--tables]
 """
 
 from __future__ import annotations
@@ -207,17 +207,19 @@ def _run_seed(kind: str, seed: int, S: int) -> dict:
 
 
 def run(seeds: int = 10, S: int = 4, scenes: tuple[str, ...] = SCENES, keep: list[dict] | None = None,
-        log=say) -> dict:
-    """Run `scenes` x range(seeds); `keep`: earlier runs (the last JSON's) of other scenes,
-    carried into the result so one scene can be added or extended without re-running all."""
-    tasks = [(k, s, S) for k in scenes for s in range(seeds)]
+        first_seed: int = 0, log=say) -> dict:
+    """Run `scenes` x range(first_seed, seeds); `keep`: earlier runs (the last JSON's),
+    carried into the result unless re-run, so a scene can be added or given more seeds
+    without re-running the rest."""
+    tasks = [(k, s, S) for k in scenes for s in range(first_seed, seeds)]
     log(f"indie noise: {len(tasks)} (scene, seed) runs, {S}x{S} samples per pixel: render, detect, calibrate 2x ...")
     with Timer() as t:
         if {"rigcal-render", "rigcal-poses"} & set(scenes):
             # rigcal's renders first (cached), so two tasks of one seed never render the same folder at once
-            run_pool(_rigcal_dataset, [(s,) for s in range(seeds)])
+            run_pool(_rigcal_dataset, [(s,) for s in range(first_seed, seeds)])
         runs = run_pool(run_seed, tasks)
-    runs = [r for r in keep or [] if r["scene"] not in scenes] + runs
+    done = {(k, s) for k, s, _ in tasks}
+    runs = [r for r in keep or [] if (r["scene"], r["seed"]) not in done] + runs
     return {"runs": runs, "summary": summarise(runs), "seconds": t.wall, "seeds": seeds, "samples": S,
             "frames": FRAMES, "scenes_run": list(scenes)}
 
@@ -296,8 +298,9 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--samples", type=int, default=4, help="S: S x S box-filtered samples per pixel")
+    ap.add_argument("--first-seed", type=int, default=0, help="run seeds first-seed .. seeds - 1")
     ap.add_argument("--scenes", default=",".join(SCENES),
-                    help="comma-separated scenes to run; the last JSON's runs of the others are kept")
+                    help="comma-separated scenes to run; the last JSON's other runs are kept")
     ap.add_argument("--tables", action="store_true", help="reprint the tables of the last run's JSON")
     a = ap.parse_args(argv)
     last = OUT / "indie_noise.json"
@@ -310,11 +313,11 @@ def main(argv=None) -> None:
     if not scenes or set(scenes) - set(SCENES):
         ap.error(f"--scenes: expected some of {', '.join(SCENES)}, got {a.scenes!r}")
     keep = None
-    if set(scenes) != set(SCENES) and last.is_file():
+    if (set(scenes) != set(SCENES) or a.first_seed > 0) and last.is_file():
         old = json.loads(last.read_text(encoding="utf-8"))
         if old.get("samples") == a.samples and old.get("frames") == FRAMES:
             keep = old["runs"]
-    res = run(a.seeds, a.samples, scenes, keep)
+    res = run(a.seeds, a.samples, scenes, keep, a.first_seed)
     write_json("indie_noise", res)
     say(tables(res))
 
