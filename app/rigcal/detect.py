@@ -570,12 +570,17 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         p[act] += step
         failed[act[bad]] = True
         stop = bad | (np.abs(step[:, :2]).max(1) < tol)
-        # the fit's own covariance of q where it stops: residual variance x (J^T W J)^-1
-        nw = wa.sum(1)
-        var_dof = (wa * r * r).sum(1) / np.maximum(nw - n_par, 1.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            Hq = np.linalg.inv(H)[:, :2, :2]
-        cov_q[act[stop]] = (var_dof[:, None, None] * Hq)[stop]
+        # the fit's own covariance of q where it stops: residual variance x (J^T W J)^-1,
+        # inverted only for the corners that stopped (not every corner at every iteration)
+        fin = stop & ~bad
+        if fin.any():
+            var_dof = (wa[fin] * r[fin] * r[fin]).sum(1) / np.maximum(wa[fin].sum(1) - n_par, 1.0)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                try:
+                    Hq = np.linalg.inv(H[fin])[:, :2, :2]
+                except np.linalg.LinAlgError:
+                    Hq = np.full((int(fin.sum()), 2, 2), np.nan)
+            cov_q[act[fin]] = var_dof[:, None, None] * Hq
         done[act[stop]] = True
         act = act[~stop]
         if len(act) == 0:
