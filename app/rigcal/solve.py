@@ -550,19 +550,21 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
     are far below what the data can tell. Returns (x, iterations, converged)."""
     x = problem.x0()
     split = _frame_split(problem.layout)
-    sw = problem.obs.sqrt_weights()  # weighted least squares = plain LS on sw * r
-    r = sw * problem.residuals(x)
+    sw = problem.obs.sqrt_weights()  # weighted least squares = plain LS on sw * e
+    e = problem.residuals(x)  # px
+    r = sw * e
     cost = _cost(r, scale)
     dof = max(r.size - problem.layout.size, 1)
     lam = lam0
     for it in range(1, max_iter + 1):
         J = problem.jacobian(x)
-        ne = NormalEquations(J, r / np.where(sw > 0, sw, 1.0), sw**2 * _robust_weights(r, scale), split)
+        ne = NormalEquations(J, e, sw**2 * _robust_weights(r, scale), split)
         improved = False
         for _ in range(12):
             dx, _ = ne.solve(lam)
             x_new = x + dx
-            r_new = sw * problem.residuals(x_new)
+            e_new = problem.residuals(x_new)
+            r_new = sw * e_new
             cost_new = _cost(r_new, scale)
             if np.isfinite(cost_new) and cost_new <= cost:
                 improved = True
@@ -572,7 +574,7 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
             return x, it, True  # no descent at any damping: at the minimum to precision
         variance = max(2.0 * cost_new / dof, 1e-300)
         drop_chi2 = 2.0 * (cost - cost_new) / variance
-        x, r, cost = x_new, r_new, cost_new
+        x, e, r, cost = x_new, e_new, r_new, cost_new
         lam = max(lam / 10.0, 1e-9)
         if drop_chi2 < chi2_tol:
             return x, it, True
