@@ -178,6 +178,24 @@ def test_rotation_vector_round_trips_near_zero_and_pi(angle):
             np.testing.assert_allclose(geo.rotvec_from_R(R), r, rtol=1e-6)
 
 
+def test_vectorised_rotation_vectors_match_the_single_ones():
+    """rotvecs_from_R (batched, used by the hand-eye start) against rotvec_from_R, over
+    random rotations and the angles where the axis part vanishes (0, and pi)."""
+    rng = np.random.default_rng(17)
+    axes = rng.normal(size=(60, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([rng.uniform(0, np.pi, 40), [0.0, 1e-12, 1e-6, np.pi - 1e-6, np.pi - 0.1, np.pi - 0.2,
+                                                          np.pi - 1e-3, np.pi, 1.0, 2.0, 3.0, 0.5, 1e-3, 0.1, 2.9,
+                                                          3.1, 1.5, 2.5, 0.2, 1e-9]])
+    Rs = geo.R_from_rotvec(axes * angles[:, None])
+    single = np.array([geo.rotvec_from_R(R) for R in Rs])
+    batched = geo.rotvecs_from_R(Rs)
+    # at exactly pi the axis sign is arbitrary: compare the rotations there
+    np.testing.assert_allclose(geo.R_from_rotvec(batched), Rs, atol=1e-12)
+    away = angles < np.pi - 1e-9
+    np.testing.assert_allclose(batched[away], single[away], atol=1e-9, rtol=0)
+
+
 def test_rotation_vector_at_exactly_pi_gives_the_same_rotation():
     for axis in np.eye(3):
         R = geo.R_from_rotvec(np.pi * axis)

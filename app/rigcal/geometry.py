@@ -233,12 +233,28 @@ def T_from_rt(rt: np.ndarray) -> np.ndarray:
     return T
 
 
+def _axis_part(Rs: np.ndarray) -> np.ndarray:
+    """(N, 3) vee(R - R^T) of rotations (N, 3, 3): 2 sin(angle) times the unit axis."""
+    return np.stack([Rs[:, 2, 1] - Rs[:, 1, 2], Rs[:, 0, 2] - Rs[:, 2, 0], Rs[:, 1, 0] - Rs[:, 0, 1]], axis=1)
+
+
 def rotation_angles(Rs: np.ndarray) -> np.ndarray:
     """Angles (rad) of rotations (N, 3, 3), vectorised: atan2(|axis part|, trace part) is
     accurate at 0 and pi alike, unlike arccos of the trace."""
     tr = np.trace(Rs, axis1=1, axis2=2)
-    v = np.stack([Rs[:, 2, 1] - Rs[:, 1, 2], Rs[:, 0, 2] - Rs[:, 2, 0], Rs[:, 1, 0] - Rs[:, 0, 1]], axis=1)
-    return np.arctan2(0.5 * np.linalg.norm(v, axis=1), 0.5 * (tr - 1.0))
+    return np.arctan2(0.5 * np.linalg.norm(_axis_part(Rs), axis=1), 0.5 * (tr - 1.0))
+
+
+def rotvecs_from_R(Rs: np.ndarray) -> np.ndarray:
+    """rotvec_from_R for rotations (N, 3, 3), vectorised from the axis part; within 10
+    degrees of pi, where that part vanishes, each rotation takes rotvec_from_R."""
+    ang = rotation_angles(Rs)
+    s = np.sin(ang)
+    scale = np.where(s > 1e-9, ang / np.where(s > 1e-9, s, 1.0), 1.0)
+    out = 0.5 * _axis_part(Rs) * scale[:, None]
+    for k in np.flatnonzero(ang > np.deg2rad(170.0)):
+        out[k] = rotvec_from_R(Rs[k])
+    return out
 
 
 def rotation_angle_deg(R: np.ndarray) -> float:

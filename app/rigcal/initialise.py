@@ -421,7 +421,7 @@ def hand_eye(T_world_body: np.ndarray, T_cam_board: np.ndarray, board: np.ndarra
         return None
     A = geo.inv_T(T_world_body[j]) @ T_world_body[i]
     B = T_cam_board[j] @ geo.inv_T(T_cam_board[i])
-    a, b = _rotvecs(A[:, :3, :3]), _rotvecs(B[:, :3, :3])
+    a, b = geo.rotvecs_from_R(A[:, :3, :3]), geo.rotvecs_from_R(B[:, :3, :3])
     # the body and the camera turn by the same angle between two frames
     gap = np.abs(np.linalg.norm(a, axis=1) - np.linalg.norm(b, axis=1))
     keep = gap <= max(np.deg2rad(2.0), 3.0 * np.median(gap))
@@ -443,18 +443,6 @@ def hand_eye(T_world_body: np.ndarray, T_cam_board: np.ndarray, board: np.ndarra
     ok = res <= 3.0 * np.median(res) + 1e-9
     t = np.linalg.lstsq(M[ok].reshape(-1, 3), rhs[ok].reshape(-1), rcond=None)[0]
     return geo.make_T(R, t)
-
-
-def _rotvecs(Rs: np.ndarray) -> np.ndarray:
-    """Rotation vectors of (n, 3, 3) rotations; the exact per-rotation form near pi."""
-    ang = geo.rotation_angles(Rs)
-    v = np.stack([Rs[:, 2, 1] - Rs[:, 1, 2], Rs[:, 0, 2] - Rs[:, 2, 0], Rs[:, 1, 0] - Rs[:, 0, 1]], axis=1)
-    s = np.sin(ang)
-    scale = np.where(s > 1e-9, ang / np.where(s > 1e-9, s, 1.0), 1.0)
-    out = 0.5 * v * scale[:, None]
-    for k in np.flatnonzero(ang > np.deg2rad(170.0)):
-        out[k] = geo.rotvec_from_R(Rs[k])
-    return out
 
 
 def _refine_all(views, T_bc, T_wB, T_wb, gauge_cam: int, gauge_board: int) -> None:
