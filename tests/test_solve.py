@@ -213,8 +213,6 @@ def test_weighted_solve_does_not_depend_on_where_the_solve_started(drone):
     different starts (the calibration's own and one nudged off it) the same corners and
     the same rig to 1e-9 (an iterated rejection on weighted residuals could settle either
     side of a corner near its threshold)."""
-    from dataclasses import replace as _replace
-
     from rigcal.core import weighted_solve
     from rigcal.solve import bundle_adjust
 
