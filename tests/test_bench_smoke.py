@@ -101,3 +101,26 @@ def test_tables_render():
 
     t = md_table(["a", "b"], [[1.23456, None], ["x", float("nan")]], "title")
     assert "| a " in t and "1.23" in t and "-" in t and "**title**" in t
+
+
+def test_view_offsets_leave_out_the_corners_the_solve_rejected(micro):
+    """A misdetection the calibration rejected never reached the estimate: it must not
+    show up as a per-view offset (one corner 3 px off in a view of ~40 is ~0.05 px)."""
+    from dataclasses import replace
+
+    from bench import common, noise_limit
+
+    rig, truth_rig, sc, views, cal = micro
+    uv_true = common.true_projections(cal, sc.truth)
+    base = noise_limit.view_offsets(cal, uv_true, 0.05)
+    # white noise of 0.05 px: each view's mean is white too
+    assert 0.5 < base["view_offset_rms_px"] / base["white_expectation_px"] < 2.0
+    k = int(np.nonzero(cal.inliers)[0][0])
+    uv = cal.obs.uv.copy()
+    uv[k] += 3.0
+    inliers = cal.inliers.copy()
+    inliers[k] = False
+    bad = noise_limit.view_offsets(replace(cal, obs=replace(cal.obs, uv=uv), inliers=inliers), uv_true, 0.05)
+    assert bad["view_offset_rms_px"] == pytest.approx(base["view_offset_rms_px"], rel=0.3)
+    assert bad["view_offset_rms_px"] < 2 * bad["white_expectation_px"]
+    assert bad["rejected_corners"] == base["rejected_corners"] + 1
