@@ -515,6 +515,17 @@ def test_read_gray_converts_depths_and_channels(tmp_path):
     assert reason is None and np.abs(img.astype(int) - g).max() <= 1
 
 
+def test_read_gray_takes_float64_colour_and_signed_tiffs(tmp_path):
+    g = np.tile(np.arange(256, dtype=np.uint8), (4, 1))
+    colour = np.dstack([g, g, g]).astype(np.float64) / 255  # cvtColor refuses 64F: was an internal error
+    p = tmp_path / "c.tif"
+    assert cv2.imwrite(str(p), colour)
+    img, reason = read_gray(p)
+    assert reason is None and np.abs(img.astype(int) - g).max() <= 1
+    # int16 centred on 0: the negative half used to be clipped to black
+    assert np.abs(to_gray8(g.astype(np.int16) - 128).astype(int) - g).max() <= 1
+
+
 def test_view_equality_compares_arrays():
     a = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
     b = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))

@@ -243,7 +243,11 @@ def png_problem(data: memoryview | bytes) -> str | None:
 
 
 def to_gray8(img: np.ndarray) -> np.ndarray:
-    """Any decoded image (H, W[, C]) of any depth -> uint8 (H, W)."""
+    """Any decoded image (H, W[, C]) of any depth -> uint8 (H, W).
+
+    Signed data (a TIFF of int16 or float with negatives) is stretched from its minimum."""
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)  # cvtColor takes 8U, 16U and 32F only (a float64 colour TIFF)
     if img.ndim == 3:
         if img.shape[2] == 1:
             img = img[:, :, 0]
@@ -254,10 +258,11 @@ def to_gray8(img: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(img)
     f = img.astype(np.float32)
     f[~np.isfinite(f)] = 0
-    top = float(f.max()) if f.size else 0.0
+    low = min(float(f.min()), 0.0) if f.size else 0.0
+    top = float(f.max()) - low if f.size else 0.0
     if top <= 0:
         return np.zeros(img.shape[:2], np.uint8)
-    return np.clip(f * (255.0 / top) + 0.5, 0, 255).astype(np.uint8)
+    return np.clip((f - low) * (255.0 / top) + 0.5, 0, 255).astype(np.uint8)
 
 
 # ----------------------------------------------------------------------------- corner geometry
