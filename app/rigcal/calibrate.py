@@ -12,7 +12,7 @@ from rich.console import Console, Group
 from rich.table import Table
 
 from . import __version__
-from .core import Calibration, ViewIn, calibrate_views
+from .core import MIN_FRAMES, Calibration, ViewIn, calibrate_views
 from .errors import CalibrationError, DatasetError, OutputError, TargetFileError
 from .rig import Rig, StereoPair, dump_rig, load_rig
 from .io import atomic_write_texts
@@ -74,12 +74,22 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
              for v in det.views]
     for cam in rig.names:
         n_img = det.n_images.get(cam, 0)
-        if n_img and not any(v.camera == cam for v in views):
+        seen = {v.frame for v in views if v.camera == cam}
+        if n_img and not seen:
             files = list(images.frames[cam].values()) if hasattr(images, "frames") else []
             hint = diagnose_no_detection(files[:4], target) if files else ""
             raise CalibrationError(
                 f"no board detected in any of {n_img} images of camera {cam}; check target.yaml "
                 f"(dictionary, squares, legacy_pattern)" + (f": {hint}" if hint else ""))
+        if n_img and len(seen) < MIN_FRAMES and not fix_intrinsics and det.no_board.get(cam, 0) > n_img // 2:
+            # mostly nothing found: more often a target.yaml off by one than too few photos
+            files = [p for f, p in images.frames[cam].items() if f not in seen] if hasattr(images, "frames") else []
+            hint = diagnose_no_detection(files[:4], target) if files else ""
+            raise CalibrationError(
+                f"{cam}: boards detected in only {len(seen)} frame(s) of {n_img} images; at least {MIN_FRAMES} "
+                f"are needed to calibrate its intrinsics; check target.yaml (dictionary, squares, "
+                f"inner_corners, legacy_pattern)" + (f": {hint}" if hint else "")
+                + " (or use --fix-intrinsics to keep the declared ones)")
     corners = {b.name: b.corners for b in target.boards}
     console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,

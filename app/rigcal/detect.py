@@ -1069,10 +1069,14 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
         return "; ".join(hints)
     for b in target.boards:
         nx, ny = b.inner_corners
-        for pattern in {(nx, ny), (nx - 1, ny - 1), (nx + 1, ny + 1)}:
+        # the board as declared (a ChArUco printed without markers), or one off along either axis;
+        # OpenCV needs at least 3 inner corners each way (it raises below that)
+        patterns = sorted({(nx + i, ny + j) for i in (-1, 0, 1) for j in (-1, 0, 1)},
+                          key=lambda q: (abs(q[0] - nx) + abs(q[1] - ny), q))
+        for pattern in patterns:
             if b.type == "chessboard" and pattern == (nx, ny):
                 continue
-            if min(pattern) < 2:
+            if min(pattern) < 3:
                 continue
             if any(cv2.findChessboardCorners(g, pattern, flags=CLASSIC_FLAGS)[0] for g in grays):
                 what = "squares" if b.type == "charuco" else "inner_corners"
