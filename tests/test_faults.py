@@ -36,6 +36,7 @@ from rigcal.compare import compare_rigs, load_truth
 from rigcal.core import ViewIn, calibrate_views
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset
+from rigcal.errors import CalibrationError
 from rigcal.io import atomic_dir, atomic_write_text
 from rigcal.rig import load_rig
 from rigcal.simulate import simulate_dataset
@@ -371,6 +372,40 @@ def test_degenerate_motion_calibrates_and_warns_what_is_poorly_constrained():
               for _ in range(8)]
     good = calibrate_views(_stereo_views(moving, true, corners, rng), declared, {"b": corners})
     assert warnings_for(good) == []
+
+
+def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
+    """A camera that flips its images (a mirror setting) sees a chessboard symmetric under
+    that flip as a valid board from another pose: each camera calibrates alone, but no
+    rigid rig fits both. That used to end with exit 0 and 30-60 px RMS."""
+    declared = load_rig(RIG)
+    declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
+    rng = np.random.default_rng(3)
+    nx, ny, s = 8, 5, 0.06
+    k = np.arange(nx * ny)
+    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
+
+    def pose(rotvec, dist, shift):
+        R = geo.R_from_rotvec(rotvec)
+        return declared.cameras[0].T_body_cam @ geo.make_T(R, np.array([shift[0] + 0.05, shift[1], dist])
+                                                           - R @ corners.mean(0))
+
+    moving = [pose(rng.normal(0, np.radians(25), 3), rng.uniform(0.6, 1.5), rng.normal(0, 0.15, 2))
+              for _ in range(8)]
+    views = _stereo_views(moving, declared, corners, rng)
+    width = declared.camera("front_right").intrinsics.width
+    flipped = []
+    for v in views:
+        if v.camera == "front_right":  # u -> W-1-u, and the ids as the flipped board numbers them
+            ids = (v.ids // nx) * nx + (nx - 1 - v.ids % nx)
+            uv = np.column_stack([width - 1 - v.uv[:, 0], v.uv[:, 1]])
+            order = np.argsort(ids)
+            v = replace(v, ids=ids[order], uv=uv[order])
+        flipped.append(v)
+    assert calibrate_views(views, declared, {"b": corners}).rms_px < 0.3
+    with pytest.raises(CalibrationError, match=r"the calibration failed: reprojection RMS .*front_right .*"
+                                                r"its own views alone 0\.\d\d px.*mirrored"):
+        calibrate_views(flipped, declared, {"b": corners})
 
 
 def test_outlier_detections_are_rejected_and_counted(sim, clean_det):

@@ -49,6 +49,12 @@ RATIONAL_MIN_GAIN = 0.05
 RIGIDITY_RATIO = 3.0
 MIN_VIEW_CORNERS = 4
 MIN_FRAMES = 3
+# A camera whose corners miss the solved rig by more than this share of its image diagonal
+# (RMS; at least GROSS_RMS_MIN_PX) failed to calibrate: a target.yaml that misnumbers the
+# board, mirrored images, a chessboard declared on a ChArUco print. Real sets stay under
+# 0.3 % (the unsynchronised caliscope webcams: 1.2 px of 1469).
+GROSS_RMS_FRACTION = 0.01
+GROSS_RMS_MIN_PX = 5.0
 # corner weights: fit each camera's NoiseModel on the residuals, re-weight, re-solve; the
 # second fit is on the weighted solve's residuals (the first on the unweighted one's)
 NOISE_ROUNDS = 2
@@ -380,6 +386,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
                                 covariance if covariance is not None else _covariance(res))
     cams = []
     stats = {}
+    gross: list[str | None] = []
     inl_obs = obs.subset(res.inliers)
     r_all = res.problem.residuals(res.problem.x0()).reshape(-1, 2)
     lost = [n for c, n in enumerate(cam_names) if not np.any(obs.cam[res.inliers] == c)]
@@ -394,6 +401,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         T_bc = T_out_solve @ T_body_cam_solve[c]
         m = inl_obs.cam == c
         rms = float(np.sqrt(np.mean(np.sum(r_all[m] ** 2, axis=1)))) if m.any() else float("nan")
+        gross.append(_gross_rms(n, rms, inits[c].rms_px, declared.width, declared.height))
         st = CameraStats(
             name=n, rms_px=rms, observations=int(m.sum()), frames=int(len(np.unique(inl_obs.frame[m]))),
             outliers=int((~res.inliers & (obs.cam == c)).sum()) + int(refused[c]),
@@ -407,6 +415,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
             st.sigma_intrinsics = cov["intrinsics"][c]
         stats[n] = st
         cams.append(Camera(n, model, T_bc, None))
+    _refuse_gross_rms(gross)
     out_rig = replace(rig, cameras=tuple(cams))
     rms_all = float(np.sqrt(np.mean(np.sum(r_all**2, axis=1))))
     timings["total_core_s"] = time.perf_counter() - t0
@@ -481,6 +490,27 @@ def rigidity_check(res, inits: list[MonoInit], cam_names: list[str]) -> str | No
     return (f"the cameras' views disagree with one rigid rig per frame: reprojection RMS in the joint solve is "
             f"{factor:.1f}x each camera's own fit (px: {detail}); are the frames synchronised, and did the rig "
             f"stay rigid? Intrinsics were taken from each camera's own views and held fixed for the extrinsics")
+
+
+def _gross_rms(name: str, rms: float, own_rms: float | None, width: int, height: int) -> str | None:
+    """'name: RMS x px (own views y px)' when a camera's final RMS says its calibration
+    failed (GROSS_RMS_*), else None. Its own views' fit tells where to look: small there,
+    the rig is at fault (mirrored or unsynchronised images); large, the board or model."""
+    limit = max(GROSS_RMS_MIN_PX, GROSS_RMS_FRACTION * float(np.hypot(width, height)))
+    if not rms > limit:
+        return None
+    own = f", its own views alone {own_rms:.2f} px" if own_rms is not None else ""
+    return f"{name} {rms:.1f} px (limit {limit:.1f}{own})"
+
+
+def _refuse_gross_rms(gross: list[str | None]) -> None:
+    gross = [g for g in gross if g is not None]
+    if gross:
+        raise CalibrationError(
+            f"the calibration failed: reprojection RMS after the joint solve: {'; '.join(gross)}. The corners do "
+            f"not fit one camera model and one rigid rig: check target.yaml (board type, squares, first_marker_id, "
+            f"legacy_pattern), the camera models, mirrored or rotated images, and that the frames are "
+            f"synchronised; nothing was written")
 
 
 def _covariance(res) -> tuple | None:
