@@ -374,6 +374,30 @@ def test_degenerate_motion_calibrates_and_warns_what_is_poorly_constrained():
     assert warnings_for(good) == []
 
 
+def test_a_rig_that_contradicts_its_declaration_is_named():
+    """A camera mounted upside down but declared upright, and a target in millimetres:
+    the aligned body frame hid both (exit 0, no word); the camera pairs show them."""
+    from types import SimpleNamespace
+
+    from rigcal.calibrate import declared_disagreements
+
+    declared = load_rig(RIG)
+    assert declared_disagreements(SimpleNamespace(declared=declared, rig=declared)) == []
+    cams = []
+    for c in declared.cameras:
+        T = c.T_body_cam.copy()
+        if c.name == "front_right":
+            T[:3, :3] = T[:3, :3] @ np.diag([-1.0, -1.0, 1.0])  # turned 180 deg about its optical axis
+        cams.append(replace(c, T_body_cam=T))
+    msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(cams)))
+    assert len(msgs) == 2 and all("180 deg from the declared one (about the optical axis" in m for m in msgs), msgs
+    assert {m.split(":")[0] for m in msgs} == {"front_left/front_right", "front_right/back"}
+    big = [replace(c, T_body_cam=geo.make_T(c.T_body_cam[:3, :3], 1000 * c.T_body_cam[:3, 3]))
+           for c in declared.cameras]
+    msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(big)))
+    assert len(msgs) == 1 and msgs[0].startswith("the calibrated rig is 1000x the size of the declared one"), msgs
+
+
 def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
     """A camera that flips its images (a mirror setting) sees a chessboard symmetric under
     that flip as a valid board from another pose: each camera calibrates alone, but no

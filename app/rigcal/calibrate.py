@@ -29,6 +29,13 @@ MOTION_HINT = {
 }
 
 
+# declared vs calibrated rig (declared_disagreements): nominal poses are a few degrees and
+# millimetres off; beyond these the declaration (or the target's scale) is wrong
+DECLARED_WARN_DEG = 15.0
+DECLARED_SCALE_WARN = 1.5  # calibrated / declared camera distances, either way
+DECLARED_MIN_DISTANCE_M = 0.01  # pairs closer than this do not measure scale
+
+
 def _err() -> Console:
     return Console(stderr=True, highlight=False, soft_wrap=True)
 
@@ -210,10 +217,53 @@ def _r(x: float, nd: int) -> float:
     return float(np.round(float(x), nd)) if np.isfinite(x) else float("nan")
 
 
+def declared_disagreements(cal: Calibration) -> list[str]:
+    """Where the calibrated rig contradicts the declared poses beyond nominal error: a
+    camera pair whose relative orientation differs by more than DECLARED_WARN_DEG (a
+    camera mounted upside down but declared upright), and camera distances scaled by more
+    than DECLARED_SCALE_WARN (a wrong square_length). Both otherwise pass silently: the
+    aligned body frame is a best fit to the declared poses and spreads the contradiction
+    over every camera. Compares camera pairs, so the body-frame choice does not enter."""
+    from . import geometry as geo
+
+    declared = getattr(cal, "declared", None)
+    if declared is None:
+        return []
+    posed = [c for c in declared.cameras if c.T_body_cam is not None]
+    out, ratios = [], []
+    for i, a in enumerate(posed):
+        for b in posed[i + 1:]:
+            Ta, Tb = cal.rig.camera(a.name).T_body_cam, cal.rig.camera(b.name).T_body_cam
+            # calibrated b in declared b's frame, both taken relative to camera a
+            R_rel = (a.T_body_cam[:3, :3].T @ b.T_body_cam[:3, :3]).T @ (Ta[:3, :3].T @ Tb[:3, :3])
+            r = geo.rotvec_from_R(R_rel)
+            angle = float(np.degrees(np.linalg.norm(r)))
+            if angle > DECLARED_WARN_DEG:
+                hint = ""
+                if angle > 150 and abs(r[2]) > 0.9 * np.linalg.norm(r):
+                    hint = (f" (about the optical axis: is one of them mounted upside down? Declare it so, e.g. "
+                            f"look: forward becomes axes: [L, U, F])")
+                out.append(f"{a.name}/{b.name}: the calibrated relative orientation is {angle:.0f} deg from the "
+                           f"declared one{hint}; the body frame is fitted to the declared poses, so every "
+                           f"T_body_cam is off: fix rig.yaml or use --reference camera:NAME")
+            d_decl = float(np.linalg.norm(a.T_body_cam[:3, 3] - b.T_body_cam[:3, 3]))
+            if d_decl >= DECLARED_MIN_DISTANCE_M:
+                ratios.append((float(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3])) / d_decl, a.name, b.name, d_decl))
+    if ratios:
+        k = int(np.argsort([q[0] for q in ratios])[len(ratios) // 2])
+        ratio, na, nb, d_decl = ratios[k]
+        if not 1 / DECLARED_SCALE_WARN <= ratio <= DECLARED_SCALE_WARN:
+            times = f"{ratio:.0f}" if ratio >= 10 else f"{ratio:.2g}"
+            out.append(f"the calibrated rig is {times}x the size of the declared one ({na}/{nb}: "
+                       f"{ratio * d_decl:.4g} m calibrated, {d_decl:.4g} m declared); check square_length in "
+                       f"target.yaml (metres) and the declared positions")
+    return out
+
+
 def warnings_for(cal: Calibration) -> list[str]:
     """Poorly constrained intrinsics and extrinsics: name the parameter or axis and the
-    motion that would fix it."""
-    out = []
+    motion that would fix it; and contradictions of the declared rig (declared_disagreements)."""
+    out = declared_disagreements(cal)
     for n, st in cal.stats.items():
         sig = st.sigma_intrinsics or {}
         m = cal.rig.camera(n).intrinsics
