@@ -665,6 +665,27 @@ def test_output_under_proc_exits_2(sim, tmp_path):
                "/proc/rigcal-test.json")
 
 
+@pytest.mark.parametrize("command", ["calibrate", "export", "view", "import"])
+def test_output_onto_a_pipe_exits_2_and_keeps_it(sim, tmp_path, command):
+    """A rename over a pipe or device replaced it with a regular file (as root, --out
+    /dev/full or /dev/stdout itself); such an output is now refused."""
+    fifo = tmp_path / "out.yaml"
+    os.mkfifo(fifo)
+    error_line(cli(*_commands(sim, tmp_path, fifo)[command]), 2, f"{fifo}: is a pipe")
+    assert fifo.is_fifo()
+
+
+def test_output_through_a_symlink_writes_the_file_it_names(tmp_path):
+    real = tmp_path / "store" / "rig.yaml"
+    real.parent.mkdir()
+    real.write_text("old")
+    link = tmp_path / "rig.yaml"
+    link.symlink_to(real)
+    r = cli("export", CALIBRATED, "--format", "json", "--out", link)
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and real.read_text().startswith("{")
+
+
 @pytest.fixture
 def full_disk(tmp_path, monkeypatch):
     """A folder on a full file system: a 64 KiB tmpfs filled up when this process may

@@ -15,7 +15,7 @@ from . import __version__
 from .core import MIN_FRAMES, Calibration, ViewIn, calibrate_views
 from .errors import CalibrationError, DatasetError, OutputError, TargetFileError
 from .rig import Rig, StereoPair, dump_rig, load_rig
-from .io import atomic_write_texts
+from .io import atomic_write_texts, output_target
 
 SIGMA_WARN_MM = 2.0
 SIGMA_WARN_DEG = 0.1
@@ -45,11 +45,14 @@ def check_output_path(path: Path) -> None:
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path}: is a directory; expected a file path for the calibrated rig YAML")
+    path = output_target(path)
     parent = path.parent if str(path.parent) else Path(".")
     probe = parent
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+    if not probe.is_dir():
+        raise OutputError(f"{path}: cannot write here ({probe} is a file, not a directory)")
+    if not os.access(probe, os.W_OK | os.X_OK):
         raise OutputError(f"{path}: cannot write here (directory {probe} is not writable)")
 
 
