@@ -392,6 +392,12 @@ def test_a_rig_that_contradicts_its_declaration_is_named():
     msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(cams)))
     assert len(msgs) == 2 and all("180 deg from the declared one (about the optical axis" in m for m in msgs), msgs
     assert {m.split(":")[0] for m in msgs} == {"front_left/front_right", "front_right/back"}
+    fl, fr = declared.camera("front_left").T_body_cam, declared.camera("front_right").T_body_cam
+    swapped = [replace(c, T_body_cam={"front_left": fr, "front_right": fl}.get(c.name, c.T_body_cam))
+               for c in declared.cameras]  # images/front_left/ and images/front_right/ swapped
+    msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(swapped)))
+    assert len(msgs) == 1 and msgs[0].startswith("front_left/front_right: seen from front_left, front_right is "
+                                                 "calibrated 180 deg away"), msgs
     big = [replace(c, T_body_cam=geo.make_T(c.T_body_cam[:3, :3], 1000 * c.T_body_cam[:3, 3]))
            for c in declared.cameras]
     msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(big)))
@@ -673,6 +679,18 @@ def test_output_onto_a_pipe_exits_2_and_keeps_it(sim, tmp_path, command):
     os.mkfifo(fifo)
     error_line(cli(*_commands(sim, tmp_path, fifo)[command]), 2, f"{fifo}: is a pipe")
     assert fifo.is_fifo()
+
+
+def test_calibrate_refuses_outputs_that_collide(sim, tmp_path):
+    """--report onto --out wrote the HTML over the calibrated rig (exit 0); --out onto the
+    target file replaced the board description."""
+    out = tmp_path / "cal.yaml"
+    error_line(cli("calibrate", sim, "--out", out, "--report", out, "--jobs", 1), 2, "--report and --out name the same file")
+    target = tmp_path / "t.yaml"
+    shutil.copy(sim / "target.yaml", target)
+    error_line(cli("calibrate", sim, "--out", target, "--target", target, "--jobs", 1), 2,
+               f"{target}: is the target file this calibration reads")
+    assert not out.exists() and target.read_text() == (sim / "target.yaml").read_text()
 
 
 def test_output_through_a_symlink_writes_the_file_it_names(tmp_path):

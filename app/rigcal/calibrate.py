@@ -33,7 +33,8 @@ MOTION_HINT = {
 # millimetres off; beyond these the declaration (or the target's scale) is wrong
 DECLARED_WARN_DEG = 15.0
 DECLARED_SCALE_WARN = 1.5  # calibrated / declared camera distances, either way
-DECLARED_MIN_DISTANCE_M = 0.01  # pairs closer than this do not measure scale
+DECLARED_MIN_DISTANCE_M = 0.01  # pairs closer than this do not measure scale or direction
+DECLARED_DIRECTION_WARN_DEG = 60.0  # one camera seen from another (left/right folders swapped: 180)
 
 
 def _err() -> Console:
@@ -56,6 +57,13 @@ def check_output_path(path: Path) -> None:
         raise OutputError(f"{path}: cannot write here (directory {probe} is not writable)")
 
 
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False
+
+
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
         report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
         distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False):
@@ -70,8 +78,13 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     check_output_path(out_path)
     if report_path is not None:
         check_output_path(report_path)
+        if _same_file(report_path, out_path):
+            raise OutputError(f"{report_path}: --report and --out name the same file; give the report its own path")
     rig = load_rig(dataset_rig_path(dataset, rig_path))
     target_file = dataset_target_path(dataset, target_path)
+    for written in (out_path, report_path):
+        if written is not None and _same_file(written, target_file):
+            raise OutputError(f"{written}: is the target file this calibration reads; write the output elsewhere")
     target = load_target(target_file)
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
@@ -241,7 +254,8 @@ def declared_disagreements(cal: Calibration) -> list[str]:
             R_rel = (a.T_body_cam[:3, :3].T @ b.T_body_cam[:3, :3]).T @ (Ta[:3, :3].T @ Tb[:3, :3])
             r = geo.rotvec_from_R(R_rel)
             angle = float(np.degrees(np.linalg.norm(r)))
-            if angle > DECLARED_WARN_DEG:
+            turned = angle > DECLARED_WARN_DEG
+            if turned:
                 hint = ""
                 if angle > 150 and abs(r[2]) > 0.9 * np.linalg.norm(r):
                     hint = (f" (about the optical axis: is one of them mounted upside down? Declare it so, e.g. "
@@ -252,6 +266,15 @@ def declared_disagreements(cal: Calibration) -> list[str]:
             d_decl = float(np.linalg.norm(a.T_body_cam[:3, 3] - b.T_body_cam[:3, 3]))
             if d_decl >= DECLARED_MIN_DISTANCE_M:
                 ratios.append((float(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3])) / d_decl, a.name, b.name, d_decl))
+                # where b sits seen from a, in a's camera frame: declared vs calibrated
+                t_decl = a.T_body_cam[:3, :3].T @ (b.T_body_cam[:3, 3] - a.T_body_cam[:3, 3])
+                t_cal = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
+                cos = float(t_decl @ t_cal) / (np.linalg.norm(t_decl) * np.linalg.norm(t_cal) + 1e-300)
+                turn = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+                if turn > DECLARED_DIRECTION_WARN_DEG and not turned:  # a turned camera is named above
+                    out.append(f"{a.name}/{b.name}: seen from {a.name}, {b.name} is calibrated {turn:.0f} deg away "
+                               f"from where the rig declares it (are the image folders images/{a.name}/ and "
+                               f"images/{b.name}/ swapped, or the declared positions?)")
     if ratios:
         k = int(np.argsort([q[0] for q in ratios])[len(ratios) // 2])
         ratio, na, nb, d_decl = ratios[k]
