@@ -67,7 +67,7 @@ def _same_file(a: Path, b: Path) -> bool:
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
         report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
         distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False):
-    from .dataset import dataset_rig_path, dataset_target_path, list_dataset
+    from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
     from .detect import detect_dataset, diagnose_no_detection
     from .target import load_target
 
@@ -88,6 +88,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     target = load_target(target_file)
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
+    check_shared_stems(images)
     det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True)
     console = _err()
     for path, reason in det.unreadable:
