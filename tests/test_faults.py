@@ -438,6 +438,31 @@ def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
         calibrate_views(flipped, declared, {"b": corners})
 
 
+def test_fixed_intrinsics_that_do_not_fit_the_images_are_named():
+    """--fix-intrinsics with a declared focal length 3 % off and no distortion (k1 -0.2 in truth): the
+    extrinsics absorb the misfit without a word unless the camera's own views say so."""
+    declared = load_rig(RIG)
+    declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
+    rng = np.random.default_rng(5)
+    true = declared.with_cameras([replace(c, intrinsics=c.intrinsics.with_(
+        fx=c.intrinsics.fx * 1.03, fy=c.intrinsics.fy * 1.03, dist=(-0.2, 0.05, 0, 0, 0))) for c in declared.cameras])
+    nx, ny, s = 8, 5, 0.06
+    k = np.arange(nx * ny)
+    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
+    poses = []
+    for _ in range(8):
+        R = geo.R_from_rotvec(rng.normal(0, np.radians(25), 3))
+        shift = np.array([0.05, 0, 0]) + np.append(rng.normal(0, 0.15, 2), rng.uniform(0.6, 1.5))
+        poses.append(declared.cameras[0].T_body_cam @ geo.make_T(R, shift - R @ corners.mean(0)))
+    views = _stereo_views(poses, true, corners, rng)
+    notes = calibrate_views(views, declared, {"b": corners}, fix_intrinsics=True).notes
+    for cam in ("front_left", "front_right"):
+        assert any(n.startswith(f"{cam}: the declared intrinsics (--fix-intrinsics) fit its own views to ")
+                   for n in notes), notes
+    assert not any("declared intrinsics" in n for n in calibrate_views(views, true, {"b": corners},
+                                                                       fix_intrinsics=True).notes)
+
+
 def test_outlier_detections_are_rejected_and_counted(sim, clean_det):
     """Real detections with a planted wrong corner id (two corners swapped) and a mirrored
     board (every id reflected along the board's x): the solve rejects both and counts

@@ -214,6 +214,34 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
     return MonoInit(values, pnp_views(obj, img, values, declared.model), notes, rms, mono)
 
 
+def fixed_intrinsics_misfit(views: list[ViewIn], corners: dict, declared: CameraModel, mi: MonoInit) -> str | None:
+    """With --fix-intrinsics: words when the declared intrinsics fit this camera's own views
+    (PnP per view) more than RIGIDITY_RATIO times worse than intrinsics fitted to them, else
+    None. Own views only, so neither the rig's rigidity nor its synchronisation enters: the
+    declared focal length, principal point or distortion do not describe these images, and
+    the extrinsics are bent to absorb that (Bumblebee2 with focal 500 and no distortion
+    declared: 2.0 px against 0.08, the baseline 137 mm instead of 120)."""
+    posed = [(T[1], len(v.ids)) for v, T in zip(views, mi.T_cam_board) if T is not None]
+    if not posed:
+        return None
+    fixed = float(np.sqrt(sum(r * r * k for r, k in posed) / sum(k for _, k in posed)))
+    obj, img = _views_obj_img(views, corners)
+    try:
+        if declared.model == "fisheye":
+            free = _init_fisheye(obj, img, declared)[1]
+        else:
+            sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
+            free = _clean_fit([obj[i] for i in sel], [img[i] for i in sel], declared,
+                              min(max(len(declared.dist), 4), 8))[0].rms_px
+    except CalibrationError:
+        return None
+    if not fixed > RIGIDITY_RATIO * free:
+        return None
+    return (f"the declared intrinsics (--fix-intrinsics) fit its own views to {fixed:.2f} px RMS, {fixed / free:.0f}x "
+            f"the {free:.2f} px of intrinsics fitted to them: the declared focal length, principal point or "
+            f"distortion do not describe these images, and the extrinsics absorb the difference")
+
+
 def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tuple[MonoFit, list, list, list, list]:
     """OpenCV fit of `n_dist` coefficients without gross outlier corners: a few wrong
     corners would otherwise decide the rational test and skew the start. Corners beyond
@@ -312,6 +340,10 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         intr.append(mi.values)
         models.append(declared.model)
         selection[n] = list(mi.log)
+        if fix_intrinsics:
+            misfit = fixed_intrinsics_misfit(by_cam[n], corners, declared, mi)
+            if misfit is not None:
+                notes.append(f"{n}: {misfit}")
         for v, T in zip(by_cam[n], mi.T_cam_board):
             if T is None:  # no pose with the camera in front of the print: mirrored or garbage
                 refused[c] += len(v.ids)
