@@ -69,7 +69,8 @@ def list_dataset(dataset_dir: str | Path, rig) -> DatasetImages:
     if not root.is_dir():
         raise DatasetError(f"{root}: not a folder (expected a dataset with rig.yaml, target.yaml, images/<camera>/)")
     if not images.is_dir():
-        raise DatasetError(f"{images}: {'not a folder' if images.exists() else 'missing'} (expected one folder of images per camera: "
+        what = "not a folder" if images.exists() else "missing"
+        raise DatasetError(f"{images}: {what} (expected one folder of images per camera: "
                            f"{', '.join(f'images/{c}/' for c in cameras)})")
     folders = sorted(p.name for p in _listdir(images) if p.is_dir() and not p.name.startswith("."))
     _check_folders(images, folders, cameras)
