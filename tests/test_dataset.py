@@ -11,7 +11,7 @@ import pytest
 from typer.testing import CliRunner
 
 from rigcal.cli import app
-from rigcal.dataset import (DatasetImages, dataset_rig_path, dataset_target_path, frame_sort_key,
+from rigcal.dataset import (DatasetImages, check_shared_stems, dataset_rig_path, dataset_target_path, frame_sort_key,
                             list_dataset)
 from rigcal.errors import DatasetError
 
@@ -116,6 +116,9 @@ def test_missing_images_folder_and_missing_dataset(tmp_path):
     (tmp_path / "d").mkdir()
     with pytest.raises(DatasetError, match=r"images: missing .*images/left/"):
         list_dataset(tmp_path / "d", ["left"])
+    (tmp_path / "d" / "images").write_text("not a folder")
+    with pytest.raises(DatasetError, match=r"images: not a folder \(expected .*images/left/"):
+        list_dataset(tmp_path / "d", ["left"])
     with pytest.raises(DatasetError, match="not a folder"):
         list_dataset(tmp_path / "nowhere", ["left"])
 
@@ -128,6 +131,18 @@ def test_empty_camera_folder_and_duplicate_frame_are_refused(tmp_path):
     _img(ds / "images" / "right" / "1.jpg")
     with pytest.raises(DatasetError, match=r"1.jpg and 1.png are the same frame '1'"):
         list_dataset(ds, ["left", "right"])
+
+
+def test_a_camera_sharing_no_frame_stem_is_refused_with_both_namings(tmp_path):
+    """Files named per camera (left01.jpg / right01.jpg, as many capture tools write them)
+    share no instant: this used to surface after detection as 'cannot connect every camera'."""
+    ds = _dataset(tmp_path / "d", {"left": ["left01", "left02"], "right": ["right01", "right02"]})
+    res = CliRunner().invoke(app, ["calibrate", str(ds), "--out", str(tmp_path / "cal.yaml"), "--jobs", "1"])
+    assert res.exit_code == 2, res.output
+    assert ("camera left shares no frame with the other cameras (its file stems: left01, left02; right's: "
+            "right01, right02)") in res.output
+    _img(ds / "images" / "right" / "left02.png")  # one shared instant is enough to link
+    check_shared_stems(list_dataset(ds, ["left", "right"]))
 
 
 def test_default_rig_and_target_paths(tmp_path):

@@ -515,6 +515,17 @@ def test_read_gray_converts_depths_and_channels(tmp_path):
     assert reason is None and np.abs(img.astype(int) - g).max() <= 1
 
 
+def test_read_gray_takes_float64_colour_and_signed_tiffs(tmp_path):
+    g = np.tile(np.arange(256, dtype=np.uint8), (4, 1))
+    colour = np.dstack([g, g, g]).astype(np.float64) / 255  # cvtColor refuses 64F: was an internal error
+    p = tmp_path / "c.tif"
+    assert cv2.imwrite(str(p), colour)
+    img, reason = read_gray(p)
+    assert reason is None and np.abs(img.astype(int) - g).max() <= 1
+    # int16 centred on 0: the negative half used to be clipped to black
+    assert np.abs(to_gray8(g.astype(np.int16) - 128).astype(int) - g).max() <= 1
+
+
 def test_view_equality_compares_arrays():
     a = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
     b = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
@@ -566,6 +577,37 @@ def test_diagnose_says_when_nothing_at_all_is_found(tmp_path):
     cv2.imwrite(str(p), np.clip(wall, 0, 255).astype(np.uint8))
     assert "no ArUco markers of any common dictionary and no chessboard" in diagnose_no_detection([p], Target((CHARUCO,)))
     assert "none of the images tried could be read" in diagnose_no_detection([tmp_path / "missing.png"], Target((CHARUCO,)))
+
+
+def test_diagnose_survives_small_boards_and_names_a_chessboard_off_by_one(tmp_path):
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:120, 0:160]
+    wall = tmp_path / "wall.png"
+    cv2.imwrite(str(wall), np.clip(90 + 60 * np.sin(xx / 23.0) + rng.normal(0, 2, (120, 160)), 0, 255).astype(np.uint8))
+    small = Board("s", "charuco", 0.054, (4, 5), "DICT_4X4_1000", 0.0405)  # 3x4 inner: OpenCV raised for 2x3
+    assert "no ArUco markers" in diagnose_no_detection([wall], Target((small,)))
+    printed = Board("c", "chessboard", 0.04, (7, 5))  # 6x4 inner corners
+    p = tmp_path / "c.png"
+    cv2.imwrite(str(p), _small(printed, 3, fill=0.7))
+    said = Board("c", "chessboard", 0.04, (8, 5))  # inner_corners [7, 4]: one off along x only
+    assert "a plain chessboard with 6x4 inner corners is found" in diagnose_no_detection([p], Target((said,)))
+
+
+def test_calibrate_with_boards_in_few_frames_names_the_board_that_is_printed(tmp_path):
+    """inner_corners one off: a stray fit in one image, nothing in the rest. The
+    'only 1 frame(s)' error used to stop there; it now says what is printed."""
+    from rigcal.cli import app
+
+    said, printed = Board("c", "chessboard", 0.04, (8, 5)), Board("c", "chessboard", 0.04, (7, 5))
+    imgs = {"0.png": _small(said, 1, fill=0.7), **{f"{i}.png": _small(printed, i, fill=0.7) for i in (2, 3)}}
+    ds = _write_dataset(tmp_path / "d", {"cam": imgs}, res=SMALL)
+    (ds / "target.yaml").write_text("boards:\n  - {name: c, type: chessboard, inner_corners: [7, 4], "
+                                    "square_length: 0.04}\n")
+    res = CliRunner().invoke(app, ["calibrate", str(ds), "--out", str(tmp_path / "cal.yaml"), "--jobs", "1"])
+    assert res.exit_code == 1, res.output
+    assert "cam: boards detected in only 1 frame(s) of 3 images" in res.output
+    assert "a plain chessboard with 6x4 inner corners is found" in res.output
+    assert not (tmp_path / "cal.yaml").exists()
 
 
 def test_calibrate_with_the_wrong_dictionary_exits_1_with_the_cause(tmp_path):

@@ -36,6 +36,7 @@ from rigcal.compare import compare_rigs, load_truth
 from rigcal.core import ViewIn, calibrate_views
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset
+from rigcal.errors import CalibrationError
 from rigcal.io import atomic_dir, atomic_write_text
 from rigcal.rig import load_rig
 from rigcal.simulate import simulate_dataset
@@ -373,6 +374,122 @@ def test_degenerate_motion_calibrates_and_warns_what_is_poorly_constrained():
     assert warnings_for(good) == []
 
 
+def test_a_rig_that_contradicts_its_declaration_is_named():
+    """A camera mounted upside down but declared upright, and a target in millimetres:
+    the aligned body frame hid both (exit 0, no word); the camera pairs show them."""
+    from types import SimpleNamespace
+
+    from rigcal.calibrate import declared_disagreements
+
+    declared = load_rig(RIG)
+    assert declared_disagreements(SimpleNamespace(declared=declared, rig=declared)) == []
+    cams = []
+    for c in declared.cameras:
+        T = c.T_body_cam.copy()
+        if c.name == "front_right":
+            T[:3, :3] = T[:3, :3] @ np.diag([-1.0, -1.0, 1.0])  # turned 180 deg about its optical axis
+        cams.append(replace(c, T_body_cam=T))
+    msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(cams)))
+    assert len(msgs) == 2 and all("180 deg from the declared one (about the optical axis" in m for m in msgs), msgs
+    assert {m.split(":")[0] for m in msgs} == {"front_left/front_right", "front_right/back"}
+    fl, fr = declared.camera("front_left").T_body_cam, declared.camera("front_right").T_body_cam
+    swapped = [replace(c, T_body_cam={"front_left": fr, "front_right": fl}.get(c.name, c.T_body_cam))
+               for c in declared.cameras]  # images/front_left/ and images/front_right/ swapped
+    msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(swapped)))
+    assert len(msgs) == 1 and msgs[0].startswith("front_left/front_right: seen from front_left, front_right is "
+                                                 "calibrated 180 deg away"), msgs
+    big = [replace(c, T_body_cam=geo.make_T(c.T_body_cam[:3, :3], 1000 * c.T_body_cam[:3, 3]))
+           for c in declared.cameras]
+    msgs = declared_disagreements(SimpleNamespace(declared=declared, rig=declared.with_cameras(big)))
+    assert len(msgs) == 1 and msgs[0].startswith("the calibrated rig is 1000x the size of the declared one"), msgs
+
+
+def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
+    """A camera that flips its images (a mirror setting) sees a chessboard symmetric under
+    that flip as a valid board from another pose: each camera calibrates alone, but no
+    rigid rig fits both. That used to end with exit 0 and 30-60 px RMS."""
+    declared = load_rig(RIG)
+    declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
+    rng = np.random.default_rng(3)
+    nx, ny, s = 8, 5, 0.06
+    k = np.arange(nx * ny)
+    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
+
+    def pose(rotvec, dist, shift):
+        R = geo.R_from_rotvec(rotvec)
+        return declared.cameras[0].T_body_cam @ geo.make_T(R, np.array([shift[0] + 0.05, shift[1], dist])
+                                                           - R @ corners.mean(0))
+
+    moving = [pose(rng.normal(0, np.radians(25), 3), rng.uniform(0.6, 1.5), rng.normal(0, 0.15, 2))
+              for _ in range(8)]
+    views = _stereo_views(moving, declared, corners, rng)
+    width = declared.camera("front_right").intrinsics.width
+    flipped = []
+    for v in views:
+        if v.camera == "front_right":  # u -> W-1-u, and the ids as the flipped board numbers them
+            ids = (v.ids // nx) * nx + (nx - 1 - v.ids % nx)
+            uv = np.column_stack([width - 1 - v.uv[:, 0], v.uv[:, 1]])
+            order = np.argsort(ids)
+            v = replace(v, ids=ids[order], uv=uv[order])
+        flipped.append(v)
+    assert calibrate_views(views, declared, {"b": corners}).rms_px < 0.3
+    with pytest.raises(CalibrationError, match=r"the calibration failed: reprojection RMS .*front_right .*"
+                                                r"its own views alone 0\.\d\d px.*mirrored"):
+        calibrate_views(flipped, declared, {"b": corners})
+
+
+def test_fixed_intrinsics_that_do_not_fit_the_images_are_named():
+    """--fix-intrinsics with a declared focal length 3 % off and no distortion (k1 -0.2 in truth): the
+    extrinsics absorb the misfit without a word unless the camera's own views say so."""
+    declared = load_rig(RIG)
+    declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
+    rng = np.random.default_rng(5)
+    true = declared.with_cameras([replace(c, intrinsics=c.intrinsics.with_(
+        fx=c.intrinsics.fx * 1.03, fy=c.intrinsics.fy * 1.03, dist=(-0.2, 0.05, 0, 0, 0))) for c in declared.cameras])
+    nx, ny, s = 8, 5, 0.06
+    k = np.arange(nx * ny)
+    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
+    poses = []
+    for _ in range(8):
+        R = geo.R_from_rotvec(rng.normal(0, np.radians(25), 3))
+        shift = np.array([0.05, 0, 0]) + np.append(rng.normal(0, 0.15, 2), rng.uniform(0.6, 1.5))
+        poses.append(declared.cameras[0].T_body_cam @ geo.make_T(R, shift - R @ corners.mean(0)))
+    views = _stereo_views(poses, true, corners, rng)
+    notes = calibrate_views(views, declared, {"b": corners}, fix_intrinsics=True).notes
+    for cam in ("front_left", "front_right"):
+        assert any(n.startswith(f"{cam}: the declared intrinsics (--fix-intrinsics) fit its own views to ")
+                   for n in notes), notes
+    assert not any("declared intrinsics" in n for n in calibrate_views(views, true, {"b": corners},
+                                                                       fix_intrinsics=True).notes)
+
+
+def test_repeated_images_count_once():
+    """The same image pair saved under several frame names: eleven copies of one pose
+    calibrated (exit 0) to a focal length 28 % off on the Bumblebee2 set."""
+    declared = load_rig(RIG)
+    declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
+    rng = np.random.default_rng(7)
+    nx, ny, s = 8, 5, 0.06
+    k = np.arange(nx * ny)
+    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
+    poses = []
+    for _ in range(6):
+        R = geo.R_from_rotvec(rng.normal(0, np.radians(25), 3))
+        shift = np.array([0.05, 0, 0]) + np.append(rng.normal(0, 0.15, 2), rng.uniform(0.6, 1.5))
+        poses.append(declared.cameras[0].T_body_cam @ geo.make_T(R, shift - R @ corners.mean(0)))
+    views = _stereo_views(poses, declared, corners, rng)
+    copies = [replace(v, frame=f"copy{j}_{v.frame}") for j in range(2) for v in views if v.frame == "000001"]
+    cal = calibrate_views(views + copies, declared, {"b": corners})
+    for cam in ("front_left", "front_right"):
+        assert (f"{cam}: 2 view(s) repeat another frame's corners exactly (copy0_000001 = 000001, copy1_000001 = "
+                f"000001) and were used once") in " | ".join(cal.notes), cal.notes
+        assert cal.stats[cam].frames == 6
+    two = [v for v in views if v.frame in ("000000", "000001")]
+    again = [replace(v, frame=f"copy{j}_{v.frame}") for j in range(4) for v in two]
+    with pytest.raises(CalibrationError, match=r"boards detected in only 2 frame\(s\) \(and 8 exact repeats of them\)"):
+        calibrate_views(two + again, declared, {"b": corners})
+
+
 def test_outlier_detections_are_rejected_and_counted(sim, clean_det):
     """Real detections with a planted wrong corner id (two corners swapped) and a mirrored
     board (every id reflected along the board's x): the solve rejects both and counts
@@ -604,6 +721,39 @@ def test_unwritable_output_exits_2_before_any_work(sim, tmp_path, command):
 def test_output_under_proc_exits_2(sim, tmp_path):
     error_line(cli("export", CALIBRATED, "--format", "json", "--out", "/proc/rigcal-test.json"), 2,
                "/proc/rigcal-test.json")
+
+
+@pytest.mark.parametrize("command", ["calibrate", "export", "view", "import"])
+def test_output_onto_a_pipe_exits_2_and_keeps_it(sim, tmp_path, command):
+    """A rename over a pipe or device replaced it with a regular file (as root, --out
+    /dev/full or /dev/stdout itself); such an output is now refused."""
+    fifo = tmp_path / "out.yaml"
+    os.mkfifo(fifo)
+    error_line(cli(*_commands(sim, tmp_path, fifo)[command]), 2, f"{fifo}: is a pipe")
+    assert fifo.is_fifo()
+
+
+def test_calibrate_refuses_outputs_that_collide(sim, tmp_path):
+    """--report onto --out wrote the HTML over the calibrated rig (exit 0); --out onto the
+    target file replaced the board description."""
+    out = tmp_path / "cal.yaml"
+    error_line(cli("calibrate", sim, "--out", out, "--report", out, "--jobs", 1), 2, "--report and --out name the same file")
+    target = tmp_path / "t.yaml"
+    shutil.copy(sim / "target.yaml", target)
+    error_line(cli("calibrate", sim, "--out", target, "--target", target, "--jobs", 1), 2,
+               f"{target}: is the target file this calibration reads")
+    assert not out.exists() and target.read_text() == (sim / "target.yaml").read_text()
+
+
+def test_output_through_a_symlink_writes_the_file_it_names(tmp_path):
+    real = tmp_path / "store" / "rig.yaml"
+    real.parent.mkdir()
+    real.write_text("old")
+    link = tmp_path / "rig.yaml"
+    link.symlink_to(real)
+    r = cli("export", CALIBRATED, "--format", "json", "--out", link)
+    assert r.exit_code == 0, r.output
+    assert link.is_symlink() and real.read_text().startswith("{")
 
 
 @pytest.fixture

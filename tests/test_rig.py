@@ -353,3 +353,20 @@ def test_fast_and_pure_python_yaml_loaders_agree():
     for text in (dup, dup + "# " + "x" * (rig_mod.FAST_YAML_MAX_LINE + 1) + "\n"):
         with pytest.raises(RigFileError, match="duplicate"):
             parse_rig(text, "dup.yaml")
+
+
+def test_rig_file_encodings_and_folders(tmp_path):
+    """UTF-16 with a byte order mark (Windows PowerShell's `>`) is YAML and loads; other
+    bytes and a folder get one line saying so, not a Python exception's text."""
+    src = ROOT / "rigs" / "drone-stereo-back.yaml"
+    text = src.read_text(encoding="utf-8")
+    wide = tmp_path / "utf16.yaml"
+    wide.write_bytes(text.encode("utf-16"))
+    assert load_rig(wide) == load_rig(src)
+    latin = tmp_path / "latin1.yaml"
+    latin.write_bytes(("# caméra\n" + text).encode("latin-1"))
+    with pytest.raises(RigFileError, match=r"latin1\.yaml: not UTF-8 text \(byte 0xe9 at offset 5\); expected a YAML "
+                                            r"file saved as UTF-8$"):
+        load_rig(latin)
+    with pytest.raises(RigFileError, match=r": is a folder; expected a YAML file$"):
+        load_rig(tmp_path)

@@ -12,10 +12,10 @@ from rich.console import Console, Group
 from rich.table import Table
 
 from . import __version__
-from .core import Calibration, ViewIn, calibrate_views
+from .core import MIN_FRAMES, Calibration, ViewIn, calibrate_views
 from .errors import CalibrationError, DatasetError, OutputError, TargetFileError
 from .rig import Rig, StereoPair, dump_rig, load_rig
-from .io import atomic_write_texts
+from .io import atomic_write_texts, output_target
 
 SIGMA_WARN_MM = 2.0
 SIGMA_WARN_DEG = 0.1
@@ -29,6 +29,14 @@ MOTION_HINT = {
 }
 
 
+# declared vs calibrated rig (declared_disagreements): nominal poses are a few degrees and
+# millimetres off; beyond these the declaration (or the target's scale) is wrong
+DECLARED_WARN_DEG = 15.0
+DECLARED_SCALE_WARN = 1.5  # calibrated / declared camera distances, either way
+DECLARED_MIN_DISTANCE_M = 0.01  # pairs closer than this do not measure scale or direction
+DECLARED_DIRECTION_WARN_DEG = 60.0  # one camera seen from another (left/right folders swapped: 180)
+
+
 def _err() -> Console:
     return Console(stderr=True, highlight=False, soft_wrap=True)
 
@@ -38,18 +46,28 @@ def check_output_path(path: Path) -> None:
     path = Path(path)
     if path.is_dir():
         raise OutputError(f"{path}: is a directory; expected a file path for the calibrated rig YAML")
+    path = output_target(path)
     parent = path.parent if str(path.parent) else Path(".")
     probe = parent
     while not probe.exists() and probe != probe.parent:
         probe = probe.parent
-    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+    if not probe.is_dir():
+        raise OutputError(f"{path}: cannot write here ({probe} is a file, not a directory)")
+    if not os.access(probe, os.W_OK | os.X_OK):
         raise OutputError(f"{path}: cannot write here (directory {probe} is not writable)")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except OSError:
+        return False
 
 
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
         report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
         distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False):
-    from .dataset import dataset_rig_path, dataset_target_path, list_dataset
+    from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
     from .detect import detect_dataset, diagnose_no_detection
     from .target import load_target
 
@@ -60,11 +78,17 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     check_output_path(out_path)
     if report_path is not None:
         check_output_path(report_path)
+        if _same_file(report_path, out_path):
+            raise OutputError(f"{report_path}: --report and --out name the same file; give the report its own path")
     rig = load_rig(dataset_rig_path(dataset, rig_path))
     target_file = dataset_target_path(dataset, target_path)
+    for written in (out_path, report_path):
+        if written is not None and _same_file(written, target_file):
+            raise OutputError(f"{written}: is the target file this calibration reads; write the output elsewhere")
     target = load_target(target_file)
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
+    check_shared_stems(images)
     det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True)
     console = _err()
     for path, reason in det.unreadable:
@@ -74,12 +98,22 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
              for v in det.views]
     for cam in rig.names:
         n_img = det.n_images.get(cam, 0)
-        if n_img and not any(v.camera == cam for v in views):
+        seen = {v.frame for v in views if v.camera == cam}
+        if n_img and not seen:
             files = list(images.frames[cam].values()) if hasattr(images, "frames") else []
             hint = diagnose_no_detection(files[:4], target) if files else ""
             raise CalibrationError(
                 f"no board detected in any of {n_img} images of camera {cam}; check target.yaml "
                 f"(dictionary, squares, legacy_pattern)" + (f": {hint}" if hint else ""))
+        if n_img and len(seen) < MIN_FRAMES and not fix_intrinsics and det.no_board.get(cam, 0) > n_img // 2:
+            # mostly nothing found: more often a target.yaml off by one than too few photos
+            files = [p for f, p in images.frames[cam].items() if f not in seen] if hasattr(images, "frames") else []
+            hint = diagnose_no_detection(files[:4], target) if files else ""
+            raise CalibrationError(
+                f"{cam}: boards detected in only {len(seen)} frame(s) of {n_img} images; at least {MIN_FRAMES} "
+                f"are needed to calibrate its intrinsics; check target.yaml (dictionary, squares, "
+                f"inner_corners, legacy_pattern)" + (f": {hint}" if hint else "")
+                + " (or use --fix-intrinsics to keep the declared ones)")
     corners = {b.name: b.corners for b in target.boards}
     console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
@@ -200,10 +234,63 @@ def _r(x: float, nd: int) -> float:
     return float(np.round(float(x), nd)) if np.isfinite(x) else float("nan")
 
 
+def declared_disagreements(cal: Calibration) -> list[str]:
+    """Where the calibrated rig contradicts the declared poses beyond nominal error: a
+    camera pair whose relative orientation differs by more than DECLARED_WARN_DEG (a
+    camera mounted upside down but declared upright), and camera distances scaled by more
+    than DECLARED_SCALE_WARN (a wrong square_length). Both otherwise pass silently: the
+    aligned body frame is a best fit to the declared poses and spreads the contradiction
+    over every camera. Compares camera pairs, so the body-frame choice does not enter."""
+    from . import geometry as geo
+
+    declared = getattr(cal, "declared", None)
+    if declared is None:
+        return []
+    posed = [c for c in declared.cameras if c.T_body_cam is not None]
+    out, ratios = [], []
+    for i, a in enumerate(posed):
+        for b in posed[i + 1:]:
+            Ta, Tb = cal.rig.camera(a.name).T_body_cam, cal.rig.camera(b.name).T_body_cam
+            # calibrated b in declared b's frame, both taken relative to camera a
+            R_rel = (a.T_body_cam[:3, :3].T @ b.T_body_cam[:3, :3]).T @ (Ta[:3, :3].T @ Tb[:3, :3])
+            r = geo.rotvec_from_R(R_rel)
+            angle = float(np.degrees(np.linalg.norm(r)))
+            turned = angle > DECLARED_WARN_DEG
+            if turned:
+                hint = ""
+                if angle > 150 and abs(r[2]) > 0.9 * np.linalg.norm(r):
+                    hint = (f" (about the optical axis: is one of them mounted upside down? Declare it so, e.g. "
+                            f"look: forward becomes axes: [L, U, F])")
+                out.append(f"{a.name}/{b.name}: the calibrated relative orientation is {angle:.0f} deg from the "
+                           f"declared one{hint}; the body frame is fitted to the declared poses, so every "
+                           f"T_body_cam is off: fix rig.yaml or use --reference camera:NAME")
+            d_decl = float(np.linalg.norm(a.T_body_cam[:3, 3] - b.T_body_cam[:3, 3]))
+            if d_decl >= DECLARED_MIN_DISTANCE_M:
+                ratios.append((float(np.linalg.norm(Ta[:3, 3] - Tb[:3, 3])) / d_decl, a.name, b.name, d_decl))
+                # where b sits seen from a, in a's camera frame: declared vs calibrated
+                t_decl = a.T_body_cam[:3, :3].T @ (b.T_body_cam[:3, 3] - a.T_body_cam[:3, 3])
+                t_cal = Ta[:3, :3].T @ (Tb[:3, 3] - Ta[:3, 3])
+                cos = float(t_decl @ t_cal) / (np.linalg.norm(t_decl) * np.linalg.norm(t_cal) + 1e-300)
+                turn = float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+                if turn > DECLARED_DIRECTION_WARN_DEG and not turned:  # a turned camera is named above
+                    out.append(f"{a.name}/{b.name}: seen from {a.name}, {b.name} is calibrated {turn:.0f} deg away "
+                               f"from where the rig declares it (are the image folders images/{a.name}/ and "
+                               f"images/{b.name}/ swapped, or the declared positions?)")
+    if ratios:
+        k = int(np.argsort([q[0] for q in ratios])[len(ratios) // 2])
+        ratio, na, nb, d_decl = ratios[k]
+        if not 1 / DECLARED_SCALE_WARN <= ratio <= DECLARED_SCALE_WARN:
+            times = f"{ratio:.0f}" if ratio >= 10 else f"{ratio:.2g}"
+            out.append(f"the calibrated rig is {times}x the size of the declared one ({na}/{nb}: "
+                       f"{ratio * d_decl:.4g} m calibrated, {d_decl:.4g} m declared); check square_length in "
+                       f"target.yaml (metres) and the declared positions")
+    return out
+
+
 def warnings_for(cal: Calibration) -> list[str]:
     """Poorly constrained intrinsics and extrinsics: name the parameter or axis and the
-    motion that would fix it."""
-    out = []
+    motion that would fix it; and contradictions of the declared rig (declared_disagreements)."""
+    out = declared_disagreements(cal)
     for n, st in cal.stats.items():
         sig = st.sigma_intrinsics or {}
         m = cal.rig.camera(n).intrinsics

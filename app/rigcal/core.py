@@ -49,6 +49,12 @@ RATIONAL_MIN_GAIN = 0.05
 RIGIDITY_RATIO = 3.0
 MIN_VIEW_CORNERS = 4
 MIN_FRAMES = 3
+# A camera whose corners miss the solved rig by more than this share of its image diagonal
+# (RMS; at least GROSS_RMS_MIN_PX) failed to calibrate: a target.yaml that misnumbers the
+# board, mirrored images, a chessboard declared on a ChArUco print. The real sets stay under
+# 0.12 % (the worst, the unsynchronised caliscope webcams: 1.6 px of a 1469 px diagonal).
+GROSS_RMS_FRACTION = 0.01
+GROSS_RMS_MIN_PX = 5.0
 # corner weights: fit each camera's NoiseModel on the residuals, re-weight, re-solve; the
 # second fit is on the weighted solve's residuals (the first on the unweighted one's)
 NOISE_ROUNDS = 2
@@ -208,6 +214,34 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
     return MonoInit(values, pnp_views(obj, img, values, declared.model), notes, rms, mono)
 
 
+def fixed_intrinsics_misfit(views: list[ViewIn], corners: dict, declared: CameraModel, mi: MonoInit) -> str | None:
+    """With --fix-intrinsics: words when the declared intrinsics fit this camera's own views
+    (PnP per view) more than RIGIDITY_RATIO times worse than intrinsics fitted to them, else
+    None. Own views only, so neither the rig's rigidity nor its synchronisation enters: the
+    declared focal length, principal point or distortion do not describe these images, and
+    the extrinsics are bent to absorb that (Bumblebee2 with focal 500 and no distortion
+    declared: 2.0 px against 0.08, the baseline 137 mm instead of 120)."""
+    posed = [(T[1], len(v.ids)) for v, T in zip(views, mi.T_cam_board) if T is not None]
+    if not posed:
+        return None
+    fixed = float(np.sqrt(sum(r * r * k for r, k in posed) / sum(k for _, k in posed)))
+    obj, img = _views_obj_img(views, corners)
+    try:
+        if declared.model == "fisheye":
+            free = _init_fisheye(obj, img, declared)[1]
+        else:
+            sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
+            free = _clean_fit([obj[i] for i in sel], [img[i] for i in sel], declared,
+                              min(max(len(declared.dist), 4), 8))[0].rms_px
+    except CalibrationError:
+        return None
+    if not fixed > RIGIDITY_RATIO * free:
+        return None
+    return (f"the declared intrinsics (--fix-intrinsics) fit its own views to {fixed:.2f} px RMS, {fixed / free:.0f}x "
+            f"the {free:.2f} px of intrinsics fitted to them: the declared focal length, principal point or "
+            f"distortion do not describe these images, and the extrinsics absorb the difference")
+
+
 def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tuple[MonoFit, list, list, list, list]:
     """OpenCV fit of `n_dist` coefficients without gross outlier corners: a few wrong
     corners would otherwise decide the rational test and skew the start. Corners beyond
@@ -266,6 +300,25 @@ def _init_fisheye(obj: list, img: list, declared: CameraModel) -> tuple[np.ndarr
 # ----------------------------------------------------------------------------- main entry
 
 
+def drop_repeated_views(views: list[ViewIn]) -> tuple[list[ViewIn], list[tuple[str, str]]]:
+    """One camera's views without those whose board, corner ids and pixels repeat an
+    earlier view's exactly, and the (repeat, original) frame pairs. Two photographs never
+    give bit-identical corners (noise); one image copied under several names, or a camera
+    whose stream froze, does. Counted as independent views, such copies shrink every sigma
+    and can carry the intrinsics: one pose copied 11 times calibrated to a focal length 28 %
+    off and a 174 mm baseline for 120 mm, with exit 0."""
+    seen: dict[tuple, str] = {}
+    kept, repeats = [], []
+    for v in views:
+        key = (v.board, np.asarray(v.ids).tobytes(), np.asarray(v.uv, float).tobytes())
+        if key in seen:
+            repeats.append((v.frame, seen[key]))
+            continue
+        seen[key] = v.frame
+        kept.append(v)
+    return kept, repeats
+
+
 def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndarray],
                     distortion: str = "auto", fix_intrinsics: bool = False, reference: str = "aligned",
                     progress=None, weight_corners: bool = False) -> Calibration:
@@ -286,13 +339,22 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     _check_reference(reference, rig)
 
     by_cam = {n: [v for v in views_in if v.camera == n and len(v.ids) >= MIN_VIEW_CORNERS] for n in cam_names}
+    repeats = {}
+    for n in cam_names:
+        by_cam[n], repeats[n] = drop_repeated_views(by_cam[n])
+        if repeats[n]:
+            shown = ", ".join(f"{a} = {b}" for a, b in repeats[n][:3]) + (", ..." if len(repeats[n]) > 3 else "")
+            notes.append(f"{n}: {len(repeats[n])} view(s) repeat another frame's corners exactly ({shown}) and were "
+                         f"used once: the same image under several names, or a frozen camera?")
     for n, vs in by_cam.items():
         nf = len({v.frame for v in vs})
         if nf == 0:
             raise CalibrationError(f"{n}: no usable board views (no board detected in any image of this camera)")
         if nf < MIN_FRAMES and not fix_intrinsics:
-            raise CalibrationError(f"{n}: boards detected in only {nf} frame(s); at least {MIN_FRAMES} are needed "
-                                   f"to calibrate its intrinsics (or use --fix-intrinsics to keep the declared ones)")
+            again = f" (and {len(repeats[n])} exact repeats of them)" if repeats[n] else ""
+            raise CalibrationError(f"{n}: boards detected in only {nf} frame(s){again}; at least {MIN_FRAMES} are "
+                                   f"needed to calibrate its intrinsics (or use --fix-intrinsics to keep the "
+                                   f"declared ones)")
 
     # 1. intrinsics + PnP per camera. Serial on purpose: OpenCV and BLAS already use every
     # core, and a thread per camera measured slower (2.3 s vs 1.8 s for 3 cameras, 2 cores).
@@ -306,6 +368,10 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         intr.append(mi.values)
         models.append(declared.model)
         selection[n] = list(mi.log)
+        if fix_intrinsics:
+            misfit = fixed_intrinsics_misfit(by_cam[n], corners, declared, mi)
+            if misfit is not None:
+                notes.append(f"{n}: {misfit}")
         for v, T in zip(by_cam[n], mi.T_cam_board):
             if T is None:  # no pose with the camera in front of the print: mirrored or garbage
                 refused[c] += len(v.ids)
@@ -380,6 +446,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
                                 covariance if covariance is not None else _covariance(res))
     cams = []
     stats = {}
+    gross: list[str | None] = []
     inl_obs = obs.subset(res.inliers)
     r_all = res.problem.residuals(res.problem.x0()).reshape(-1, 2)
     lost = [n for c, n in enumerate(cam_names) if not np.any(obs.cam[res.inliers] == c)]
@@ -394,6 +461,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         T_bc = T_out_solve @ T_body_cam_solve[c]
         m = inl_obs.cam == c
         rms = float(np.sqrt(np.mean(np.sum(r_all[m] ** 2, axis=1)))) if m.any() else float("nan")
+        gross.append(_gross_rms(n, rms, inits[c].rms_px, declared.width, declared.height))
         st = CameraStats(
             name=n, rms_px=rms, observations=int(m.sum()), frames=int(len(np.unique(inl_obs.frame[m]))),
             outliers=int((~res.inliers & (obs.cam == c)).sum()) + int(refused[c]),
@@ -407,6 +475,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
             st.sigma_intrinsics = cov["intrinsics"][c]
         stats[n] = st
         cams.append(Camera(n, model, T_bc, None))
+    _refuse_gross_rms(gross)
     out_rig = replace(rig, cameras=tuple(cams))
     rms_all = float(np.sqrt(np.mean(np.sum(r_all**2, axis=1))))
     timings["total_core_s"] = time.perf_counter() - t0
@@ -481,6 +550,27 @@ def rigidity_check(res, inits: list[MonoInit], cam_names: list[str]) -> str | No
     return (f"the cameras' views disagree with one rigid rig per frame: reprojection RMS in the joint solve is "
             f"{factor:.1f}x each camera's own fit (px: {detail}); are the frames synchronised, and did the rig "
             f"stay rigid? Intrinsics were taken from each camera's own views and held fixed for the extrinsics")
+
+
+def _gross_rms(name: str, rms: float, own_rms: float | None, width: int, height: int) -> str | None:
+    """'name: RMS x px (own views y px)' when a camera's final RMS says its calibration
+    failed (GROSS_RMS_*), else None. Its own views' fit tells where to look: small there,
+    the rig is at fault (mirrored or unsynchronised images); large, the board or model."""
+    limit = max(GROSS_RMS_MIN_PX, GROSS_RMS_FRACTION * float(np.hypot(width, height)))
+    if not rms > limit:
+        return None
+    own = f", its own views alone {own_rms:.2f} px" if own_rms is not None else ""
+    return f"{name} {rms:.1f} px (limit {limit:.1f}{own})"
+
+
+def _refuse_gross_rms(gross: list[str | None]) -> None:
+    gross = [g for g in gross if g is not None]
+    if gross:
+        raise CalibrationError(
+            f"the calibration failed: reprojection RMS after the joint solve: {'; '.join(gross)}. The corners do "
+            f"not fit one camera model and one rigid rig: check target.yaml (board type, squares, first_marker_id, "
+            f"legacy_pattern), the camera models, mirrored or rotated images, and that the frames are "
+            f"synchronised; nothing was written")
 
 
 def _covariance(res) -> tuple | None:

@@ -69,12 +69,35 @@ def list_dataset(dataset_dir: str | Path, rig) -> DatasetImages:
     if not root.is_dir():
         raise DatasetError(f"{root}: not a folder (expected a dataset with rig.yaml, target.yaml, images/<camera>/)")
     if not images.is_dir():
-        raise DatasetError(f"{images}: missing (expected one folder of images per camera: "
+        what = "not a folder" if images.exists() else "missing"
+        raise DatasetError(f"{images}: {what} (expected one folder of images per camera: "
                            f"{', '.join(f'images/{c}/' for c in cameras)})")
     folders = sorted(p.name for p in _listdir(images) if p.is_dir() and not p.name.startswith("."))
     _check_folders(images, folders, cameras)
     frames = {cam: MappingProxyType(_camera_frames(images / cam)) for cam in cameras}
     return DatasetImages(root=root, cameras=cameras, frames=MappingProxyType(frames))
+
+
+def check_shared_stems(dataset: DatasetImages) -> None:
+    """DatasetError when a camera shares no file stem with any other camera. Such a camera can
+    never be placed in the rig (not even through the rig's motion, which needs its frames
+    posed by the others): almost always files named per camera (left01.jpg, right01.jpg)
+    where the stem must name the instant. A layout check for calibrate, not for listing."""
+    images, frames = dataset.root / "images", dataset.frames
+    if len(frames) < 2:
+        return
+    lone = [c for c in frames if not any(set(frames[c]) & set(frames[o]) for o in frames if o != c)]
+    if not lone:
+        return
+    other = next(c for c in frames if c != lone[0])
+
+    def show(cam: str) -> str:
+        return ", ".join(list(frames[cam])[:3]) + (", ..." if len(frames[cam]) > 3 else "")
+
+    raise DatasetError(
+        f"{images}: camera {lone[0]} shares no frame with the other cameras (its file stems: {show(lone[0])}; "
+        f"{other}'s: {show(other)}); images taken at the same instant must have the same stem in every camera "
+        f"folder, e.g. images/{lone[0]}/0001.png and images/{other}/0001.png")
 
 
 def _listdir(folder: Path) -> list[Path]:

@@ -243,7 +243,11 @@ def png_problem(data: memoryview | bytes) -> str | None:
 
 
 def to_gray8(img: np.ndarray) -> np.ndarray:
-    """Any decoded image (H, W[, C]) of any depth -> uint8 (H, W)."""
+    """Any decoded image (H, W[, C]) of any depth -> uint8 (H, W).
+
+    Signed data (a TIFF of int16 or float with negatives) is stretched from its minimum."""
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)  # cvtColor takes 8U, 16U and 32F only (a float64 colour TIFF)
     if img.ndim == 3:
         if img.shape[2] == 1:
             img = img[:, :, 0]
@@ -254,10 +258,11 @@ def to_gray8(img: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(img)
     f = img.astype(np.float32)
     f[~np.isfinite(f)] = 0
-    top = float(f.max()) if f.size else 0.0
+    low = min(float(f.min()), 0.0) if f.size else 0.0
+    top = float(f.max()) - low if f.size else 0.0
     if top <= 0:
         return np.zeros(img.shape[:2], np.uint8)
-    return np.clip(f * (255.0 / top) + 0.5, 0, 255).astype(np.uint8)
+    return np.clip((f - low) * (255.0 / top) + 0.5, 0, 255).astype(np.uint8)
 
 
 # ----------------------------------------------------------------------------- corner geometry
@@ -1064,10 +1069,14 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
         return "; ".join(hints)
     for b in target.boards:
         nx, ny = b.inner_corners
-        for pattern in {(nx, ny), (nx - 1, ny - 1), (nx + 1, ny + 1)}:
+        # the board as declared (a ChArUco printed without markers), or one off along either axis;
+        # OpenCV needs at least 3 inner corners each way (it raises below that)
+        patterns = sorted({(nx + i, ny + j) for i in (-1, 0, 1) for j in (-1, 0, 1)},
+                          key=lambda q: (abs(q[0] - nx) + abs(q[1] - ny), q))
+        for pattern in patterns:
             if b.type == "chessboard" and pattern == (nx, ny):
                 continue
-            if min(pattern) < 2:
+            if min(pattern) < 3:
                 continue
             if any(cv2.findChessboardCorners(g, pattern, flags=CLASSIC_FLAGS)[0] for g in grays):
                 what = "squares" if b.type == "charuco" else "inner_corners"

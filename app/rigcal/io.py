@@ -5,11 +5,30 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 from typing import Iterator
 
 from .errors import OutputError
+
+
+def output_target(path: str | Path) -> Path:
+    """The file an output to `path` replaces: `path`, or through a symbolic link the file it
+    names (the link stays a link). OutputError when that exists and is not a regular file: a
+    rename over a device, pipe or folder would replace it (as root, /dev/stdout or /dev/full
+    itself), and a stream cannot take a whole-or-nothing write."""
+    path = Path(path)
+    try:
+        st = os.stat(path)
+    except OSError:
+        st = None
+    if st is not None and not stat.S_ISREG(st.st_mode):
+        kind = ("a directory" if stat.S_ISDIR(st.st_mode) else "a pipe" if stat.S_ISFIFO(st.st_mode)
+                else "a device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode) else "not a regular file")
+        raise OutputError(f"{path}: is {kind}; expected a file path (outputs are written whole to a temporary "
+                          f"file and renamed into place, never streamed)")
+    return Path(os.path.realpath(path)) if path.is_symlink() else path
 
 
 def _tmp_beside(path: Path, suffix: str = "") -> tuple[int, str]:
@@ -35,7 +54,7 @@ def atomic_write_files(items: list[tuple[str | Path, bytes]]) -> None:
     path = None
     try:
         for path, data in items:
-            path = Path(path)
+            path = output_target(path)
             fd, tmp = _tmp_beside(path)
             staged.append((tmp, path))
             with os.fdopen(fd, "wb") as f:

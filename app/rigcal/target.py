@@ -35,6 +35,9 @@ from .validate import _kind, _positive, _unknown, read_text
 
 TYPES = ("charuco", "chessboard")
 TOP_KEYS = ("boards",)
+# A printed square longer than this is a length in millimetres or centimetres: taken as
+# metres it would scale every calibrated position by 100-1000x without another sign.
+MAX_SQUARE_M = 2.0
 CHARUCO_KEYS = ("name", "type", "dictionary", "squares", "square_length", "marker_length", "first_marker_id",
                 "legacy_pattern")
 CHESSBOARD_KEYS = ("name", "type", "inner_corners", "square_length")
@@ -274,6 +277,9 @@ def _board_from_dict(d: Any, key: str, err) -> Board:
     if not isinstance(name, str) or not NAME_RE.match(name):
         raise err(f"{key}.name", f"expected a name of letters, digits, '_', '.', '-', got {_kind(name)}")
     square = _positive(_required(d, "square_length", key, err, "a length in metres"), f"{key}.square_length", err)
+    if square > MAX_SQUARE_M:
+        raise err(f"{key}.square_length", f"expected metres (at most {MAX_SQUARE_M:g}), got {square:g}; in "
+                  f"millimetres that is {square / 1000:g} m")
     if typ == "chessboard":
         inner = _int_pair(_required(d, "inner_corners", key, err, "[nx, ny] inner corners"),
                           f"{key}.inner_corners", 3, err)

@@ -88,8 +88,17 @@ def read_text(path: str | Path, error: type[Exception]) -> str:
     """An input file's text, or one line `file: file not found` / `file: cannot read (...)`."""
     path = Path(path)
     try:
-        return path.read_text(encoding="utf-8")
+        data = path.read_bytes()
     except FileNotFoundError:
         raise error(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
+    except IsADirectoryError:
+        raise error(f"{path}: is a folder; expected a YAML file") from None
+    except OSError as e:
         raise error(f"{path}: cannot read ({e.__class__.__name__}: {e})") from None
+    # YAML allows UTF-16 with a byte order mark (what Windows PowerShell's `>` writes)
+    encoding = "utf-16" if data[:2] in (b"\xff\xfe", b"\xfe\xff") else "utf-8"
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as e:
+        raise error(f"{path}: not {encoding.upper()} text (byte 0x{data[e.start]:02x} at offset {e.start}); "
+                    f"expected a YAML file saved as UTF-8") from None
