@@ -909,3 +909,30 @@ def test_nan_and_inf_are_refused_at_load(sim, tmp_path, name):
 def test_nan_and_inf_options_are_refused(tmp_path, args, needles):
     error_line(cli(*args), 2, *needles)
     assert not Path("never").exists()
+
+
+@pytest.mark.parametrize("args, says", [
+    (["calibrate", "DATASET", "--out", "o.yaml", "--distortion", "bogus"], "'--distortion'"),
+    (["calibrate", "DATASET", "--out", "o.yaml", "--jobs", "0"], "'--jobs'"),
+    (["calibrate", "DATASET", "--out", "o.yaml", "--bogus"], "--bogus"),
+    (["calibrate"], "Missing argument"),
+    (["project", "RIG", "--position", "1", "2", "--point", "1", "2", "3"], "'--position'"),
+])
+def test_a_bad_option_is_one_line_and_exit_2(tmp_path, args, says):
+    """A bad option value, an unknown option or a missing argument is bad input (cli.md):
+    one stderr line naming the option, exit 2, nothing written; not typer's usage box."""
+    proc = subprocess.run([sys.executable, "-m", "rigcal", *args], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=60)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 1 and says in lines[0] and "--help" in lines[0], proc.stderr
+    assert proc.stdout == "" and not list(tmp_path.iterdir())
+
+
+def test_help_still_works(tmp_path):
+    """--help exits 0 with the page on stdout; `rigcal` alone shows the help (exit 2, as typer does)."""
+    h = subprocess.run([sys.executable, "-m", "rigcal", "calibrate", "--help"], capture_output=True, text=True,
+                       timeout=60)
+    assert h.returncode == 0 and "--distortion" in h.stdout and h.stderr == ""
+    bare = subprocess.run([sys.executable, "-m", "rigcal"], capture_output=True, text=True, timeout=60)
+    assert bare.returncode == 2 and "calibrate" in bare.stdout

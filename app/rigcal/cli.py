@@ -108,7 +108,7 @@ def simulate(
     focal_error: float = typer.Option(0.02, help="1-sigma relative focal length error"),
     target: Optional[Path] = typer.Option(None, help="target YAML to use instead of one generated from the rig"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
-    jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
+    jobs: Optional[int] = typer.Option(None, min=1, help="worker processes (default: all cores)"),
 ):
     """Render a synthetic ChArUco dataset with ground truth (truth.yaml)."""
     from . import simulate as sim
@@ -126,7 +126,7 @@ def calibrate(
     rig: Optional[Path] = typer.Option(None, help="declared rig (default DATASET/rig.yaml)"),
     target: Optional[Path] = typer.Option(None, help="target YAML (default DATASET/target.yaml)"),
     report: Optional[Path] = typer.Option(None, help="write a self-contained HTML report here"),
-    jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
+    jobs: Optional[int] = typer.Option(None, min=1, help="detection worker processes (default: all cores)"),
     reference: str = typer.Option("aligned", help="body frame: 'aligned' (fit to the declared rig) or 'camera:NAME'"),
     distortion: Distortion = typer.Option(
         Distortion.auto, help="pinhole distortion model; auto: radtan4, plus k3 or the rational terms when the data "
@@ -232,9 +232,38 @@ def _on_sigterm(signum, frame) -> None:
     raise Terminated()
 
 
+def _click_exceptions():
+    """(ClickException, NoArgsIsHelpError or None): typer >= 0.2x vendors click as typer._click."""
+    try:
+        from typer._click import exceptions as ex
+    except ImportError:  # older typer: click itself
+        from click import exceptions as ex
+    return ex.ClickException, getattr(ex, "NoArgsIsHelpError", None)
+
+
 def main() -> None:
     signal.signal(signal.SIGTERM, _on_sigterm)
-    app()
+    click_error, no_args = _click_exceptions()
+    try:
+        rv = app(standalone_mode=False)
+    except click_error as e:
+        if no_args is not None and isinstance(e, no_args):
+            sys.exit(e.exit_code)  # `rigcal` alone: typer has printed its help page
+        # a bad option or argument is bad input like any other: one line, exit 2 (cli.md)
+        ctx = getattr(e, "ctx", None)
+        where = ctx.command_path if ctx is not None else "rigcal"
+        msg = " ".join(e.format_message().split())
+        typer.echo(f"{where}: {msg} (see {where} --help)", err=True)
+        sys.exit(e.exit_code)
+    except KeyboardInterrupt:  # before a command's own guard was entered
+        typer.echo("rigcal: interrupted", err=True)
+        sys.exit(130)
+    except Exception as e:  # typer's Abort (end of input at a prompt) and the like
+        if type(e).__name__ != "Abort":
+            raise
+        typer.echo("rigcal: aborted", err=True)
+        sys.exit(1)
+    sys.exit(rv if isinstance(rv, int) else 0)
 
 
 if __name__ == "__main__":
