@@ -337,6 +337,22 @@ def _stereo_views(poses, rig_true, corners, rng, noise_px=0.1) -> list[ViewIn]:
     return views
 
 
+def _board_corners(nx: int = 8, ny: int = 5, s: float = 0.06) -> np.ndarray:
+    """(nx * ny, 3) inner corners of a board of s m squares, row-major from (s, s)."""
+    k = np.arange(nx * ny)
+    return np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
+
+
+def _board_pose(declared, corners):
+    """pose(rotvec, dist, shift) -> T_body_board: the board's centre `dist` m before the first
+    camera, `shift` (2,) m off its axis (plus 5 cm along x), turned by `rotvec`."""
+    def pose(rotvec, dist, shift):
+        R = geo.R_from_rotvec(rotvec)
+        return declared.cameras[0].T_body_cam @ geo.make_T(R, np.array([shift[0] + 0.05, shift[1], dist])
+                                                           - R @ corners.mean(0))
+    return pose
+
+
 def test_degenerate_motion_calibrates_and_warns_what_is_poorly_constrained():
     """Eight frames of a board in nearly the same pose in front of a stereo pair: the focal
     length and the cameras' depth are not observable; calibrate must finish and say so.
@@ -351,14 +367,8 @@ def test_degenerate_motion_calibrates_and_warns_what_is_poorly_constrained():
         T[:3, 3] += rng.normal(0, 0.003, 3)
         cams.append(replace(c, intrinsics=m, T_body_cam=T))
     true = declared.with_cameras(cams)
-    nx, ny, s = 8, 5, 0.06
-    k = np.arange(nx * ny)
-    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
-
-    def pose(rotvec, dist, shift):
-        R = geo.R_from_rotvec(rotvec)
-        return declared.cameras[0].T_body_cam @ geo.make_T(R, np.array([shift[0] + 0.05, shift[1], dist])
-                                                           - R @ corners.mean(0))
+    corners = _board_corners()
+    pose = _board_pose(declared, corners)
 
     still = [pose(rng.normal(0, np.radians(0.3), 3), 1.0 + rng.normal(0, 0.003), rng.normal(0, 0.003, 2))
              for _ in range(8)]
@@ -411,14 +421,8 @@ def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
     declared = load_rig(RIG)
     declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
     rng = np.random.default_rng(3)
-    nx, ny, s = 8, 5, 0.06
-    k = np.arange(nx * ny)
-    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
-
-    def pose(rotvec, dist, shift):
-        R = geo.R_from_rotvec(rotvec)
-        return declared.cameras[0].T_body_cam @ geo.make_T(R, np.array([shift[0] + 0.05, shift[1], dist])
-                                                           - R @ corners.mean(0))
+    corners = _board_corners()
+    pose = _board_pose(declared, corners)
 
     moving = [pose(rng.normal(0, np.radians(25), 3), rng.uniform(0.6, 1.5), rng.normal(0, 0.15, 2))
               for _ in range(8)]
@@ -427,7 +431,7 @@ def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
     flipped = []
     for v in views:
         if v.camera == "front_right":  # u -> W-1-u, and the ids as the flipped board numbers them
-            ids = (v.ids // nx) * nx + (nx - 1 - v.ids % nx)
+            ids = (v.ids // 8) * 8 + (7 - v.ids % 8)  # the 8 x 5 board
             uv = np.column_stack([width - 1 - v.uv[:, 0], v.uv[:, 1]])
             order = np.argsort(ids)
             v = replace(v, ids=ids[order], uv=uv[order])
@@ -438,6 +442,18 @@ def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
         calibrate_views(flipped, declared, {"b": corners})
 
 
+def _waved_board(declared, rng, n: int) -> tuple[np.ndarray, list[np.ndarray]]:
+    """An 8 x 5 board of 6 cm squares, (40, 3) corners, in n random T_body_board before the
+    first camera: turned ~25 deg about each axis, 0.6-1.5 m away, +-0.15 m off its axis."""
+    corners = _board_corners()
+    poses = []
+    for _ in range(n):
+        R = geo.R_from_rotvec(rng.normal(0, np.radians(25), 3))
+        shift = np.array([0.05, 0, 0]) + np.append(rng.normal(0, 0.15, 2), rng.uniform(0.6, 1.5))
+        poses.append(declared.cameras[0].T_body_cam @ geo.make_T(R, shift - R @ corners.mean(0)))
+    return corners, poses
+
+
 def test_fixed_intrinsics_that_do_not_fit_the_images_are_named():
     """--fix-intrinsics with a declared focal length 3 % off and no distortion (k1 -0.2 in truth): the
     extrinsics absorb the misfit without a word unless the camera's own views say so."""
@@ -446,14 +462,7 @@ def test_fixed_intrinsics_that_do_not_fit_the_images_are_named():
     rng = np.random.default_rng(5)
     true = declared.with_cameras([replace(c, intrinsics=c.intrinsics.with_(
         fx=c.intrinsics.fx * 1.03, fy=c.intrinsics.fy * 1.03, dist=(-0.2, 0.05, 0, 0, 0))) for c in declared.cameras])
-    nx, ny, s = 8, 5, 0.06
-    k = np.arange(nx * ny)
-    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
-    poses = []
-    for _ in range(8):
-        R = geo.R_from_rotvec(rng.normal(0, np.radians(25), 3))
-        shift = np.array([0.05, 0, 0]) + np.append(rng.normal(0, 0.15, 2), rng.uniform(0.6, 1.5))
-        poses.append(declared.cameras[0].T_body_cam @ geo.make_T(R, shift - R @ corners.mean(0)))
+    corners, poses = _waved_board(declared, rng, 8)
     views = _stereo_views(poses, true, corners, rng)
     notes = calibrate_views(views, declared, {"b": corners}, fix_intrinsics=True).notes
     for cam in ("front_left", "front_right"):
@@ -469,14 +478,7 @@ def test_repeated_images_count_once():
     declared = load_rig(RIG)
     declared = declared.with_cameras([c for c in declared.cameras if c.name != "back"])
     rng = np.random.default_rng(7)
-    nx, ny, s = 8, 5, 0.06
-    k = np.arange(nx * ny)
-    corners = np.column_stack([(k % nx + 1) * s, (k // nx + 1) * s, np.zeros(nx * ny)])
-    poses = []
-    for _ in range(6):
-        R = geo.R_from_rotvec(rng.normal(0, np.radians(25), 3))
-        shift = np.array([0.05, 0, 0]) + np.append(rng.normal(0, 0.15, 2), rng.uniform(0.6, 1.5))
-        poses.append(declared.cameras[0].T_body_cam @ geo.make_T(R, shift - R @ corners.mean(0)))
+    corners, poses = _waved_board(declared, rng, 6)
     views = _stereo_views(poses, declared, corners, rng)
     copies = [replace(v, frame=f"copy{j}_{v.frame}") for j in range(2) for v in views if v.frame == "000001"]
     cal = calibrate_views(views + copies, declared, {"b": corners})
