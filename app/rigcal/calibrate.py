@@ -13,7 +13,7 @@ from rich.table import Table
 
 from . import __version__
 from .core import MIN_FRAMES, Calibration, ViewIn, calibrate_views
-from .errors import CalibrationError, DatasetError, OutputError, TargetFileError
+from .errors import CalibrationError, DatasetError, InputError, OutputError, TargetFileError
 from .rig import Rig, StereoPair, dump_rig, load_rig
 from .io import atomic_write_texts, output_target
 
@@ -72,6 +72,8 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     from .target import load_target
 
     t0 = time.perf_counter()
+    if jobs is not None and jobs < 1:
+        raise InputError(f"--jobs: expected a positive number of processes, got {jobs}")
     dataset = Path(dataset)
     if not dataset.is_dir():
         raise DatasetError(f"{dataset}: not a dataset folder (expected rig.yaml, target.yaml, images/<camera>/)")

@@ -108,7 +108,7 @@ def simulate(
     focal_error: float = typer.Option(0.02, help="1-sigma relative focal length error"),
     target: Optional[Path] = typer.Option(None, help="target YAML to use instead of one generated from the rig"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
-    jobs: Optional[int] = typer.Option(None, min=1, help="worker processes (default: all cores)"),
+    jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
 ):
     """Render a synthetic ChArUco dataset with ground truth (truth.yaml)."""
     from . import simulate as sim
@@ -126,7 +126,7 @@ def calibrate(
     rig: Optional[Path] = typer.Option(None, help="declared rig (default DATASET/rig.yaml)"),
     target: Optional[Path] = typer.Option(None, help="target YAML (default DATASET/target.yaml)"),
     report: Optional[Path] = typer.Option(None, help="write a self-contained HTML report here"),
-    jobs: Optional[int] = typer.Option(None, min=1, help="detection worker processes (default: all cores)"),
+    jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
     reference: str = typer.Option("aligned", help="body frame: 'aligned' (fit to the declared rig) or 'camera:NAME'"),
     distortion: Distortion = typer.Option(
         Distortion.auto, help="pinhole distortion model; auto: radtan4, plus k3 or the rational terms when the data "
