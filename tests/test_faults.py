@@ -27,6 +27,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import yaml
 from typer.testing import CliRunner
 
 from rigcal import geometry as geo
@@ -940,3 +941,18 @@ def test_help_still_works(tmp_path):
     assert h.returncode == 0 and "--distortion" in h.stdout and h.stderr == ""
     bare = subprocess.run([sys.executable, "-m", "rigcal"], capture_output=True, text=True, timeout=60)
     assert bare.returncode == 2 and "calibrate" in bare.stdout
+
+
+def test_a_declared_board_never_seen_is_named(sim, tmp_path):
+    """A room's target.yaml with a board whose ids appear in no image (a misdeclared
+    first_marker_id looks the same): calibrate works from the others and names it."""
+    ds = copy_dataset(sim, tmp_path / "ds")
+    doc = yaml.safe_load((ds / "target.yaml").read_text())
+    extra = dict(doc["boards"][0], name="spare", first_marker_id=900)
+    doc["boards"].append(extra)
+    (ds / "target.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    r = RUNNER.invoke(app, ["calibrate", str(ds), "--out", str(tmp_path / "cal.yaml"), "--jobs", str(JOBS)])
+    assert r.exit_code == 0, r.output
+    assert "warning: board spare: never detected in" in r.output and "first_marker_id" in r.output
+    assert "never detected" not in RUNNER.invoke(
+        app, ["calibrate", str(sim), "--out", str(tmp_path / "cal2.yaml"), "--jobs", str(JOBS)]).output

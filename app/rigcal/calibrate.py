@@ -116,6 +116,11 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
                 f"are needed to calibrate its intrinsics; check target.yaml (dictionary, squares, "
                 f"inner_corners, legacy_pattern)" + (f": {hint}" if hint else "")
                 + " (or use --fix-intrinsics to keep the declared ones)")
+    # With several boards, one that is never found (its ids, squares or layout misdeclared)
+    # would just drop out of the room: say so.
+    unseen = [f"board {b.name}: never detected in {sum(det.n_images.values())} images; check its dictionary, "
+              f"first_marker_id, squares and legacy_pattern in {target_file}"
+              for b in target.boards if len(target.boards) > 1 and not any(v.board == b.name for v in det.views)]
     corners = {b.name: b.corners for b in target.boards}
     console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
@@ -133,7 +138,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         report_html = build_report(cal, out_rig, det, pairs, timings)
     # the rig and its report land together or not at all
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
-    for w in warnings_for(cal):
+    for w in unseen + warnings_for(cal):
         console.print(f"warning: {w}")
     for n in cal.notes:
         console.print(f"note: {n}")
@@ -261,8 +266,8 @@ def declared_disagreements(cal: Calibration) -> list[str]:
             if turned:
                 hint = ""
                 if angle > 150 and abs(r[2]) > 0.9 * np.linalg.norm(r):
-                    hint = (f" (about the optical axis: is one of them mounted upside down? Declare it so, e.g. "
-                            f"look: forward becomes axes: [L, U, F])")
+                    hint = (" (about the optical axis: is one of them mounted upside down? Declare it so, e.g. "
+                            "look: forward becomes axes: [L, U, F])")
                 out.append(f"{a.name}/{b.name}: the calibrated relative orientation is {angle:.0f} deg from the "
                            f"declared one{hint}; the body frame is fitted to the declared poses, so every "
                            f"T_body_cam is off: fix rig.yaml or use --reference camera:NAME")
