@@ -57,6 +57,14 @@ def check_output_path(path: Path) -> None:
         raise OutputError(f"{path}: cannot write here (directory {probe} is not writable)")
 
 
+def _diagnosis(paths: list[Path], target) -> str:
+    """': <why no board shows>' from the first few of these images (detect.diagnose_no_detection), or ''."""
+    from .detect import diagnose_no_detection
+
+    hint = diagnose_no_detection(paths[:4], target) if paths else ""
+    return f": {hint}" if hint else ""
+
+
 def _same_file(a: Path, b: Path) -> bool:
     try:
         return Path(a).resolve() == Path(b).resolve()
@@ -68,7 +76,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
         distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False):
     from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
-    from .detect import detect_dataset, diagnose_no_detection
+    from .detect import detect_dataset
     from .target import load_target
 
     t0 = time.perf_counter()
@@ -101,26 +109,25 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     for cam in rig.names:
         n_img = det.n_images.get(cam, 0)
         seen = {v.frame for v in views if v.camera == cam}
+        # the images without a board, where the diagnosis looks for what target.yaml got wrong
+        blank = [p for f, p in images.frames[cam].items() if f not in seen]
         if n_img and not seen:
-            files = list(images.frames[cam].values()) if hasattr(images, "frames") else []
-            hint = diagnose_no_detection(files[:4], target) if files else ""
             raise CalibrationError(
                 f"no board detected in any of {n_img} images of camera {cam}; check target.yaml "
-                f"(dictionary, squares, legacy_pattern)" + (f": {hint}" if hint else ""))
+                f"(dictionary, squares, legacy_pattern)" + _diagnosis(blank, target))
         if n_img and len(seen) < MIN_FRAMES and not fix_intrinsics and det.no_board.get(cam, 0) > n_img // 2:
             # mostly nothing found: more often a target.yaml off by one than too few photos
-            files = [p for f, p in images.frames[cam].items() if f not in seen] if hasattr(images, "frames") else []
-            hint = diagnose_no_detection(files[:4], target) if files else ""
             raise CalibrationError(
                 f"{cam}: boards detected in only {len(seen)} frame(s) of {n_img} images; at least {MIN_FRAMES} "
                 f"are needed to calibrate its intrinsics; check target.yaml (dictionary, squares, "
-                f"inner_corners, legacy_pattern)" + (f": {hint}" if hint else "")
+                f"inner_corners, legacy_pattern)" + _diagnosis(blank, target)
                 + " (or use --fix-intrinsics to keep the declared ones)")
     # With several boards, one that is never found (its ids, squares or layout misdeclared)
     # would just drop out of the room: say so.
+    found = {v.board for v in det.views}
     unseen = [f"board {b.name}: never detected in {sum(det.n_images.values())} images; check its dictionary, "
               f"first_marker_id, squares and legacy_pattern in {target_file}"
-              for b in target.boards if len(target.boards) > 1 and not any(v.board == b.name for v in det.views)]
+              for b in target.boards if len(target.boards) > 1 and b.name not in found]
     corners = {b.name: b.corners for b in target.boards}
     console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
