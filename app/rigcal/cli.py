@@ -258,9 +258,7 @@ def main() -> None:
     except KeyboardInterrupt:  # before a command's own guard was entered
         typer.echo("rigcal: interrupted", err=True)
         sys.exit(130)
-    except Exception as e:  # typer's Abort (end of input at a prompt) and the like
-        if type(e).__name__ != "Abort":
-            raise
+    except typer.Abort:  # end of input at a prompt
         typer.echo("rigcal: aborted", err=True)
         sys.exit(1)
     sys.exit(rv if isinstance(rv, int) else 0)

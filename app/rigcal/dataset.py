@@ -86,7 +86,8 @@ def check_shared_stems(dataset: DatasetImages) -> None:
     images, frames = dataset.root / "images", dataset.frames
     if len(frames) < 2:
         return
-    lone = [c for c in frames if not any(set(frames[c]) & set(frames[o]) for o in frames if o != c)]
+    stems = {c: set(f) for c, f in frames.items()}
+    lone = [c for c in frames if not any(stems[c] & stems[o] for o in frames if o != c)]
     if not lone:
         return
     other = next(c for c in frames if c != lone[0])
