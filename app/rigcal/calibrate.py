@@ -74,7 +74,7 @@ def _same_file(a: Path, b: Path) -> bool:
 
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
         report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
-        distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False):
+        distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False, guided: str = "auto"):
     from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
     from .detect import detect_dataset
     from .target import load_target
@@ -130,8 +130,11 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
               for b in target.boards if len(target.boards) > 1 and b.name not in found]
     corners = {b.name: b.corners for b in target.boards}
     console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
+    from .guided import rerefiner
+
+    rerefine = rerefiner(images, rig, target, jobs=jobs or os.cpu_count() or 1, mode=guided)
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
-                          reference=reference)
+                          reference=reference, rerefine=rerefine)
     from .checks import stereo_checks
 
     pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
@@ -358,7 +361,9 @@ def console_summary(cal: Calibration, out_rig: Rig, det, timings: dict, out_path
     parts.append(f"reprojection RMS {cal.rms_px:.3f} px over {int(cal.inliers.sum())} corners "
                  f"({int((~cal.inliers).sum())} outliers rejected); reference {out_rig.calibration['reference']}")
     parts.append(f"time: detection {timings.get('detection_s', 0):.1f} s, intrinsics {timings['intrinsics_s']:.1f} s, "
-                 f"solve {timings['solve_s']:.1f} s, total {timings['total_s']:.1f} s")
+                 f"solve {timings['solve_s']:.1f} s, "
+                 + (f"guided pass {timings['guided_s']:.1f} s, " if "guided_s" in timings else "")
+                 + f"total {timings['total_s']:.1f} s")
     parts.append(f"wrote {out_path}" + (f" and {report_path}" if report_path else ""))
     return Group(*[p for p in parts if p != ""])
 

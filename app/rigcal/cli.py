@@ -82,6 +82,12 @@ class Distortion(str, Enum):
     rational8 = "rational8"
 
 
+class Guided(str, Enum):
+    auto = "auto"
+    on = "on"
+    off = "off"
+
+
 class ExportFormat(str, Enum):
     kalibr = "kalibr"
     opencv = "opencv"
@@ -133,13 +139,16 @@ def calibrate(
                               "show them"),
     fix_intrinsics: bool = typer.Option(False, help="keep the declared intrinsics and distortion"),
     allow_resize: bool = typer.Option(False, help="accept images whose size differs from the rig's resolution (intrinsics are scaled)"),
+    guided: Guided = typer.Option(
+        Guided.auto, help="re-measure the corners with the calibrated camera models, then solve again: auto = "
+                          "fisheye cameras, on = every camera, off = the detector's corners are final"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from . import calibrate as cal
 
     out(cal.run(dataset=dataset, out_path=out_yaml, rig_path=rig, target_path=target, report_path=report, jobs=jobs,
                 reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
-                allow_resize=allow_resize))
+                allow_resize=allow_resize, guided=guided.value))
 
 
 @app.command()

@@ -321,13 +321,17 @@ def drop_repeated_views(views: list[ViewIn]) -> tuple[list[ViewIn], list[tuple[s
 
 def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndarray],
                     distortion: str = "auto", fix_intrinsics: bool = False, reference: str = "aligned",
-                    progress=None, weight_corners: bool = False) -> Calibration:
+                    progress=None, weight_corners: bool = False, rerefine: Callable | None = None) -> Calibration:
     """The whole calibration from detected views. corners: board name -> (N, 3) object points.
 
     weight_corners: weight each corner by its detector sigma (ViewIn.sigma) calibrated per
     camera (weighted_solve). Off by default: measured over 10 seeds (bench.noise_limit) it
     lowers the fisheye pair's rotation error only 1.61 -> 1.48 x its bound and raises some
-    pinhole pairs' errors by 12-28 % (README, Accuracy and speed)."""
+    pinhole pairs' errors by 12-28 % (README, Accuracy and speed).
+
+    rerefine: `f(obs, state, cam_names, frames, boards) -> (uv, refined, sigma)` re-measures the corners once the rig
+    is solved (guided.guided_uv: the cross placed by the calibrated model); the rig is then
+    solved again on them. None: the detector's corners are final."""
     t0 = time.perf_counter()
     timings = {}
     notes: list[str] = []
@@ -429,6 +433,19 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
             res = bundle_adjust(obs, reduced, gauge_cam, gauge_board, fix, inliers=res.inliers)
             solve_s += res.seconds
             covariance = None
+    if rerefine is not None:
+        t_g = time.perf_counter()
+        uv_g, refined, sigma_g = rerefine(obs, res.state, cam_names, frames, board_names)
+        timings["guided_s"] = time.perf_counter() - t_g
+        which = [n for c, n in enumerate(cam_names) if np.any(refined & (obs.cam == c))]
+        notes.append(f"guided refinement: {int(refined.sum())} of {len(refined)} corners re-measured with the "
+                     f"calibrated model ({', '.join(which) or 'none'}); the rest keep the detector's position")
+        obs = replace(obs, uv=uv_g)
+        if sigma_det is not None:
+            sigma_det = np.where(refined, sigma_g, sigma_det)
+        res = bundle_adjust(obs, res.state, gauge_cam, gauge_board, fix, inliers=res.inliers)
+        solve_s += res.seconds
+        covariance = None
     noise = None
     if weight_corners and sigma_det is not None:
         res, obs, noise, s_w = weighted_solve(res, obs, sigma_det, gauge_cam, gauge_board, fix)
