@@ -31,7 +31,7 @@ import rigcal
 from .common import OUT, ROOT, get_dataset, md_table, say, scenario, write_json
 from .noise_limit import _pair_stats
 
-SCENES = ("fisheye-rigcal", "fisheye-indie", "pinhole-indie", "stereo-forward")
+SCENES = ("fisheye-indie", "pinhole-indie", "stereo-forward", "fisheye-rigcal")
 FRAMES = 20
 WORK = OUT / "guided"
 
@@ -106,7 +106,7 @@ def main(argv=None) -> None:
         for seed in range(a.seeds):
             say(f"  {scene} seed {seed} ...")
             runs.setdefault(scene, []).append(run_one(dataset(scene, seed)))
-    write_json("guided", {"runs": runs, "seeds": a.seeds, "frames": FRAMES})
+            write_json("guided", {"runs": runs, "seeds": a.seeds, "frames": FRAMES})  # so far, if stopped
     print(md_table(["scene", "seeds", "pair", "rotation deg, off (x bound)", "on", "translation mm, off", "on",
                     "corner RMS px off -> on", "guided pass s / detection s"], summarise(runs),
                    "The guided pass, off and on (every camera), same detections"))

@@ -17,6 +17,7 @@ from rigcal.detect import BoardDetector, refine_corners, symmetric_half_width
 from rigcal.guided import BoardCorners, ImageTask, cross_samples, guided_cameras, guided_uv, refine_image
 from rigcal.solve import Intrinsics, Observations, State
 from rigcal.target import Board, Target
+from test_detect import _fisheye_view
 
 CHARUCO = Board("front", "charuco", 0.04, (10, 7), "DICT_5X5_1000", 0.03)
 RIGS = Path(__file__).resolve().parents[1] / "rigs"
@@ -30,16 +31,8 @@ def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _facing(board: Board, off_deg: float, az: float, tilt_deg: float, dist: float) -> np.ndarray:
-    """T_cam_board of a board whose centre lies off_deg from the optical axis at azimuth
-    az, turned tilt_deg away from facing the camera."""
-    d = np.array([math.sin(math.radians(off_deg)) * math.cos(az), math.sin(math.radians(off_deg)) * math.sin(az),
-                  math.cos(math.radians(off_deg))])
-    x = np.cross([0.0, 1.0, 0.0], d)
-    x /= np.linalg.norm(x)
-    R = np.column_stack([x, np.cross(d, x), d])
-    R = R @ cv2.Rodrigues(np.array([math.cos(az + 1), math.sin(az + 1), 0.0]) * math.radians(tilt_deg))[0]
-    bw, bh = board.size_m
-    return _pose(R, dist * d - R @ [bw / 2, bh / 2, 0])
+    """T_cam_board of test_detect's oblique fisheye view (_fisheye_view)."""
+    return _pose(*_fisheye_view(None, None, None, board, off_deg, az, tilt_deg, dist))
 
 
 def _render(model: CameraModel, T: np.ndarray, rng: np.random.Generator, rays=None) -> np.ndarray:

@@ -457,6 +457,30 @@ def image_gradients(gray: np.ndarray) -> np.ndarray:
     return cv2.merge([f, gx, gy])
 
 
+def newton_steps(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Batched Gauss-Newton steps -H^-1 g: (steps, bad), a zero step where a system is
+    singular or its step not finite."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        try:
+            step = -np.linalg.solve(H, g[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            step = np.full(g.shape, np.nan)
+    bad = ~np.isfinite(step).all(1)
+    return np.where(bad[:, None], 0.0, step), bad
+
+
+def corner_covariance(H: np.ndarray, wa: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(K, 2, 2) a point-symmetry fit's covariance of its corner where it stopped: the
+    residual variance (per degree of freedom) x (J^T W J)^-1's corner block; NaN if singular."""
+    var = (wa * r * r).sum(1) / np.maximum(wa.sum(1) - H.shape[-1], 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        try:
+            Hq = np.linalg.inv(H)[:, :2, :2]
+        except np.linalg.LinAlgError:
+            Hq = np.full((len(H), 2, 2), np.nan)
+    return var[:, None, None] * Hq
+
+
 def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, bend_u: np.ndarray,
                      bend_v: np.ndarray, half: float, arm: float = ARM_SQUARES, margin_px: float = MARGIN_PX,
                      iters: int = 25, tol: float = 2e-3, bend_spread: np.ndarray | None = None
@@ -562,13 +586,7 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
             H[:, 4, 4] += lam[:, 0]
             H[:, 5, 5] += lam[:, 1]
             g[:, 4:] += lam * (pa[:, 4:] - prior[act])
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            try:
-                step = -np.linalg.solve(H, g[..., None])[..., 0]
-            except np.linalg.LinAlgError:
-                step = np.full(g.shape, np.nan)
-        bad = ~np.isfinite(step).all(1)
-        step = np.where(bad[:, None], 0.0, step)
+        step, bad = newton_steps(H, g)
         step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)
         if fit_bend:
             step[:, 4:] = np.clip(step[:, 4:], -2.0, 2.0)
@@ -579,13 +597,7 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         # inverted only for the corners that stopped (not every corner at every iteration)
         fin = stop & ~bad
         if fin.any():
-            var_dof = (wa[fin] * r[fin] * r[fin]).sum(1) / np.maximum(wa[fin].sum(1) - n_par, 1.0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                try:
-                    Hq = np.linalg.inv(H[fin])[:, :2, :2]
-                except np.linalg.LinAlgError:
-                    Hq = np.full((int(fin.sum()), 2, 2), np.nan)
-            cov_q[act[fin]] = var_dof[:, None, None] * Hq
+            cov_q[act[fin]] = corner_covariance(H[fin], wa[fin], r[fin])
         done[act[stop]] = True
         act = act[~stop]
         if len(act) == 0:

@@ -31,7 +31,8 @@ import numpy as np
 
 from .camera import CameraModel
 from .detect import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
-                     _cross_offsets, image_gradients, read_gray)
+                     _cross_offsets, corner_covariance, image_gradients, newton_steps,
+                     read_gray)
 from .workers import interrupts_deferred, worker_pool
 
 # A corner the guided fit moves further than this from the detector's is left as the
@@ -138,25 +139,14 @@ def refine_guided(stack: np.ndarray, uv: np.ndarray, cross: np.ndarray, Dp: np.n
         Jw = (J * wa[..., None]).transpose(0, 2, 1)
         H = (Jw @ J).astype(np.float64) + 1e-9 * np.eye(4)
         g = (Jw @ r[..., None])[..., 0].astype(np.float64)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            try:
-                step = -np.linalg.solve(H, g[..., None])[..., 0]
-            except np.linalg.LinAlgError:
-                step = np.full(g.shape, np.nan)
-        bad = ~np.isfinite(step).all(1)
-        step = np.where(bad[:, None], 0.0, step)
+        step, bad = newton_steps(H, g)
         step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)
         p[act] += step
         failed[act[bad]] = True
         stop = bad | (np.abs(step[:, :2]).max(1) < tol)
         fin = stop & ~bad
         if fin.any():
-            var = (wa[fin] * r[fin] ** 2).sum(1) / np.maximum(wa[fin].sum(1) - 4, 1.0)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                try:
-                    cov_q[act[fin]] = var[:, None, None] * np.linalg.inv(H[fin])[:, :2, :2]
-                except np.linalg.LinAlgError:
-                    pass
+            cov_q[act[fin]] = corner_covariance(H[fin], wa[fin], r[fin])
         done[act[stop]] = True
         act = act[~stop]
         if len(act) == 0:
