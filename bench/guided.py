@@ -28,7 +28,7 @@ import numpy as np
 
 import rigcal
 
-from .common import OUT, ROOT, get_dataset, md_table, say, scenario, write_json
+from .common import OUT, ROOT, get_dataset, md_table, say, scenario, view_tuples, write_json
 from .noise_limit import _pair_stats
 
 SCENES = ("fisheye-indie", "pinhole-indie", "stereo-forward", "fisheye-rigcal")
@@ -64,7 +64,7 @@ def run_one(d: Path) -> dict:
     truth = load_truth(d / "truth.yaml")
     images = list_dataset(d, rig)
     det = detect_dataset(images, target, rig=rig, jobs=2, progress=False)
-    views = [ViewIn(v.camera, v.frame, v.board, v.ids, v.uv, v.ambiguous, v.sigma) for v in det.views]
+    views = [ViewIn(*t) for t in view_tuples(det.views)]
     corners = {b.name: b.corners for b in target.boards}
     out = {"detection_s": det.seconds}
     for name, hook in (("off", None), ("on", rerefiner(images, rig, target, jobs=2, mode="on"))):

@@ -140,6 +140,12 @@ class CameraModel:
     def with_(self, **changes) -> "CameraModel":
         return replace(self, **changes)
 
+    def with_values(self, values) -> "CameraModel":
+        """The same model and size with [fx, fy, cx, cy, dist...] from an optimiser vector
+        (solve.Intrinsics.values)."""
+        v = [float(x) for x in values]
+        return replace(self, fx=v[0], fy=v[1], cx=v[2], cy=v[3], dist=tuple(v[4:]))
+
     def project(self, p_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """p_cam (N, 3) -> (uv (N, 2), valid (N,)).
 

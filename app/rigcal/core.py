@@ -473,8 +473,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     for c, n in enumerate(cam_names):
         v = res.state.intrinsics[c].values
         declared = rig.camera(n).intrinsics
-        model = CameraModel(declared.model, declared.width, declared.height, *map(float, v[:4]),
-                            dist=tuple(float(d) for d in v[4:]))
+        model = declared.with_values(v)
         T_bc = T_out_solve @ T_body_cam_solve[c]
         m = inl_obs.cam == c
         rms = float(np.sqrt(np.mean(np.sum(r_all[m] ** 2, axis=1)))) if m.any() else float("nan")

@@ -457,6 +457,34 @@ def image_gradients(gray: np.ndarray) -> np.ndarray:
     return cv2.merge([f, gx, gy])
 
 
+def symmetry_terms(stack: np.ndarray, xp: np.ndarray, yp: np.ndarray, xm: np.ndarray, ym: np.ndarray,
+                   shading: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, ...]:
+    """One Gauss-Newton evaluation of a point-symmetry fit, wherever its sample pairs were put:
+    (xp, yp) and (xm, ym) (A, P) float32 pixels of the two halves of each pair, shading (A, 2)
+    the gradient s, u, v (1, P) float32 the pairs' offsets in squares. Returns r (A, P) =
+    I(+) - I(-) - (I(+) + I(-)) s.d, the Jacobian columns for the corner's x, y and s_u, s_v,
+    and inside (A, P): both halves in the image (pairs outside are given no weight)."""
+    h, wid = stack.shape[:2]
+    inside = ((np.minimum(xp, xm) >= 0) & (np.maximum(xp, xm) <= wid - 1)
+              & (np.minimum(yp, ym) >= 0) & (np.maximum(yp, ym) <= h - 1))
+    sp = cv2.remap(stack, xp, yp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    sm = cv2.remap(stack, xm, ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    both = sp[..., 0] + sm[..., 0]
+    shade = (shading[:, 0, None] * u + shading[:, 1, None] * v).astype(np.float32)
+    r = sp[..., 0] - sm[..., 0] - both * shade
+    cols = [sp[..., 1] - sm[..., 1], sp[..., 2] - sm[..., 2], -both * u, -both * v]
+    return r, cols, inside
+
+
+def normal_equations(cols: list, r: np.ndarray, wa: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(J^T W J + 1e-9 I, J^T W r) per corner, float64, J the stacked columns."""
+    J = np.stack(cols, axis=-1)
+    Jw = (J * wa[..., None]).transpose(0, 2, 1)  # (A, n_par, P)
+    H = (Jw @ J).astype(np.float64)  # batched matmul: several times faster than einsum here
+    g = (Jw @ r[..., None])[..., 0].astype(np.float64)
+    return H + 1e-9 * np.eye(len(cols)), g
+
+
 def newton_steps(H: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Batched Gauss-Newton steps -H^-1 g: (steps, bad), a zero step where a system is
     singular or its step not finite."""
@@ -540,7 +568,6 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     n_v = _unit(np.column_stack([-ay[idx, 1], ay[idx, 0]]))
     u2, v2 = (u ** 2).astype(np.float32), (v ** 2).astype(np.float32)
     uf, vf = u.astype(np.float32), v.astype(np.float32)
-    h, wid = stack.shape[:2]
     fit_bend = bend_spread is not None
     n_par = 6 if fit_bend else 4
     p = np.zeros((len(idx), n_par))  # q_x, q_y, shading gradient s_u, s_v[, bend_u, bend_v]
@@ -560,25 +587,14 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         cy = pa[:, 1, None] + ba[:, 0, None] * u2 * n_u[act, 1, None] + ba[:, 1, None] * v2 * n_v[act, 1, None]
         xp, yp = (cx + dx[act]).astype(np.float32), (cy + dy[act]).astype(np.float32)
         xm, ym = (cx - dx[act]).astype(np.float32), (cy - dy[act]).astype(np.float32)
-        inside = ((np.minimum(xp, xm) >= 0) & (np.maximum(xp, xm) <= wid - 1)
-                  & (np.minimum(yp, ym) >= 0) & (np.maximum(yp, ym) <= h - 1))
+        r, cols, inside = symmetry_terms(stack, xp, yp, xm, ym, pa[:, 2:4], uf, vf)
         full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
-        sp = cv2.remap(stack, xp, yp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        sm = cv2.remap(stack, xm, ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        both = sp[..., 0] + sm[..., 0]
-        shade = (pa[:, 2, None] * uf + pa[:, 3, None] * vf).astype(np.float32)
-        r = sp[..., 0] - sm[..., 0] - both * shade  # (A, P)
-        jx, jy = sp[..., 1] - sm[..., 1], sp[..., 2] - sm[..., 2]
-        cols = [jx, jy, -both * uf, -both * vf]
         if fit_bend:
+            jx, jy = cols[:2]
             cols += [(jx * n_u[act, 0, None] + jy * n_u[act, 1, None]) * u2,
                      (jx * n_v[act, 0, None] + jy * n_v[act, 1, None]) * v2]
-        J = np.stack(cols, axis=-1)
         wa = w[act] * inside
-        Jw = (J * wa[..., None]).transpose(0, 2, 1)  # (A, n_par, P)
-        H = (Jw @ J).astype(np.float64)  # batched matmul: several times faster than einsum here
-        g = (Jw @ r[..., None])[..., 0].astype(np.float64)
-        H += 1e-9 * np.eye(n_par)
+        H, g = normal_equations(cols, r, wa)
         if fit_bend:
             # prior bend_* +- bend_spread, weighed against the residual variance of the samples
             var = (wa * r * r).sum(1) / np.maximum(wa.sum(1), 1.0)

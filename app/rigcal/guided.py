@@ -31,8 +31,8 @@ import numpy as np
 
 from .camera import CameraModel
 from .detect import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
-                     _cross_offsets, corner_covariance, image_gradients, newton_steps,
-                     read_gray)
+                     _cross_offsets, corner_covariance, image_gradients, newton_steps, normal_equations,
+                     read_gray, symmetry_terms)
 from .workers import interrupts_deferred, worker_pool
 
 # A corner the guided fit moves further than this from the detector's is left as the
@@ -117,7 +117,6 @@ def refine_guided(stack: np.ndarray, uv: np.ndarray, cross: np.ndarray, Dp: np.n
     idx = np.flatnonzero(good)
     Dp, Dm, w = Dp[idx], Dm[idx], w[idx]
     u, v = cross[None, :, 0].astype(np.float32), cross[None, :, 1].astype(np.float32)
-    h, wid = stack.shape[:2]
     p = np.zeros((len(idx), 4))
     p[:, :2] = uv[idx]
     done, failed, full = (np.zeros(len(idx), bool) for _ in range(3))
@@ -127,18 +126,10 @@ def refine_guided(stack: np.ndarray, uv: np.ndarray, cross: np.ndarray, Dp: np.n
         pa = p[act]
         xp, yp = (pa[:, 0, None] + Dp[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dp[act, :, 1]).astype(np.float32)
         xm, ym = (pa[:, 0, None] + Dm[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dm[act, :, 1]).astype(np.float32)
-        inside = ((np.minimum(xp, xm) >= 0) & (np.maximum(xp, xm) <= wid - 1)
-                  & (np.minimum(yp, ym) >= 0) & (np.maximum(yp, ym) <= h - 1))
+        r, cols, inside = symmetry_terms(stack, xp, yp, xm, ym, pa[:, 2:4], u, v)
         full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
-        sp = cv2.remap(stack, xp, yp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        sm = cv2.remap(stack, xm, ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        both = sp[..., 0] + sm[..., 0]
-        r = sp[..., 0] - sm[..., 0] - both * (pa[:, 2, None] * u + pa[:, 3, None] * v).astype(np.float32)
-        J = np.stack([sp[..., 1] - sm[..., 1], sp[..., 2] - sm[..., 2], -both * u, -both * v], axis=-1)
         wa = w[act] * inside
-        Jw = (J * wa[..., None]).transpose(0, 2, 1)
-        H = (Jw @ J).astype(np.float64) + 1e-9 * np.eye(4)
-        g = (Jw @ r[..., None])[..., 0].astype(np.float64)
+        H, g = normal_equations(cols, r, wa)
         step, bad = newton_steps(H, g)
         step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)
         p[act] += step
@@ -216,11 +207,6 @@ def board_pose(state, c: int, f: int, b: int) -> np.ndarray:
     return state.T_cam_body[c] @ state.T_body_world[f] @ state.T_world_board[b]
 
 
-def model_of(declared: CameraModel, values: np.ndarray) -> CameraModel:
-    return CameraModel(declared.model, declared.width, declared.height, *map(float, values[:4]),
-                       dist=tuple(float(d) for d in values[4:]))
-
-
 def guided_uv(obs, state, paths: dict[tuple[int, int], str], declared: Sequence[CameraModel],
               boards: Sequence, halves: Sequence[float], jobs: int = 1
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -243,7 +229,7 @@ def guided_uv(obs, state, paths: dict[tuple[int, int], str], declared: Sequence[
         c, f = int(obs.cam[rr[0]]), int(obs.frame[rr[0]])
         if (c, f) not in paths:
             continue
-        model = model_of(declared[c], state.intrinsics[c].values)
+        model = declared[c].with_values(state.intrinsics[c].values)
         bcs, brows = [], []
         for b in np.unique(obs.board[rr]):
             rb = rr[obs.board[rr] == b]
