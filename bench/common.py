@@ -117,11 +117,17 @@ def dataset_dir(scn: Scenario, seed: int) -> Path:
     return CACHE / f"{stem}-{code_hash()}"
 
 
-def get_dataset(scn: Scenario, seed: int, keep_images: bool = False, log=None, jobs: int = JOBS) -> Dataset:
+def get_dataset(scn: Scenario, seed: int, keep_images: bool | None = None, log=None, jobs: int = JOBS) -> Dataset:
     """Render (seeded) and detect one scenario, or load both from the cache.
 
-    keep_images: leave the PNGs on disk (needed to time `rigcal calibrate` on them);
-    otherwise only rig.yaml, target.yaml, truth.yaml and the detections are kept."""
+    keep_images: leave the PNGs on disk (needed to time `rigcal calibrate` on them, and
+    for the guided pass); otherwise only rig.yaml, target.yaml, truth.yaml and the
+    detections are kept. None (default): keep them when `--guided auto` would read
+    them again (a rig with fisheye cameras)."""
+    from rigcal.guided import guided_cameras
+
+    if keep_images is None:
+        keep_images = bool(guided_cameras(rigcal.load_rig(scn.rig_path), "auto"))
     from rigcal.dataset import list_dataset
     from rigcal.detect import detect_dataset
     from rigcal.simulate import simulate_dataset
@@ -175,8 +181,34 @@ def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, i
 
 
 def calibrate(views: list[ViewIn], rig: Rig, corners: dict, distortion: str = "auto",
-              weight_corners: bool = False) -> Calibration:
-    return calibrate_views(views, rig, corners, distortion=distortion, weight_corners=weight_corners)
+              weight_corners: bool = False, rerefine=None) -> Calibration:
+    """core.calibrate_views on detections alone: no guided pass unless `rerefine` (see
+    calibrate_dataset, which does what `rigcal calibrate` does)."""
+    return calibrate_views(views, rig, corners, distortion=distortion, weight_corners=weight_corners,
+                           rerefine=rerefine)
+
+
+def guided_hook(ds: Dataset, mode: str = "auto", jobs: int = 1):
+    """The rerefine hook `rigcal calibrate --guided MODE` builds for this dataset, or None
+    when MODE guides none of its cameras. Raises if it would guide a camera but the
+    render's images were not kept: a benchmark must not quietly measure the detector's
+    corners where the command line would re-measure them."""
+    from rigcal.dataset import list_dataset
+    from rigcal.guided import guided_cameras, rerefiner
+    from rigcal.target import load_target
+
+    if not guided_cameras(ds.rig, mode):
+        return None
+    if not ds.images_kept:
+        raise RuntimeError(f"{ds.path}: --guided {mode} needs the images; get_dataset(keep_images=True)")
+    return rerefiner(list_dataset(ds.path, ds.rig), ds.rig, load_target(ds.path / "target.yaml"), jobs, mode)
+
+
+def calibrate_dataset(ds: Dataset, distortion: str = "auto", guided: str = "auto", jobs: int = 1,
+                      weight_corners: bool = False) -> Calibration:
+    """What `rigcal calibrate` does with the dataset's detections, the guided pass
+    (--guided, default auto: fisheye cameras) included."""
+    return calibrate(ds.views, ds.rig, ds.corners, distortion, weight_corners, guided_hook(ds, guided, jobs))
 
 
 def truth_in_output_frame(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:

@@ -15,6 +15,13 @@ first seeds two more diagnostics run: distortion fixed to the truth's own model
 (is model selection to blame?) and the bundle adjustment restarted from the true
 state on the detected corners (did the solver stop at the minimum?).
 
+Every seed is calibrated as `rigcal calibrate` calibrates (--guided auto: a fisheye
+camera's corners are measured again once the rig is solved, rigcal.guided); where that
+guides a camera, the same detections are also calibrated with the guided pass off, each
+with the bound for its own measured corner noise. The white-noise and restart diagnostics
+start from the default calibration; corner weighting and the hetero CRB are about the
+detector's own sigma, so they use the detector's corners.
+
 Corner weighting (rigcal.core.calibrate_views(weight_corners=True): each corner weighted
 by the detector's own sigma, calibrated per camera on the residuals, rigcal.solve's
 NoiseModel) runs on the same detections as a variant, with its own restart and the
@@ -43,7 +50,7 @@ from rigcal.core import weighted_solve
 from rigcal.solve import (Intrinsics, Problem, SolveResult, State, bundle_adjust, camera_covariance, fit_noise_model,
                           noise_weights)
 
-from .common import (SCENARIOS, Timer, calibrate, crb_pairs, gaussian_views, get_dataset, md_table, pose_errors_body,
+from .common import (SCENARIOS, Timer, calibrate, calibrate_dataset, crb_pairs, gaussian_views, get_dataset, md_table, pose_errors_body,
                      rig_errors, rig_scale_ppm, run_pool, say, scenario, true_projections, write_json)
 
 FRAMES = {"drone-stereo-back": 30, "stereo-forward": 20, "surround-6": 30, "fisheye-stereo": 20}
@@ -201,9 +208,14 @@ def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
     scn = scenario(name).with_frames(frames)
     ds = get_dataset(scn, seed, jobs=1)
     with Timer() as t:
-        cal = calibrate(ds.views, ds.rig, ds.corners)
+        cal = calibrate_dataset(ds)  # as `rigcal calibrate` does: --guided auto
     sigma = measured_corner_noise(cal, ds.truth)
     uv_true = true_projections(cal, ds.truth)
+    # the detector's own corners (--guided off): the same as cal where auto guides no camera
+    guided = "guided_s" in cal.timings
+    dcal = calibrate(ds.views, ds.rig, ds.corners) if guided else cal
+    sigma_det = measured_corner_noise(dcal, ds.truth) if guided else sigma
+    uv_true_det = true_projections(dcal, ds.truth) if guided else uv_true
     out = {"scenario": name, "seed": seed, "frames": frames, "sigma_px": sigma, "calibration_s": t.wall,
            "models": [cal.stats[n].distortion_model for n in cal.cam_names],
            "auto": _pair_stats(cal, ds.truth, sigma), "coverage": _coverage_samples(cal, ds.truth.rig),
@@ -211,11 +223,16 @@ def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
            "sigma_reported": all(st.sigma_position_mm is not None for st in cal.stats.values()),
            "corners_used": len(cal.obs), "corners_detected": int(sum(len(v.ids) for v in ds.views)),
            **view_offsets(cal, uv_true, sigma)}
-    out["hetero"] = _hetero_stats(cal, ds.truth, uv_true, out["auto"])
-    # the same detections with corner weighting (core.calibrate_views(weight_corners=True))
+    out["guided"] = guided
+    out["sigma_px_detector"] = sigma_det
+    out["detector"] = _pair_stats(dcal, ds.truth, sigma_det)
+    out["detector_coverage"] = _coverage_samples(dcal, ds.truth.rig)
+    # weighting by the detector's sigma is about the detector's corners: hetero CRB and the
+    # weighted variant both on them (the guided pass has no such sigma to weight by)
+    out["hetero"] = _hetero_stats(dcal, ds.truth, uv_true_det, out["detector"])
     wcal = calibrate(ds.views, ds.rig, ds.corners, weight_corners=True)
     out["weighted_used"] = wcal.obs.weight is not None
-    out["weighted"] = _pair_stats(wcal, ds.truth, sigma)
+    out["weighted"] = _pair_stats(wcal, ds.truth, sigma_det)
     out["weighted_coverage"] = _coverage_samples(wcal, ds.truth.rig)
     rng = np.random.default_rng([seed, 7])
     gcal = calibrate(gaussian_views(cal, uv_true, ds.corners, sigma, rng), ds.rig, ds.corners)
@@ -225,7 +242,7 @@ def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
     if diagnostics:
         model = truth_model(ds.truth.rig)
         if model != "auto":
-            out["truth_model"] = _pair_stats(calibrate(ds.views, ds.rig, ds.corners, model), ds.truth, sigma)
+            out["truth_model"] = _pair_stats(calibrate_dataset(ds, model), ds.truth, sigma)
             out["truth_model_name"] = model
         out["restart"] = restart_from_truth(cal, ds.truth)
         out["restart_weighted"] = restart_from_truth(wcal, ds.truth)
@@ -265,7 +282,7 @@ def summarise(runs: list[dict]) -> dict:
     out = {}
     for name, rs in by.items():
         s = {}
-        for variant in ("auto", "gauss", "truth_model", "hetero", "weighted"):
+        for variant in ("auto", "detector", "gauss", "truth_model", "hetero", "weighted"):
             s[variant] = {q: _ratio(rs, variant, q) for q in ("rot_deg", "trans_mm")}
         restarts = [r["restart"] for r in rs if r.get("restart")]
         s["restart_max_rot_diff_deg"] = max((x["max_rot_diff_deg"] for x in restarts), default=None)
@@ -285,6 +302,8 @@ def summarise(runs: list[dict]) -> dict:
         s["seeds"] = len(rs)
         s["weighted_used"] = int(sum(r.get("weighted_used", False) for r in rs))
         s["coverage"] = coverage_summary([r["coverage"] for r in rs])
+        s["detector_coverage"] = coverage_summary([r["detector_coverage"] for r in rs if "detector_coverage" in r])
+        s["guided"] = int(sum(r.get("guided", False) for r in rs))
         s["weighted_coverage"] = coverage_summary([r["weighted_coverage"] for r in rs if "weighted_coverage" in r])
         s["frames"] = rs[0]["frames"]
         out[name] = s
@@ -318,14 +337,20 @@ def tables(res: dict) -> str:
             grot, gtr = s["gauss"]["rot_deg"].get(k, {}), s["gauss"]["trans_mm"].get(k, {})
             hrot, htr = s["hetero"]["rot_deg"].get(k, {}), s["hetero"]["trans_mm"].get(k, {})
             wrot, wtr = s["weighted"]["rot_deg"].get(k, {}), s["weighted"]["trans_mm"].get(k, {})
+            drot, dtr = ((s["detector"]["rot_deg"].get(k, {}), s["detector"]["trans_mm"].get(k, {})) if s["guided"]
+                         else ({}, {}))
             rows.append([name, k, rot["rms_error"], rot["rms_bound"], rot["ratio"], tr["rms_error"], tr["rms_bound"],
-                         tr["ratio"], grot.get("ratio"), gtr.get("ratio"), hrot.get("ratio"), htr.get("ratio"),
+                         tr["ratio"], drot.get("rms_error"), drot.get("ratio"), dtr.get("rms_error"), dtr.get("ratio"),
+                         grot.get("ratio"), gtr.get("ratio"), hrot.get("ratio"), htr.get("ratio"),
                          wrot.get("ratio"), wtr.get("ratio")])
     seeds = max(s["seeds"] for s in res["summary"].values())
     parts = [md_table(["scenario", "pair", "rot RMS deg", "CRB deg", "rot ratio", "trans RMS mm", "CRB mm",
-                       "trans ratio", "rot ratio, white noise", "trans ratio, white noise", "rot ratio, hetero CRB",
+                       "trans ratio", "--guided off: rot RMS deg", "rot ratio", "trans RMS mm", "trans ratio",
+                       "rot ratio, white noise", "trans ratio, white noise", "rot ratio, hetero CRB",
                        "trans ratio, hetero CRB", "rot ratio, weighted", "trans ratio, weighted"], rows,
                       f"Noise limit: RMS error over {seeds} seeds vs Cramér-Rao bound (ratio 1 = efficient; "
+                      f"calibrated as `rigcal calibrate` does, --guided auto; '--guided off' = the detector's "
+                      f"corners, with the bound for their own noise, blank where auto guides no camera; "
                       f"'white noise' = same corners, true projections + Gaussian noise of the measured sigma; "
                       f"'hetero CRB' = the bound for each corner's own noise as the detector's sigma can tell it, "
                       f"noise_limit.hetero_weights; 'weighted' = calibrate_views(weight_corners=True) on the "

@@ -39,7 +39,7 @@ from rigcal import geometry as geo
 from rigcal.camera import CameraModel
 from rigcal.rig import Camera
 
-from .common import SCENARIOS, Timer, calibrate, get_dataset, md_table, rig_errors, say, scenario, write_json
+from .common import JOBS, SCENARIOS, Timer, calibrate_dataset, get_dataset, md_table, rig_errors, say, scenario, write_json
 
 N_CHOICES = (4, 6, 8, 10, 12, 16, 20, 24, 30, 36, 42, 48, 56, 64, 80, 96, 117, 140)
 
@@ -157,7 +157,7 @@ def run_scenario(scn, seed: int = 0, rigcal_result: dict | None = None, log=say)
     cv = run_multiview(ds.views, ds.rig, ds.corners)
     if rigcal_result is None:
         with Timer() as t:
-            cal = calibrate(ds.views, ds.rig, ds.corners)
+            cal = calibrate_dataset(ds, jobs=JOBS)
         rigcal_result = {"pairs": rig_errors(cal.rig, ds.truth.rig)["pairs"], "calibration_s": t.wall,
                          "focal": {n: e["focal_rel_pct"] for n, e in rig_errors(cal.rig, ds.truth.rig)["cameras"].items()}}
     out = {"scenario": scn.name, "seed": seed, "opencv": {k: v for k, v in cv.items() if k != "rig"},

@@ -72,6 +72,17 @@ def detections(dataset: Path, tag: str, log=say):
     return rig, corners, [ViewIn(*v) for v in meta["views"]], meta["n_images"], meta["det_s"]
 
 
+def calibrate_set(dataset: Path, rig, corners: dict, views: list, distortion: str = "auto"):
+    """What `rigcal calibrate` does with a set's detections, the guided pass (--guided auto:
+    fisheye cameras only, so none of the sets here) included."""
+    from rigcal.dataset import list_dataset
+    from rigcal.guided import rerefiner
+    from rigcal.target import load_target
+
+    hook = rerefiner(list_dataset(dataset, rig), rig, load_target(dataset / "target.yaml"), JOBS, "auto")
+    return calibrate(views, rig, corners, distortion, rerefine=hook)
+
+
 def _baseline(rig, a: str, b: str) -> float:
     return float(np.linalg.norm(rig.camera(a).T_body_cam[:3, 3] - rig.camera(b).T_body_cam[:3, 3]))
 
@@ -87,7 +98,7 @@ def bumblebee2(log=say) -> dict:
     rows = {}
     for dist in ("auto", "radial2", "radtan4", "radtan5"):
         with Timer() as t:
-            cal = calibrate(views, rig, corners, dist)
+            cal = calibrate_set(SAMPLES / "bumblebee2", rig, corners, views, dist)
         rows[dist] = {"baseline_mm": 1000 * _baseline(cal.rig, "left", "right"), "seconds": t.wall, **_cal_row(cal)}
     return {"set": "bumblebee2", "images": n, "detection_s": det_s, "reference_mm": BUMBLEBEE_REF_MM, "runs": rows}
 
@@ -95,7 +106,7 @@ def bumblebee2(log=say) -> dict:
 def opencv_stereo(log=say) -> dict:
     rig, corners, views, n, det_s = detections(SAMPLES / "opencv_stereo", "opencv_stereo", log)
     with Timer() as t:
-        cal = calibrate(views, rig, corners)
+        cal = calibrate_set(SAMPLES / "opencv_stereo", rig, corners, views)
     square = 0.030  # target.yaml's square: results in squares = metres / square
     return {"set": "opencv_stereo", "images": n, "detection_s": det_s, "seconds": t.wall,
             "baseline_squares": _baseline(cal.rig, "left", "right") / square, "references": OPENCV_REF_SQUARES,
@@ -129,7 +140,7 @@ def _linked_run(name: str, log) -> LinkedRun | None:
         return None
     rig, corners, views, n, det_s = detections(d, name, log)
     with Timer() as t:
-        cal = calibrate(views, rig, corners)
+        cal = calibrate_set(d, rig, corners, views)
     return LinkedRun(rig, corners, views, {"set": name, "images": n, "detection_s": det_s, "seconds": t.wall}, cal)
 
 
