@@ -1,5 +1,8 @@
 """Which part of the detected corner error drives the fisheye pair's relative-rotation error?
 
+The DETECTOR's corners (`--guided off`), as bench.indie_noise: the study that led to the
+guided pass (rigcal.guided), which bench.noise_limit and bench.guided measure.
+
     BENCH_REUSE_CACHE=1 python -m bench.fisheye_excess [--seeds 10] [--scenario fisheye-stereo]
 
 Per seed (bench.common's render + detect cache, bench.noise_limit's frame count) the
