@@ -223,3 +223,10 @@ def test_a_camera_whose_guided_corners_fit_worse_keeps_the_detectors(fisheye_pai
     assert np.array_equal(both.obs.uv, plain.obs.uv)
     for a, b in zip(both.rig.cameras, plain.rig.cameras):
         assert np.allclose(a.T_body_cam, b.T_body_cam, atol=1e-12)
+
+    def nothing(obs, *_):
+        return obs.uv.copy(), np.zeros(len(obs), bool), np.full(len(obs), np.nan)
+
+    none = calibrate_views(views, rig, corners, rerefine=nothing)
+    assert "guided refinement not used: no corner could be re-measured" in none.notes
+    assert np.array_equal(none.obs.uv, plain.obs.uv)

@@ -345,6 +345,8 @@ def _guided_solve(res: SolveResult, obs: Observations, uv_g: np.ndarray, refined
     C, gauge = len(cam_names), (gauge_cam, gauge_board)
     seconds = 0.0
     guided = [c for c in range(C) if np.any(refined & (obs.cam == c))]
+    if not guided:
+        return None, obs, refined, seconds, "guided refinement not used: no corner could be re-measured"
     res_g = bundle_adjust(replace(obs, uv=uv_g), res.state, gauge_cam, gauge_board, fix, inliers=res.inliers)
     seconds += res_g.seconds
     both = res.inliers & res_g.inliers
@@ -355,8 +357,7 @@ def _guided_solve(res: SolveResult, obs: Observations, uv_g: np.ndarray, refined
     why = "; ".join(f"{cam_names[c]}: reprojection RMS {before[c]:.3f} -> {after[c]:.3f} px, so its detector "
                     f"corners were kept" for c in worse)
     if not kept:
-        line = ("guided refinement not used" + (f" ({why})" if why else ": no corner could be re-measured"))
-        return None, obs, refined, seconds, line
+        return None, obs, refined, seconds, f"guided refinement not used ({why})"
     if worse:
         refined = refined & ~np.isin(obs.cam, worse)
         uv_g = np.where(refined[:, None], uv_g, obs.uv)
