@@ -509,6 +509,43 @@ def corner_covariance(H: np.ndarray, wa: np.ndarray, r: np.ndarray) -> np.ndarra
     return var[:, None, None] * Hq
 
 
+class FitProgress:
+    """Per-corner bookkeeping of a batched point-symmetry fit (refine_symmetric,
+    guided.refine_guided): the corners still moving (act), those whose step failed
+    (singular or not finite), those that stopped, whether at least half the cross lay in the
+    image (full), and each corner's covariance where it stopped."""
+
+    def __init__(self, m: int):
+        self.act = np.arange(m)
+        self.done, self.failed, self.full = (np.zeros(m, bool) for _ in range(3))
+        self.cov_q = np.full((m, 2, 2), np.nan)
+
+    def retire(self, step: np.ndarray, bad: np.ndarray, H: np.ndarray, wa: np.ndarray, r: np.ndarray,
+               tol: float) -> bool:
+        """After a step of the corners in act: those whose step failed or moved the corner by
+        under tol stop. The covariance is the fit's own, residual variance x (J^T W J)^-1,
+        inverted only for the corners that stopped (not every corner at every iteration).
+        True while some corner still moves."""
+        act = self.act
+        self.failed[act[bad]] = True
+        stop = bad | (np.abs(step[:, :2]).max(1) < tol)
+        fin = stop & ~bad
+        if fin.any():
+            self.cov_q[act[fin]] = corner_covariance(H[fin], wa[fin], r[fin])
+        self.done[act[stop]] = True
+        self.act = act[~stop]
+        return len(self.act) > 0
+
+    def store(self, out: np.ndarray, ok: np.ndarray, sigma: np.ndarray, idx: np.ndarray, q: np.ndarray,
+              near: np.ndarray) -> None:
+        """Write the corners idx that converged, had their cross mostly inside the image and
+        stayed `near` their start into out, ok and sigma (px per axis); the rest keep theirs."""
+        accept = self.done & ~self.failed & self.full & near
+        out[idx[accept]] = q[accept]
+        ok[idx[accept]] = True
+        sigma[idx[accept]] = np.sqrt(0.5 * np.trace(self.cov_q[accept], axis1=1, axis2=2))
+
+
 def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, bend_u: np.ndarray,
                      bend_v: np.ndarray, half: float, arm: float = ARM_SQUARES, margin_px: float = MARGIN_PX,
                      iters: int = 25, tol: float = 2e-3, bend_spread: np.ndarray | None = None
@@ -577,10 +614,9 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     bends = prior.copy()
     if fit_bend:
         p[:, 4:] = prior
-    done, failed, full = (np.zeros(len(idx), bool) for _ in range(3))
-    cov_q = np.full((len(idx), 2, 2), np.nan)
-    act = np.arange(len(idx))  # corners still moving
+    fit = FitProgress(len(idx))
     for _ in range(iters):
+        act = fit.act
         pa = p[act]
         ba = pa[:, 4:] if fit_bend else bends[act]
         cx = pa[:, 0, None] + ba[:, 0, None] * u2 * n_u[act, 0, None] + ba[:, 1, None] * v2 * n_v[act, 0, None]
@@ -588,7 +624,7 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         xp, yp = (cx + dx[act]).astype(np.float32), (cy + dy[act]).astype(np.float32)
         xm, ym = (cx - dx[act]).astype(np.float32), (cy - dy[act]).astype(np.float32)
         r, cols, inside = symmetry_terms(stack, xp, yp, xm, ym, pa[:, 2:4], uf, vf)
-        full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
+        fit.full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
         if fit_bend:
             jx, jy = cols[:2]
             cols += [(jx * n_u[act, 0, None] + jy * n_u[act, 1, None]) * u2,
@@ -607,24 +643,11 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
         if fit_bend:
             step[:, 4:] = np.clip(step[:, 4:], -2.0, 2.0)
         p[act] += step
-        failed[act[bad]] = True
-        stop = bad | (np.abs(step[:, :2]).max(1) < tol)
-        # the fit's own covariance of q where it stops: residual variance x (J^T W J)^-1,
-        # inverted only for the corners that stopped (not every corner at every iteration)
-        fin = stop & ~bad
-        if fin.any():
-            cov_q[act[fin]] = corner_covariance(H[fin], wa[fin], r[fin])
-        done[act[stop]] = True
-        act = act[~stop]
-        if len(act) == 0:
+        if not fit.retire(step, bad, H, wa, r, tol):
             break
     # A corner whose cross is mostly outside the image, or that wandered off, keeps its start.
     q = p[:, :2]
-    moved = np.linalg.norm(q - uv[idx], axis=1)
-    accept = done & ~failed & full & (moved < np.maximum(1.0, 0.15 * sq_g))
-    out[idx[accept]] = q[accept]
-    ok[idx[accept]] = True
-    sigma[idx[accept]] = np.sqrt(0.5 * np.trace(cov_q[accept], axis1=1, axis2=2))
+    fit.store(out, ok, sigma, idx, q, np.linalg.norm(q - uv[idx], axis=1) < np.maximum(1.0, 0.15 * sq_g))
     return out, ok, sigma
 
 

@@ -31,8 +31,8 @@ import numpy as np
 
 from .camera import CameraModel
 from .detect import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
-                     _cross_offsets, corner_covariance, image_gradients, newton_steps, normal_equations,
-                     read_gray, symmetry_terms)
+                     FitProgress, _cross_offsets, image_gradients, newton_steps, normal_equations, read_gray,
+                     symmetry_terms)
 from .workers import interrupts_deferred, worker_pool
 
 # A corner the guided fit moves further than this from the detector's is left as the
@@ -125,34 +125,23 @@ def refine_guided(stack: np.ndarray, uv: np.ndarray, cross: np.ndarray, Dp: np.n
     u, v = cross[None, :, 0].astype(np.float32), cross[None, :, 1].astype(np.float32)
     p = np.zeros((len(idx), 4))
     p[:, :2] = uv[idx]
-    done, failed, full = (np.zeros(len(idx), bool) for _ in range(3))
-    cov_q = np.full((len(idx), 2, 2), np.nan)
-    act = np.arange(len(idx))
+    fit = FitProgress(len(idx))
     for _ in range(iters):
+        act = fit.act
         pa = p[act]
         xp, yp = (pa[:, 0, None] + Dp[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dp[act, :, 1]).astype(np.float32)
         xm, ym = (pa[:, 0, None] + Dm[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dm[act, :, 1]).astype(np.float32)
         r, cols, inside = symmetry_terms(stack, xp, yp, xm, ym, pa[:, 2:4], u, v)
-        full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
+        fit.full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
         wa = w[act] * inside
         H, g = normal_equations(cols, r, wa)
         step, bad = newton_steps(H, g)
         step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)
         p[act] += step
-        failed[act[bad]] = True
-        stop = bad | (np.abs(step[:, :2]).max(1) < tol)
-        fin = stop & ~bad
-        if fin.any():
-            cov_q[act[fin]] = corner_covariance(H[fin], wa[fin], r[fin])
-        done[act[stop]] = True
-        act = act[~stop]
-        if len(act) == 0:
+        if not fit.retire(step, bad, H, wa, r, tol):
             break
     q = p[:, :2]
-    accept = done & ~failed & full & (np.linalg.norm(q - uv[idx], axis=1) < max_move)
-    out[idx[accept]] = q[accept]
-    ok[idx[accept]] = True
-    sigma[idx[accept]] = np.sqrt(0.5 * np.trace(cov_q[accept], axis1=1, axis2=2))
+    fit.store(out, ok, sigma, idx, q, np.linalg.norm(q - uv[idx], axis=1) < max_move)
     return out, ok, sigma
 
 
