@@ -326,15 +326,15 @@ def drop_repeated_views(views: list[ViewIn]) -> tuple[list[ViewIn], list[tuple[s
 GUIDED_KEEP_RATIO = 1.1
 
 
-def _camera_rms(obs: Observations, state: State, keep: np.ndarray, C: int, gauge: tuple, fix) -> np.ndarray:
-    """(C,) reprojection RMS px per camera of obs[keep] at `state` (nan where none)."""
-    sub = obs.subset(keep)
-    pb = Problem(sub, state, *gauge, fix)
-    r = pb.residuals(pb.x0()).reshape(-1, 2)
-    e2 = np.sum(r**2, axis=1)
-    n = np.bincount(sub.cam, minlength=C)
+def _camera_rms(res: SolveResult, cam: np.ndarray, keep: np.ndarray, C: int) -> np.ndarray:
+    """(C,) reprojection RMS px per camera at res's solution over the corners `keep` (a
+    subset of res.inliers; cam: every observation's camera), nan where none: from the
+    residuals the solve already holds."""
+    sel = keep[res.inliers]
+    c = cam[res.inliers][sel]
+    e2 = np.sum(res.residuals[sel] ** 2, axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.sqrt(np.bincount(sub.cam, e2, minlength=C) / n)
+        return np.sqrt(np.bincount(c, e2, minlength=C) / np.bincount(c, minlength=C))
 
 
 def _guided_solve(res: SolveResult, obs: Observations, uv_g: np.ndarray, refined: np.ndarray, cam_names: list[str],
@@ -342,7 +342,7 @@ def _guided_solve(res: SolveResult, obs: Observations, uv_g: np.ndarray, refined
     """The rig solved again on the guided corners, cameras whose guided corners fit worse
     (GUIDED_KEEP_RATIO) put back to the detector's corners. -> (result or None when no
     camera keeps its guided corners, observations, refined mask kept, solve seconds, note)."""
-    C, gauge = len(cam_names), (gauge_cam, gauge_board)
+    C = len(cam_names)
     seconds = 0.0
     guided = [c for c in range(C) if np.any(refined & (obs.cam == c))]
     if not guided:
@@ -350,8 +350,7 @@ def _guided_solve(res: SolveResult, obs: Observations, uv_g: np.ndarray, refined
     res_g = bundle_adjust(replace(obs, uv=uv_g), res.state, gauge_cam, gauge_board, fix, inliers=res.inliers)
     seconds += res_g.seconds
     both = res.inliers & res_g.inliers
-    before = _camera_rms(obs, res.state, both, C, gauge, fix)
-    after = _camera_rms(replace(obs, uv=uv_g), res_g.state, both, C, gauge, fix)
+    before, after = _camera_rms(res, obs.cam, both, C), _camera_rms(res_g, obs.cam, both, C)
     worse = [c for c in guided if after[c] > GUIDED_KEEP_RATIO * before[c]]
     kept = [c for c in guided if c not in worse]
     why = "; ".join(f"{cam_names[c]}: reprojection RMS {before[c]:.3f} -> {after[c]:.3f} px, so its detector "
