@@ -188,20 +188,27 @@ def calibrate(views: list[ViewIn], rig: Rig, corners: dict, distortion: str = "a
                            rerefine=rerefine)
 
 
-def guided_hook(ds: Dataset, mode: str = "auto", jobs: int = 1):
-    """The rerefine hook `rigcal calibrate --guided MODE` builds for this dataset, or None
-    when MODE guides none of its cameras. Raises if it would guide a camera but the
-    render's images were not kept: a benchmark must not quietly measure the detector's
-    corners where the command line would re-measure them."""
+def folder_hook(folder: Path, rig: Rig, mode: str = "auto", jobs: int = 1):
+    """The rerefine hook `rigcal calibrate --guided MODE` builds for the dataset in `folder`
+    (its images and target.yaml), or None when MODE guides none of rig's cameras."""
     from rigcal.dataset import list_dataset
     from rigcal.guided import guided_cameras, rerefiner
     from rigcal.target import load_target
 
-    if not guided_cameras(ds.rig, mode):
+    if not guided_cameras(rig, mode):
         return None
-    if not ds.images_kept:
+    return rerefiner(list_dataset(folder, rig), rig, load_target(folder / "target.yaml"), jobs, mode)
+
+
+def guided_hook(ds: Dataset, mode: str = "auto", jobs: int = 1):
+    """folder_hook for a rendered dataset. Raises if it would guide a camera but the
+    render's images were not kept: a benchmark must not quietly measure the detector's
+    corners where the command line would re-measure them."""
+    from rigcal.guided import guided_cameras
+
+    if guided_cameras(ds.rig, mode) and not ds.images_kept:
         raise RuntimeError(f"{ds.path}: --guided {mode} needs the images; get_dataset(keep_images=True)")
-    return rerefiner(list_dataset(ds.path, ds.rig), ds.rig, load_target(ds.path / "target.yaml"), jobs, mode)
+    return folder_hook(ds.path, ds.rig, mode, jobs)
 
 
 def calibrate_dataset(ds: Dataset, distortion: str = "auto", guided: str = "auto", jobs: int = 1,

@@ -213,9 +213,10 @@ def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
     uv_true = true_projections(cal, ds.truth)
     # the detector's own corners (--guided off): the same as cal where auto guides no camera
     guided = "guided_s" in cal.timings
-    dcal = calibrate(ds.views, ds.rig, ds.corners) if guided else cal
-    sigma_det = measured_corner_noise(dcal, ds.truth) if guided else sigma
-    uv_true_det = true_projections(dcal, ds.truth) if guided else uv_true
+    dcal, sigma_det, uv_true_det = cal, sigma, uv_true
+    if guided:
+        dcal = calibrate(ds.views, ds.rig, ds.corners)
+        sigma_det, uv_true_det = measured_corner_noise(dcal, ds.truth), true_projections(dcal, ds.truth)
     out = {"scenario": name, "seed": seed, "frames": frames, "sigma_px": sigma, "calibration_s": t.wall,
            "models": [cal.stats[n].distortion_model for n in cal.cam_names],
            "auto": _pair_stats(cal, ds.truth, sigma), "coverage": _coverage_samples(cal, ds.truth.rig),

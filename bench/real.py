@@ -34,7 +34,8 @@ import rigcal
 from rigcal import geometry as geo
 from rigcal.core import ViewIn, calibrate_views
 
-from .common import CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, md_table, say, view_tuples, write_json
+from .common import (CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, folder_hook, md_table, say, view_tuples,
+                     write_json)
 
 SAMPLES = ROOT / "samples" / "real"
 SHARED = ROOT.parent / "shared" / "data" / "real"
@@ -75,12 +76,7 @@ def detections(dataset: Path, tag: str, log=say):
 def calibrate_set(dataset: Path, rig, corners: dict, views: list, distortion: str = "auto"):
     """What `rigcal calibrate` does with a set's detections, the guided pass (--guided auto:
     fisheye cameras only, so none of the sets here) included."""
-    from rigcal.dataset import list_dataset
-    from rigcal.guided import rerefiner
-    from rigcal.target import load_target
-
-    hook = rerefiner(list_dataset(dataset, rig), rig, load_target(dataset / "target.yaml"), JOBS, "auto")
-    return calibrate(views, rig, corners, distortion, rerefine=hook)
+    return calibrate(views, rig, corners, distortion, rerefine=folder_hook(dataset, rig, jobs=JOBS))
 
 
 def _baseline(rig, a: str, b: str) -> float:
