@@ -32,7 +32,7 @@ import numpy as np
 from .camera import CameraModel
 from .detect import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
                      FitProgress, _cross_offsets, image_gradients, newton_steps, normal_equations, read_gray,
-                     symmetry_terms)
+                     symmetric_half_width, symmetry_terms)
 from .workers import interrupts_deferred, worker_pool
 
 # A corner the guided fit moves further than this from the detector's is left as the
@@ -263,8 +263,6 @@ def guided_cameras(rig, mode: str) -> list[str]:
 def rerefiner(images, rig, target, jobs: int = 1, mode: str = "auto"):
     """core.calibrate_views' `rerefine` hook for a dataset (dataset.DatasetImages), or None
     when `mode` (guided_cameras) selects no camera."""
-    from .detect import symmetric_half_width
-
     chosen = set(guided_cameras(rig, mode))
     if not chosen:
         return None
