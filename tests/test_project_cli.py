@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +36,9 @@ def test_golden_numbers_through_the_python_api(how):
     # pixels: u = 320 + 300 x / z, v = 240 + 300 y / z
     np.testing.assert_allclose(seen["front_left"].uv, [[320 + 300 * 3.05 / 9.9, 240 - 300 * 1.99 / 9.9]], atol=1e-9)
     np.testing.assert_allclose(seen["front_right"].uv, [[320 + 300 * 2.95 / 9.9, 240 - 300 * 1.99 / 9.9]], atol=1e-9)
-    assert np.round(seen["front_left"].uv, 2).tolist() == [[412.42, 179.70]]
-    assert np.round(seen["front_right"].uv, 2).tolist() == [[409.39, 179.70]]
+    # the spec's printed pixels, to their last printed digit
+    np.testing.assert_allclose(seen["front_left"].uv, [[412.42, 179.70]], atol=0.005)
+    np.testing.assert_allclose(seen["front_right"].uv, [[409.39, 179.70]], atol=0.005)
     back = seen["back"]
     assert not back.valid[0] and not back.in_image[0] and np.isnan(back.uv).all()
     assert back.reason(0) == "behind the camera"
@@ -44,6 +46,27 @@ def test_golden_numbers_through_the_python_api(how):
     assert sd.disparity[0] == pytest.approx(300 * 0.1 / 9.9, abs=1e-9)  # 3.0303 px
     assert sd.depth[0] == pytest.approx(9.9, abs=1e-9)
     assert sd.baseline_m == pytest.approx(0.1, abs=1e-12)
+
+
+_NUMBER = re.compile(r"-?\d+(?:\.\d+)?")
+# The spec's lines with their numbers exact (cli.md's golden example), not as printed.
+FL = [3.05, -1.99, 9.9, 320 + 300 * 3.05 / 9.9, 240 - 300 * 1.99 / 9.9]
+FR = [2.95, -1.99, 9.9, 320 + 300 * 2.95 / 9.9, 240 - 300 * 1.99 / 9.9]
+STEREO = [300 * 0.1 / 9.9, 9.9, 0.1, 300.0]
+
+
+def assert_printed(out: str, template: str, expected: list[float]) -> None:
+    """A line of `out` reads `template` with its '#' replaced by numbers equal to `expected`
+    to the last digit printed: numbers are compared as numbers, never as text."""
+    for line in out.splitlines():
+        if _NUMBER.sub("#", line) == template:
+            printed = _NUMBER.findall(line)
+            assert len(printed) == len(expected), line
+            for text, want in zip(printed, expected):
+                decimals = len(text.split(".")[1]) if "." in text else 0
+                assert abs(float(text) - want) <= 0.5 * 10.0**-decimals + 1e-12, (line, text, want)
+            return
+    raise AssertionError(f"no line reads {template!r} in:\n{out}")
 
 
 def invoke(*args: str):
@@ -55,13 +78,14 @@ def test_golden_numbers_through_the_cli(how):
     r = invoke("project", GOLDEN_RIG, "--position", *map(str, POSITION), *POSES[how], "--point", *map(str, POINT))
     assert r.exit_code == 0, r.stderr
     out = r.stdout
-    assert "body frame (FLU): (10, -3, 2)" in out
-    assert "front_left: camera frame (3.05, -1.99, 9.9)  pixel (412.42, 179.70)" in out
-    assert "front_right: camera frame (2.95, -1.99, 9.9)  pixel (409.39, 179.70)" in out
+    assert_printed(out, "body frame (FLU): (#, #, #)", [10, -3, 2])
+    assert_printed(out, "front_left: camera frame (#, #, #)  pixel (#, #)", FL)
+    assert_printed(out, "front_right: camera frame (#, #, #)  pixel (#, #)", FR)
     assert "back: not visible (behind the camera)" in out
     back_line = next(line for line in out.splitlines() if line.startswith("back:"))
     assert "pixel" not in back_line  # never a pixel for a point behind the camera
-    assert "disparity 3.0303 px" in out and "depth 9.9 m" in out and "baseline 0.1000 m" in out
+    assert_printed(out, "stereo front_left/front_right: disparity # px, depth # m "
+                        "(Z = B f / d with baseline # m, f # px)", STEREO)
     assert r.stderr == ""
 
 
@@ -69,8 +93,8 @@ def test_heading_turns_the_body():
     # flying east (90 deg): 10 m east is ahead, 3 m south is to the right -> the golden body point again
     r = invoke("project", GOLDEN_RIG, "--position", "100", "300", "10", "--heading", "90", "--point", "110", "297", "12")
     assert r.exit_code == 0, r.stderr
-    assert "body frame (FLU): (10, -3, 2)" in r.stdout
-    assert "pixel (412.42, 179.70)" in r.stdout
+    assert_printed(r.stdout, "body frame (FLU): (#, #, #)", [10, -3, 2])
+    assert_printed(r.stdout, "front_left: camera frame (#, #, #)  pixel (#, #)", FL)
 
 
 def test_rig_without_poses_is_reported_not_crashed(tmp_path):

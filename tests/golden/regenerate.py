@@ -2,9 +2,12 @@
 
 Run from the repository root:   make golden   (= python -m tests.golden.regenerate)
 
-Then review `git diff tests/golden/exports`: every changed byte is a change in what
+Then review `git diff tests/golden/exports`: every changed value is a change in what
 users' tools will read. tests/test_export.py checks that the current exports equal
-these files byte for byte.
+these files as data (tests/golden_data.py: structure, keys, strings and comments
+exactly, numbers to a relative 1e-12), never as text: the last digit of a float
+differs between machines, so a regeneration elsewhere may rewrite digits that the
+comparison rightly ignores; commit such a rewrite only with a real change.
 """
 
 from __future__ import annotations
