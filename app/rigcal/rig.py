@@ -135,9 +135,37 @@ class Rig:
 # ----------------------------------------------------------------------------- loading
 
 
+# The repository's rigs/ ship inside the package (app/rigcal/rigs links to it), so an
+# installed rigcal can run `rigcal simulate drone-stereo-back --out D` with no source tree.
+SHIPPED_RIGS = Path(__file__).parent / "rigs"
+
+
+def shipped_rig_names() -> tuple[str, ...]:
+    """Names of the rigs shipped with rigcal (file stems of rigcal/rigs/*.yaml)."""
+    return tuple(sorted(p.stem for p in SHIPPED_RIGS.glob("*.yaml")))
+
+
+def rig_file(path: str | Path) -> Path:
+    """`path` when it exists; otherwise a bare name (`drone-stereo-back`, with or without
+    `.yaml`, no folder part) that names a shipped rig gives that rig's file."""
+    path = Path(path)
+    if path.exists() or path.parent != Path("."):
+        return path
+    shipped = SHIPPED_RIGS / (path.name if path.suffix == ".yaml" else f"{path.name}.yaml")
+    return shipped if shipped.is_file() else path
+
+
 def load_rig(path: str | Path) -> Rig:
-    """Read and validate a rig file; raises RigFileError naming file, key and what was expected."""
-    return parse_rig(read_text(path, RigFileError), str(path))
+    """Read and validate a rig file (or a shipped rig by name, see rig_file); raises
+    RigFileError naming file, key and what was expected."""
+    found = rig_file(path)
+    try:
+        text = read_text(found, RigFileError)
+    except RigFileError as e:
+        if found.exists() or Path(path).parent != Path("."):
+            raise
+        raise RigFileError(f"{e} (nor a rig shipped with rigcal: {', '.join(shipped_rig_names())})") from None
+    return parse_rig(text, str(path))
 
 
 def parse_rig(text: str, label: str = "<rig>") -> Rig:

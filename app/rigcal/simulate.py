@@ -41,10 +41,11 @@ import yaml
 from . import geometry as geo
 from . import render
 from .camera import CameraModel
-from .errors import InputError, OutputError
+from .errors import InputError, OutputError, RigFileError, TargetFileError
 from .io import atomic_dir
-from .rig import Camera, Rig, load_rig, rig_to_dict
+from .rig import Camera, Rig, load_rig, rig_file, rig_to_dict
 from .target import Board, Target, dump_target, load_target
+from .validate import read_text
 from .workers import interrupts_deferred, worker_pool
 
 SCENES = ("room", "board")
@@ -707,13 +708,13 @@ class _progress:
 def run(rig_path, out_dir, scene=None, frames=None, seed=0, noise=2.0, blur=0.0, mount_error_mm=5.0,
         mount_error_deg=1.0, focal_error=0.02, target_path=None, force=False, jobs=None) -> str:
     """`rigcal simulate`: returns the summary for stdout."""
-    rig_path = Path(rig_path)
+    rig_path = rig_file(rig_path)  # a shipped rig's name gives its file
     rig = load_rig(rig_path)
-    rig_text = rig_path.read_text(encoding="utf-8")
+    rig_text = read_text(rig_path, RigFileError)  # as load_rig read it (UTF-16 too)
     target = target_text = None
     if target_path is not None:
         target = load_target(target_path)
-        target_text = Path(target_path).read_text(encoding="utf-8")
+        target_text = read_text(target_path, TargetFileError)
     res = simulate_dataset(rig, out_dir, scene=scene, frames=frames, seed=seed, noise=noise, blur=blur,
                            mount_error_mm=mount_error_mm, mount_error_deg=mount_error_deg, focal_error=focal_error,
                            target=target, force=force, jobs=jobs, progress=sys.stderr.isatty(), rig_text=rig_text,
