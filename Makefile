@@ -6,7 +6,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DEMO   := demo-out
 
-.PHONY: demo test bench clean golden browser-deps
+.PHONY: demo test test-pythons bench clean golden browser-deps
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -19,6 +19,10 @@ demo: $(STAMP)
 
 test: $(STAMP) browser-deps
 	$(PY) -m pytest -q
+
+# The suite (less the slow and browser tests) under Python 3.10 and 3.13: scripts/test-pythons.sh.
+test-pythons:
+	bash scripts/test-pythons.sh
 
 # Headless Chromium for tests/test_browser.py (Debian's chromium + chromium-driver, ~90 s
 # to install). Never fails the build: where it cannot be installed (no root, no apt-get,
@@ -39,4 +43,4 @@ golden: $(STAMP)
 	$(PY) -m tests.golden.regenerate
 
 clean:
-	rm -rf $(VENV) $(DEMO)
+	rm -rf $(VENV) .venv-3.* $(DEMO)
