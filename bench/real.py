@@ -24,7 +24,10 @@ import pickle
 import subprocess
 import sys
 import time
-import tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: tomllib is 3.11+
+    import tomli as tomllib
 from pathlib import Path
 from typing import NamedTuple
 

@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import subprocess
 import sys
-import tomllib
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10: tomllib is 3.11+
+    import tomli as tomllib
 from pathlib import Path
 
 import cv2
