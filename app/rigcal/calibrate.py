@@ -74,7 +74,8 @@ def _same_file(a: Path, b: Path) -> bool:
 
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
         report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
-        distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False, guided: str = "auto"):
+        distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False, guided: str = "auto",
+        scheduler: str | None = None):
     from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
     from .detect import detect_dataset
     from .target import load_target
@@ -99,7 +100,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
     check_shared_stems(images)
-    det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True)
+    det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True, scheduler=scheduler)
     console = _err()
     for path, reason in det.unreadable:
         console.print(f"warning: {path}: skipped ({reason})")
@@ -132,7 +133,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
     from .guided import rerefiner
 
-    rerefine = rerefiner(images, rig, target, jobs=jobs or os.cpu_count() or 1, mode=guided)
+    rerefine = rerefiner(images, rig, target, jobs=jobs or os.cpu_count() or 1, mode=guided, scheduler=scheduler)
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
                           reference=reference, rerefine=rerefine)
     from .checks import stereo_checks

@@ -142,13 +142,17 @@ def calibrate(
     guided: Guided = typer.Option(
         Guided.auto, help="re-measure the corners with the calibrated camera models, then solve again: auto = "
                           "fisheye cameras, on = every camera, off = the detector's corners are final"),
+    scheduler: Optional[str] = typer.Option(
+        None, envvar="RIGCAL_SCHEDULER", help="a Dask scheduler's address (tcp://host:8786): its workers detect "
+                                             "and re-measure the corners, reading the images at their absolute "
+                                             "paths (needs rigcal[dask])"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from . import calibrate as cal
 
     out(cal.run(dataset=dataset, out_path=out_yaml, rig_path=rig, target_path=target, report_path=report, jobs=jobs,
                 reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
-                allow_resize=allow_resize, guided=guided.value))
+                allow_resize=allow_resize, guided=guided.value, scheduler=scheduler))
 
 
 @app.command()

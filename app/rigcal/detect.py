@@ -55,7 +55,7 @@ import cv2
 import numpy as np
 
 from .target import Board, Target
-from .workers import interrupts_deferred, worker_pool
+from .workers import interrupts_deferred, pool
 
 REFINE_MODES = ("symmetric", "subpix", "none")
 SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
@@ -927,9 +927,9 @@ def _detect_serial(paths: list[str], target: Target, min_corners: int, refine: s
 
 
 def _detect_parallel(paths: list[str], target: Target, jobs: int, min_corners: int, refine: str,
-                     bar) -> list[_ImageOut]:
+                     bar, scheduler: str | None = None) -> list[_ImageOut]:
     chunk = max(1, min(8, len(paths) // (jobs * 6)))
-    with worker_pool(jobs, "rigcal.detect", _init_worker, (target, min_corners, refine)) as ex:
+    with pool(jobs, "rigcal.detect", _init_worker, (target, min_corners, refine), scheduler) as ex:
         with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
             results = ex.map(_work, paths, chunksize=chunk)  # submits all, workers start now; yields in order
         bar.start()  # after the workers started: no progress-bar thread is copied into them
@@ -972,12 +972,14 @@ class _Progress:
 
 
 def detect_dataset(images, target: Target, rig=None, jobs: int | None = None, progress: bool = True,
-                   min_corners: int = 6, refine: str = "symmetric") -> DetectionResult:
+                   min_corners: int = 6, refine: str = "symmetric", scheduler: str | None = None) -> DetectionResult:
     """Detect every board in every image of a dataset (dataset.DatasetImages).
 
     rig: when given, each image's size is checked against the camera's resolution
     (mismatches are listed in `size_mismatch`, not raised). jobs: worker processes
-    (default os.cpu_count()). The result is the same whatever `jobs` is."""
+    (default os.cpu_count()). scheduler: a Dask scheduler's address; its workers do the
+    work instead, reading the images at their absolute paths (a file system they share).
+    The result is the same whatever `jobs` or `scheduler` is."""
     if refine not in REFINE_MODES:
         raise ValueError(f"refine: expected one of {', '.join(REFINE_MODES)}, got {refine!r}")
     t0 = time.perf_counter()
@@ -986,7 +988,10 @@ def detect_dataset(images, target: Target, rig=None, jobs: int | None = None, pr
     paths = [str(p) for _, _, p in items]
     bar = _Progress(len(paths), progress)
     try:
-        if jobs <= 1 or len(paths) < 2 * jobs:
+        if scheduler is not None:
+            outs = _detect_parallel([os.path.abspath(p) for p in paths], target, jobs, min_corners, refine, bar,
+                                    scheduler)
+        elif jobs <= 1 or len(paths) < 2 * jobs:
             jobs = 1
             outs = _detect_serial(paths, target, min_corners, refine, bar)
         else:

@@ -23,6 +23,8 @@ pair's relative rotation error 0.0017 -> 0.0007 deg RMS, translation 0.011 -> 0.
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -33,7 +35,7 @@ from .camera import CameraModel
 from .detect import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
                      FitProgress, _cross_offsets, image_gradients, newton_steps, normal_equations, read_gray,
                      symmetric_half_width, symmetry_terms)
-from .workers import interrupts_deferred, worker_pool
+from .workers import interrupts_deferred, pool
 
 # A corner the guided fit moves further than this from the detector's is left as the
 # detector placed it: on a rendered fisheye the two agree within 0.1 px, so a larger move
@@ -185,13 +187,14 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)  # the processes are the parallelism
 
 
-def refine_images(tasks: Sequence[ImageTask], jobs: int = 1) -> list:
-    """refine_image over every task, in parallel over processes when jobs > 1; None for an
-    image that can no longer be read. Results in task order."""
-    if jobs <= 1 or len(tasks) < 2 * jobs:
+def refine_images(tasks: Sequence[ImageTask], jobs: int = 1, scheduler: str | None = None) -> list:
+    """refine_image over every task, in parallel over processes when jobs > 1 (or on the
+    Dask cluster at `scheduler`, see detect.detect_dataset); None for an image that can no
+    longer be read. Results in task order."""
+    if scheduler is None and (jobs <= 1 or len(tasks) < 2 * jobs):
         return [_work(t) for t in tasks]
     chunk = max(1, min(8, len(tasks) // (jobs * 6)))
-    with worker_pool(jobs, "rigcal.guided", _init_worker, ()) as ex:
+    with pool(jobs, "rigcal.guided", _init_worker, (), scheduler) as ex:
         with interrupts_deferred():
             results = ex.map(_work, tasks, chunksize=chunk)
         return list(results)
@@ -203,7 +206,7 @@ def board_pose(state, c: int, f: int, b: int) -> np.ndarray:
 
 
 def guided_uv(obs, state, paths: dict[tuple[int, int], str], declared: Sequence[CameraModel],
-              boards: Sequence, halves: Sequence[float], jobs: int = 1
+              boards: Sequence, halves: Sequence[float], jobs: int = 1, scheduler: str | None = None
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Re-refine every observation with the calibrated state (solve.State).
 
@@ -231,9 +234,10 @@ def guided_uv(obs, state, paths: dict[tuple[int, int], str], declared: Sequence[
             bcs.append(BoardCorners(board_pose(state, c, f, int(b)), obs.p_board[rb], obs.uv[rb],
                                     float(boards[b].square_length), float(halves[b])))
             brows.append(rb)
-        tasks.append(ImageTask(str(paths[(c, f)]), model, tuple(bcs)))
+        path = str(paths[(c, f)]) if scheduler is None else os.path.abspath(paths[(c, f)])
+        tasks.append(ImageTask(path, model, tuple(bcs)))
         rows.append(brows)
-    for res, brows in zip(refine_images(tasks, jobs), rows):
+    for res, brows in zip(refine_images(tasks, jobs, scheduler), rows):
         if res is None:
             continue
         for (q, ok, s), rb in zip(res, brows):
@@ -260,9 +264,9 @@ def guided_cameras(rig, mode: str) -> list[str]:
     return [c.name for c in rig.cameras if mode == "on" or c.intrinsics.model == "fisheye"]
 
 
-def rerefiner(images, rig, target, jobs: int = 1, mode: str = "auto"):
+def rerefiner(images, rig, target, jobs: int = 1, mode: str = "auto", scheduler: str | None = None):
     """core.calibrate_views' `rerefine` hook for a dataset (dataset.DatasetImages), or None
-    when `mode` (guided_cameras) selects no camera."""
+    when `mode` (guided_cameras) selects no camera; on the Dask cluster at `scheduler` if given."""
     chosen = set(guided_cameras(rig, mode))
     if not chosen:
         return None
@@ -273,6 +277,6 @@ def rerefiner(images, rig, target, jobs: int = 1, mode: str = "auto"):
                  for f, stem in enumerate(frames) if stem in images.frames.get(n, {})}
         boards = [by_name[b] for b in board_names]
         return guided_uv(obs, state, paths, [rig.camera(n).intrinsics for n in cam_names], boards,
-                         [symmetric_half_width(b) for b in boards], jobs)
+                         [symmetric_half_width(b) for b in boards], jobs, scheduler)
 
     return rerefine

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import threading
 
 
 def pool_context(preload: str):
@@ -89,3 +90,74 @@ def worker_pool(max_workers: int, preload: str, initializer, initargs: tuple):
             pool.shutdown(wait=True, cancel_futures=True)
         raise
     pool.shutdown(wait=True)
+
+
+# ----------------------------------------------------------------------------- a Dask cluster
+
+# The token of the pool whose initializer last ran in this worker process: tasks of one
+# pool carry the same token, so each worker process initialises once per pool, whenever it
+# joined. The lock covers workers started with several threads (the README asks for
+# `--nthreads 1`: the detectors are per process, as in the local pool).
+_CLUSTER_INIT: str | None = None
+_CLUSTER_LOCK = threading.Lock()
+
+
+def _cluster_chunk(token: str, initializer, initargs: tuple, fn, items: list) -> list:
+    global _CLUSTER_INIT
+    with _CLUSTER_LOCK:
+        if _CLUSTER_INIT != token:
+            initializer(*initargs)
+            _CLUSTER_INIT = token
+    return [fn(x) for x in items]
+
+
+class ClusterPool:
+    """A Dask cluster's workers behind ProcessPoolExecutor.map's interface (results in
+    order). What goes over the wire: `initargs` once per worker (scattered), then chunks
+    of items (image paths and small task records) and their results (corner arrays); the
+    functions themselves travel by reference, so every worker needs the same rigcal."""
+
+    def __init__(self, client, initializer, initargs: tuple):
+        import uuid
+
+        self.client, self.initializer = client, initializer
+        self.token = uuid.uuid4().hex
+        [self.initargs] = client.scatter([initargs], broadcast=True)
+
+    def map(self, fn, items, chunksize: int = 1):
+        items = list(items)
+        futures = [self.client.submit(_cluster_chunk, self.token, self.initializer, self.initargs, fn,
+                                      items[i:i + chunksize], pure=False)
+                   for i in range(0, len(items), chunksize)]
+        return (r for f in futures for r in f.result())
+
+
+def connect(scheduler: str):
+    """A distributed.Client on `scheduler` (an address such as tcp://host:8786), or one
+    InputError line saying what is missing."""
+    from .errors import InputError
+
+    try:
+        from distributed import Client
+    except ImportError:
+        raise InputError("--scheduler: needs the 'distributed' package (pip install 'rigcal[dask]')") from None
+    try:
+        return Client(scheduler, timeout="10s", set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as e:
+        raise InputError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there "
+                         f"({e.__class__.__name__}: {str(e).splitlines()[0] if str(e) else ''})") from None
+
+
+@contextlib.contextmanager
+def pool(jobs: int, preload: str, initializer, initargs: tuple, scheduler: str | None = None):
+    """worker_pool(jobs, ...) on this machine, or a ClusterPool on the Dask cluster at
+    `scheduler`; either has .map(fn, items, chunksize) with results in order."""
+    if scheduler is None:
+        with worker_pool(jobs, preload, initializer, initargs) as ex:
+            yield ex
+        return
+    client = connect(scheduler)
+    try:
+        yield ClusterPool(client, initializer, initargs)
+    finally:
+        client.close()
