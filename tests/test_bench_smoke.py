@@ -133,6 +133,7 @@ def test_rigcal_and_gtsam_solvers_reach_the_same_optimum():
     # land on the same least-squares optimum: apart by under 1 % of the noise-limited error
     # (rigcal stops when a step gains < 0.01 in chi-square, gtsam at a relative 1e-8; seed 1
     # ends 1.6e-4 of the error apart, seed 2 2e-6).
+    pytest.importorskip("gtsam", reason="gtsam is not installed (no wheel for this Python and numpy 2)")
     from bench import solver_libraries as sl
 
     (r,) = sl.run(frames=(10,), seed=1, log=lambda *_: None)

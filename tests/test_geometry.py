@@ -3,11 +3,18 @@ definitions: look/axes frames, quaternions, rotation vectors, pose inverses."""
 
 from __future__ import annotations
 
-import gtsam
 import numpy as np
 import pytest
 
 from rigcal import geometry as geo
+
+try:
+    import gtsam
+except ImportError:  # the [test] extra installs it where a wheel works with numpy 2 (Python >= 3.11)
+    gtsam = None
+# gtsam 4.2, the last wheel for Python 3.10, is built against numpy 1 and crashes with the
+# numpy 2 that OpenCV 5 needs: there the cross-checks against gtsam skip, the rest runs.
+needs_gtsam = pytest.mark.skipif(gtsam is None, reason="gtsam is not installed (no wheel for this Python and numpy 2)")
 
 N_RANDOM = 1000
 
@@ -30,6 +37,7 @@ def poses_and_points():
     return Ts, ps, gposes
 
 
+@needs_gtsam
 def test_transform_matches_gtsam_transform_from(poses_and_points):
     Ts, ps, gposes = poses_and_points
     ours = np.array([geo.transform(T, p) for T, p in zip(Ts, ps)])
@@ -37,6 +45,7 @@ def test_transform_matches_gtsam_transform_from(poses_and_points):
     np.testing.assert_allclose(ours, theirs, atol=1e-9, rtol=0)
 
 
+@needs_gtsam
 def test_inverse_transform_matches_gtsam_transform_to(poses_and_points):
     Ts, ps, gposes = poses_and_points
     ours = np.array([geo.transform(geo.inv_T(T), p) for T, p in zip(Ts, ps)])
@@ -46,6 +55,7 @@ def test_inverse_transform_matches_gtsam_transform_to(poses_and_points):
     np.testing.assert_allclose(geo.inv_T(Ts), np.array([g.inverse().matrix() for g in gposes]), atol=1e-9)
 
 
+@needs_gtsam
 def test_composition_matches_gtsam_compose(poses_and_points):
     Ts, _, gposes = poses_and_points
     ours = Ts[:-1] @ Ts[1:]
@@ -53,6 +63,7 @@ def test_composition_matches_gtsam_compose(poses_and_points):
     np.testing.assert_allclose(ours, theirs, atol=1e-9, rtol=0)
 
 
+@needs_gtsam
 def test_transform_of_many_points_at_once(poses_and_points):
     Ts, ps, gposes = poses_and_points
     ours = geo.transform(Ts[7], ps)
@@ -60,6 +71,7 @@ def test_transform_of_many_points_at_once(poses_and_points):
     np.testing.assert_allclose(ours, theirs, atol=1e-9, rtol=0)
 
 
+@needs_gtsam
 def test_quaternion_matches_gtsam(poses_and_points):
     Ts, _, gposes = poses_and_points
     for T, g in zip(Ts[:200], gposes[:200]):
@@ -71,6 +83,7 @@ def test_quaternion_matches_gtsam(poses_and_points):
         np.testing.assert_allclose(geo.R_from_quat(q), gtsam.Rot3.Quaternion(*q).matrix(), atol=1e-12)
 
 
+@needs_gtsam
 def test_rotation_vector_matches_gtsam_expmap_logmap():
     rng = np.random.default_rng(7)
     axes = rng.normal(size=(300, 3))
@@ -103,6 +116,7 @@ def test_look_frames(look):
     np.testing.assert_array_equal(R, geo.R_from_axes(geo.LOOK_AXES[look]))
 
 
+@needs_gtsam
 def test_look_forward_is_the_textbook_rot3():
     # GTSAM's Rot3(-L, -U, F) in FLU: columns are the camera axes in body terms
     L, U, F = np.array([0.0, 1, 0]), np.array([0.0, 0, 1]), np.array([1.0, 0, 0])
