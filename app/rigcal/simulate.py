@@ -469,7 +469,7 @@ class RenderSettings:
 _STATE: dict[str, Any] = {}
 
 
-def _set_state(state: dict[str, Any], worker: bool = True) -> None:
+def set_state(state: dict[str, Any], worker: bool = True) -> None:
     _STATE.clear()
     _STATE.update(state)
     if worker:  # one process per core already
@@ -508,7 +508,7 @@ def _render_and_write(ci: int, fi: int, path: str) -> float:
     return time.process_time() - t0
 
 
-def _prepare_state(true_rig: Rig, scene: Scene, settings: RenderSettings, threads: int) -> dict[str, Any]:
+def prepare_state(true_rig: Rig, scene: Scene, settings: RenderSettings, threads: int) -> dict[str, Any]:
     models = [c.intrinsics for c in true_rig.cameras]
     with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:  # numpy releases the GIL
         rays = list(pool.map(lambda m: render.sample_rays(render.ray_map(m, settings.ss)), models))
@@ -650,12 +650,12 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
             p = d / f"{stem}.png"
             paths[cam.name].append(p)
             tasks.append((ci, fi, str(p)))
-    state = _prepare_state(true_rig, scene, settings, jobs)
+    state = prepare_state(true_rig, scene, settings, jobs)
     bar = _progress(len(tasks)) if progress else None
     cpu = 0.0
     try:
         if jobs == 1 or len(tasks) == 1:
-            _set_state(state, worker=False)
+            set_state(state, worker=False)
             for t in tasks:
                 cpu += _render_and_write(*t)
                 if bar:
@@ -672,7 +672,7 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
 def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> float:
     """Render in forkserver workers (rigcal.workers); each receives the ray maps once, pickled."""
     cpu = 0.0
-    with worker_pool(min(jobs, len(tasks)), "rigcal.simulate", _set_state, (state,)) as pool:
+    with worker_pool(min(jobs, len(tasks)), "rigcal.simulate", set_state, (state,)) as pool:
         with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
             futures = [pool.submit(_render_and_write, *t) for t in tasks]
         for fut in as_completed(futures):
