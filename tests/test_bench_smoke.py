@@ -13,7 +13,8 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
-MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "__main__")
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu",
+           "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -124,3 +125,13 @@ def test_view_offsets_leave_out_the_corners_the_solve_rejected(micro):
     assert bad["view_offset_rms_px"] == pytest.approx(base["view_offset_rms_px"], rel=0.3)
     assert bad["view_offset_rms_px"] < 2 * bad["white_expectation_px"]
     assert bad["rejected_corners"] == base["rejected_corners"] + 1
+
+
+def test_simulate_imu_section_runs_small(tmp_path, monkeypatch):
+    from bench import simulate_imu
+
+    monkeypatch.setattr(simulate_imu, "OUT", tmp_path)
+    r = simulate_imu.run(duration=0.3, camera_rate=5.0, jobs=1)
+    assert r["images"] == 3 and r["imu_samples"]["imu0"] == int(1.3 * 200) + 1
+    assert (tmp_path / "simulate_imu.png").stat().st_size > 0 and (tmp_path / "simulate_imu.html").exists()
+    assert "peak angular rate" in simulate_imu.tables(r)
