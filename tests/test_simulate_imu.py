@@ -24,19 +24,12 @@ from rigcal.motion import IMU_HEADER, read_imu_csv
 from rigcal.rig import parse_rig, rig_from_dict
 from rigcal.simulate_imu import EPOCH_NS, simulate_motion_dataset
 from rigcal.target import load_target
+from test_rig_imu import IMU_BLOCK
 
 SMALL_RIG = """\
 # two small cameras back to back; the back one has a rolling shutter (12 ms readout)
 rig: small-imu
-imus:
-  imu0:
-    position: [0.02, 0.0, -0.01]
-    axes: [F, -L, -U]
-    update_rate: 200.0
-    gyroscope_noise_density: 1.7e-4
-    gyroscope_random_walk: 1.9e-5
-    accelerometer_noise_density: 2.0e-3
-    accelerometer_random_walk: 3.0e-3
+""" + IMU_BLOCK + """\
 cameras:
   front:
     model: pinhole
