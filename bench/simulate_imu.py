@@ -112,15 +112,35 @@ def _panel(h: int, w: int, t: np.ndarray, ys: np.ndarray, title: str) -> np.ndar
     return img
 
 
+def _top_view(size: int, p: np.ndarray, heading: np.ndarray, title: str) -> np.ndarray:
+    """The body origin's path seen from above (east right, north up), equal scale, with the
+    body's forward axis drawn every 50th sample."""
+    img = np.full((size, size, 3), 255, np.uint8)
+    xy = p[:, :2] - p[:, :2].mean(axis=0)
+    scale = (size - 60) / max(float(np.abs(xy).max()) * 2, 1e-6)
+    uv = np.column_stack([size / 2 + xy[:, 0] * scale, size / 2 + 10 - xy[:, 1] * scale])
+    cv2.polylines(img, [uv.round().astype(np.int32)], False, (120, 60, 0), 1, cv2.LINE_AA)
+    for i in range(0, len(uv), 50):
+        tip = uv[i] + np.array([heading[i, 0], -heading[i, 1]]) * 25
+        cv2.arrowedLine(img, tuple(int(v) for v in uv[i]), tuple(int(v) for v in tip), (0, 0, 200), 1, cv2.LINE_AA,
+                        tipLength=0.25)
+    cv2.putText(img, title, (8, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(img, f"{20 / scale * 100:.1f} cm / 20 px", (8, size - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.35,
+                (80, 80, 80), 1, cv2.LINE_AA)
+    return img
+
+
 def png_figure(res, path: Path, seconds: float = PLOT_SECONDS) -> None:
-    """Position, gyroscope and accelerometer over the first `seconds`, drawn with OpenCV."""
+    """Position, gyroscope and accelerometer over the first `seconds`, and the path from
+    above, drawn with OpenCV."""
     s, keep, m = _first_seconds(res, seconds)
     t = s.t[keep]
     panels = [_panel(170, 900, t, m.p_world - m.p_world.mean(axis=0),
                      f"body position about its mean (m), world x red / y green / z blue, first {seconds:g} s"),
               _panel(170, 900, t, s.gyro[keep], "gyroscope (rad/s), IMU x red / y green / z blue"),
               _panel(170, 900, t, s.accel[keep], "accelerometer (m/s^2): specific force, gravity on +z")]
-    cv2.imwrite(str(path), np.vstack(panels))
+    top = _top_view(510, m.p_world, m.R_world_body[:, :, 0], f"path from above (E right, N up), first {seconds:g} s")
+    cv2.imwrite(str(path), np.hstack([np.vstack(panels), top]))
 
 
 def main(argv=None) -> None:
