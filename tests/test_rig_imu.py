@@ -144,3 +144,27 @@ def test_view_draws_each_imu_axis_at_its_pose(tmp_path):
     r = CliRunner().invoke(app, ["view", str(ROOT / "rigs" / "drone-stereo-back-frd.yaml"), "--out",
                                  str(tmp_path / "v.html")])
     assert r.exit_code == 0 and "IMU(s): imu0" in r.stdout
+
+
+@pytest.mark.parametrize("args", [["project", "--position", "0", "0", "0", "--heading", "0", "--point", "5", "0", "0"],
+                                  ["export", "--format", "kalibr"], ["export", "--format", "opencv"],
+                                  ["export", "--format", "ros"], ["export", "--format", "json"]],
+                         ids=["project", "kalibr", "opencv", "ros", "json"])
+def test_every_command_accepts_a_rig_with_imus(args, tmp_path):
+    rig = ROOT / "rigs" / "drone-stereo-back-frd.yaml"
+    extra = ["--out", str(tmp_path / "out")] if args[0] == "export" else []
+    r = CliRunner().invoke(app, [args[0], str(rig), *args[1:], *extra])
+    assert r.exit_code == 0, (r.stdout, r.stderr)
+    plain = ROOT / "rigs" / "drone-stereo-back.yaml"
+    if args[0] == "export":  # the cameras' export does not change with an IMU beside them
+        r2 = CliRunner().invoke(app, [args[0], str(plain), *args[1:], "--out", str(tmp_path / "plain")])
+        assert r2.exit_code == 0
+        a, b = tmp_path / "out", tmp_path / "plain"
+        files = sorted(p.relative_to(a) for p in a.rglob("*") if p.is_file()) if a.is_dir() else [None]
+        for f in files:
+            ta = (a / f if f else a).read_text()
+            tb = (b / f if f else b).read_text()
+            if args[-1] == "json":  # JSON is the rig file's own form: the IMU and line delays are in it
+                assert "imu0" in ta and "imu0" not in tb
+            else:
+                assert ta.replace("drone-stereo-back-frd", "drone-stereo-back") == tb

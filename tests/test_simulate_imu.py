@@ -290,3 +290,31 @@ def test_camera_only_calibration_runs_on_a_motion_dataset(tmp_path):
     r, cal = _calibrate(out, tmp_path)
     assert r.exit_code == 0 and "reference is `aligned`" in r.stderr, r.stderr
     assert load_target(out / "target.yaml").boards
+
+
+def test_a_gap_in_the_imu_stream_is_reported(sim, tmp_path):
+    from rigcal.dataset import list_dataset
+    from rigcal.motion import check_motion_dataset
+
+    d = _copy(sim, tmp_path)
+    p = d / "imu" / "imu0.csv"
+    lines = p.read_text().splitlines()
+    p.write_text("\n".join(lines[:20] + lines[30:]) + "\n")  # 10 samples (50 ms) missing
+    rig = parse_rig(SMALL_RIG)
+    check = check_motion_dataset(d, rig, list_dataset(d, rig))
+    assert len(check.notes) == 1 and "1 gap(s) longer than 5 samples, the longest 0.055 s" in check.notes[0]
+    assert check.image_t_ns["front"][0] == int(sorted(p.stem for p in (d / "images" / "front").glob("*.png"))[0])
+    intact = check_motion_dataset(sim.out_dir, rig, list_dataset(sim.out_dir, rig))
+    assert intact.notes == ()
+
+
+def test_a_declared_clock_offset_is_the_nominal_one():
+    from rigcal.simulate_imu import true_rig_for_motion
+
+    rig = parse_rig(SMALL_RIG.replace("    line_delay_s: 5.0e-5\n", "    line_delay_s: 5.0e-5\n    time_offset_s: 0.25\n"))
+    pert = {"mount_error_mm": 5.0, "mount_error_deg": 1.0, "focal_error": 0.02}
+    truth = true_rig_for_motion(rig, 0, 10.0, pert)
+    base = true_rig_for_motion(parse_rig(SMALL_RIG), 0, 10.0, pert)
+    assert truth.camera("back").time_offset_s - base.camera("back").time_offset_s == pytest.approx(0.25, abs=1e-12)
+    assert truth.camera("front").time_offset_s == base.camera("front").time_offset_s
+    assert abs(base.camera("back").time_offset_s) <= 0.010

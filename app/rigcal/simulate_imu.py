@@ -80,13 +80,15 @@ def perturb_imus(imus: Sequence[Imu], rng: np.random.Generator, mount_error_mm: 
 
 
 def true_rig_for_motion(rig: Rig, seed: int, time_offset_ms: float, perturbation: dict[str, float]) -> Rig:
-    """Cameras as perturb_rig makes them, plus a true clock offset uniform in +-time_offset_ms
-    per camera (their declared line delays kept), and perturbed IMU mounts."""
+    """Cameras as perturb_rig makes them, plus a true clock offset: the declared one (0 when
+    none) plus uniform in +-time_offset_ms per camera (declared line delays kept), and
+    perturbed IMU mounts."""
     cams = perturb_rig(rig, np.random.default_rng([seed, 1]), **perturbation).cameras
     rng = np.random.default_rng([seed, 3])
     offsets = rng.uniform(-time_offset_ms, time_offset_ms, len(cams)) / 1000.0
-    cams = tuple(replace(c, time_offset_s=float(o), line_delay_s=rig.camera(c.name).line_delay_s)
-                 for c, o in zip(cams, offsets))
+    # a declared offset is the nominal one: the truth differs from it like a mount from its design
+    cams = tuple(replace(c, time_offset_s=float((rig.camera(c.name).time_offset_s or 0.0) + o),
+                         line_delay_s=rig.camera(c.name).line_delay_s) for c, o in zip(cams, offsets))
     imus = perturb_imus(rig.imus, rng, perturbation["mount_error_mm"], perturbation["mount_error_deg"])
     return replace(rig, cameras=cams, imus=imus)
 
