@@ -311,7 +311,8 @@ def test_a_gap_in_the_imu_stream_is_reported(sim, tmp_path):
 def test_a_declared_clock_offset_is_the_nominal_one():
     from rigcal.simulate_imu import true_rig_for_motion
 
-    rig = parse_rig(SMALL_RIG.replace("    line_delay_s: 5.0e-5\n", "    line_delay_s: 5.0e-5\n    time_offset_s: 0.25\n"))
+    delay = "    line_delay_s: 5.0e-5\n"
+    rig = parse_rig(SMALL_RIG.replace(delay, delay + "    time_offset_s: 0.25\n"))
     pert = {"mount_error_mm": 5.0, "mount_error_deg": 1.0, "focal_error": 0.02}
     truth = true_rig_for_motion(rig, 0, 10.0, pert)
     base = true_rig_for_motion(parse_rig(SMALL_RIG), 0, 10.0, pert)

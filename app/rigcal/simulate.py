@@ -651,7 +651,7 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
             paths[cam.name].append(p)
             tasks.append((ci, fi, str(p)))
     state = prepare_state(true_rig, scene, settings, jobs)
-    bar = _progress(len(tasks)) if progress else None
+    bar = RenderProgress(len(tasks)) if progress else None
     cpu = 0.0
     try:
         if jobs == 1 or len(tasks) == 1:
@@ -682,7 +682,7 @@ def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> float:
     return cpu
 
 
-class _progress:
+class RenderProgress:
     """A rich progress bar on stderr."""
 
     def __init__(self, total: int):

@@ -43,8 +43,8 @@ from .errors import InputError, OutputError
 from .io import atomic_dir
 from .motion import IMU_HEADER
 from .rig import Imu, Rig, load_rig, rig_to_dict
-from .simulate import (DICTIONARY, MARKER_RATIO, MIN_SQUARE_PX, OPTICS_SIGMA_PX, RenderSettings, Scene,
-                       CameraCoverage, coverage, perturb_rig, prepare_state)
+from .simulate import (DICTIONARY, MARKER_RATIO, OPTICS_SIGMA_PX, RenderSettings, Scene,
+                       CameraCoverage, RenderProgress, coverage, perturb_rig, prepare_state)
 from .target import Board, Target, dump_target
 from .workers import interrupts_deferred, worker_pool
 
@@ -252,20 +252,28 @@ def _render_and_write(ci: int, fi: int, path: str) -> float:
     return time.process_time() - t0
 
 
-def _render_all(state: dict[str, Any], tasks: list[tuple[int, int, str]], jobs: int) -> float:
+def _render_all(state: dict[str, Any], tasks: list[tuple[int, int, str]], jobs: int, progress: bool) -> float:
+    """Render and write every image (in worker processes when jobs > 1); returns their CPU seconds."""
     cpu = 0.0
+    bar = RenderProgress(len(tasks)) if progress else None
     try:
         if jobs == 1 or len(tasks) == 1:
             _set_state(state, worker=False)
             for t in tasks:
                 cpu += _render_and_write(*t)
+                if bar:
+                    bar.advance()
         else:
             with worker_pool(min(jobs, len(tasks)), "rigcal.simulate_imu", _set_state, (state,)) as pool:
                 with interrupts_deferred():
                     futures = [pool.submit(_render_and_write, *t) for t in tasks]
                 for fut in as_completed(futures):
                     cpu += fut.result()
+                    if bar:
+                        bar.advance()
     finally:
+        if bar:
+            bar.close()
         _STATE.clear()
     return cpu
 
@@ -346,8 +354,8 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
                             time_offset_ms: float = DEFAULTS["time_offset_ms"], seed: int = 0, noise: float = 2.0,
                             mount_error_mm: float = 5.0, mount_error_deg: float = 1.0, focal_error: float = 0.02,
                             target: Target | None = None, imu_noise: bool = True, force: bool = False,
-                            jobs: int | None = None, rig_text: str | None = None, target_text: str | None = None,
-                            label: str = "<rig>") -> MotionSimResult:
+                            jobs: int | None = None, progress: bool = False, rig_text: str | None = None,
+                            target_text: str | None = None, label: str = "<rig>") -> MotionSimResult:
     """Render a motion dataset (imu.md) of `rig` into out_dir, whole or not at all."""
     t0 = time.perf_counter()
     check_motion_settings(rig, duration, camera_rate, exposure, time_offset_ms, label)
@@ -382,7 +390,7 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
             d.mkdir(parents=True)
             paths[cam.name] = tuple(out_dir / "images" / cam.name / f"{s}.png" for s in timing.stems_ns)
             tasks += [(ci, fi, str(d / f"{s}.png")) for fi, s in enumerate(timing.stems_ns)]
-        cpu = _render_all(state, tasks, jobs)
+        cpu = _render_all(state, tasks, jobs, progress)
         _write_files(tmp, rig, truth, target, T_world_board, traj, streams, timing, settings, exposure, rig_text,
                      target_text, perturbation)
     return MotionSimResult(out_dir, rig, truth, target, T_world_board, traj, timing, streams, paths, cover,
@@ -444,7 +452,8 @@ def run(rig_path, out_dir, duration=None, camera_rate=None, exposure=None, time_
         exposure=DEFAULTS["exposure"] if exposure is None else exposure,
         time_offset_ms=DEFAULTS["time_offset_ms"] if time_offset_ms is None else time_offset_ms, seed=seed,
         noise=noise, mount_error_mm=mount_error_mm, mount_error_deg=mount_error_deg, focal_error=focal_error,
-        target=target, force=force, jobs=jobs, rig_text=rig_path.read_text(encoding="utf-8"),
+        target=target, force=force, jobs=jobs, progress=sys.stderr.isatty(),
+        rig_text=rig_path.read_text(encoding="utf-8"),
         target_text=target_text, label=str(rig_path))
     return summary(res)
 
