@@ -264,6 +264,8 @@ def test_read_imu_csv_accepts_euroc_text(tmp_path):
     s = read_imu_csv(p)
     assert s.t_ns.tolist() == [1403715273262142976, 1403715273267142912]
     np.testing.assert_allclose(s.accel[1], [8.0708, -0.7929, -3.3159])
+    p.write_bytes(b"\xef\xbb\xbf" + p.read_bytes().replace(b"\n", b"\r\n"))  # BOM and CRLF, as Windows writes
+    assert read_imu_csv(p).t_ns.tolist() == s.t_ns.tolist()
     p.write_text(IMU_HEADER + "\n")
     with pytest.raises(DatasetError, match="at least 2 samples"):
         read_imu_csv(p)

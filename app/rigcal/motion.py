@@ -44,7 +44,7 @@ def read_imu_csv(path: str | Path) -> ImuSamples:
     """Parse and check one EuRoC-format IMU file (lines starting with '#' are comments)."""
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM (Windows editors) is not part of the header
     except (OSError, UnicodeDecodeError) as e:
         raise DatasetError(f"{path}: cannot read ({e.__class__.__name__}: {e})") from None
     rows, t_ns = [], []
