@@ -651,34 +651,38 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
             paths[cam.name].append(p)
             tasks.append((ci, fi, str(p)))
     state = prepare_state(true_rig, scene, settings, jobs)
+    return paths, run_render_tasks(state, tasks, jobs, progress)
+
+
+def run_render_tasks(state: dict[str, Any], tasks: list, jobs: int, progress: bool, work=None, init=None,
+                     preload: str = "rigcal.simulate") -> float:
+    """work(*task) for every task (default: this module's render-and-write), here when jobs is 1,
+    else in forkserver workers (rigcal.workers) set up by init(state) (default: set_state),
+    each receiving the state (the ray maps) once, pickled. work and init must be module-level
+    functions of `preload`. Returns the CPU seconds the tasks report."""
+    work = work or _render_and_write
+    init = init or set_state
     bar = RenderProgress(len(tasks)) if progress else None
     cpu = 0.0
     try:
         if jobs == 1 or len(tasks) == 1:
-            set_state(state, worker=False)
+            init(state, worker=False)
             for t in tasks:
-                cpu += _render_and_write(*t)
+                cpu += work(*t)
                 if bar:
                     bar.advance()
         else:
-            cpu += _run_pool(state, tasks, jobs, bar)
+            with worker_pool(min(jobs, len(tasks)), preload, init, (state,)) as pool:
+                with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
+                    futures = [pool.submit(work, *t) for t in tasks]
+                for fut in as_completed(futures):
+                    cpu += fut.result()
+                    if bar:
+                        bar.advance()
     finally:
         if bar:
             bar.close()
-        _STATE.clear()
-    return paths, cpu
-
-
-def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> float:
-    """Render in forkserver workers (rigcal.workers); each receives the ray maps once, pickled."""
-    cpu = 0.0
-    with worker_pool(min(jobs, len(tasks)), "rigcal.simulate", set_state, (state,)) as pool:
-        with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
-            futures = [pool.submit(_render_and_write, *t) for t in tasks]
-        for fut in as_completed(futures):
-            cpu += fut.result()
-            if bar:
-                bar.advance()
+        init({}, worker=False)  # drop the state (ray maps) this process holds
     return cpu
 
 

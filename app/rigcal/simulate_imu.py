@@ -27,7 +27,6 @@ import math
 import os
 import sys
 import time
-from concurrent.futures import as_completed
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Sequence
@@ -44,9 +43,8 @@ from .io import atomic_dir
 from .motion import IMU_HEADER
 from .rig import Imu, Rig, load_rig, rig_to_dict
 from .simulate import (DICTIONARY, MARKER_RATIO, OPTICS_SIGMA_PX, RenderSettings, Scene,
-                       CameraCoverage, RenderProgress, coverage, perturb_rig, prepare_state)
+                       CameraCoverage, coverage, perturb_rig, prepare_state, run_render_tasks)
 from .target import Board, Target, dump_target
-from .workers import interrupts_deferred, worker_pool
 
 EPOCH_NS = 1_600_000_000_000_000_000  # IMU clock at t = 0 (2020-09-13, EuRoC-like absolute stamps)
 MARGIN_S = 0.5  # IMU samples before the first and after the last image
@@ -252,32 +250,6 @@ def _render_and_write(ci: int, fi: int, path: str) -> float:
     return time.process_time() - t0
 
 
-def _render_all(state: dict[str, Any], tasks: list[tuple[int, int, str]], jobs: int, progress: bool) -> float:
-    """Render and write every image (in worker processes when jobs > 1); returns their CPU seconds."""
-    cpu = 0.0
-    bar = RenderProgress(len(tasks)) if progress else None
-    try:
-        if jobs == 1 or len(tasks) == 1:
-            _set_state(state, worker=False)
-            for t in tasks:
-                cpu += _render_and_write(*t)
-                if bar:
-                    bar.advance()
-        else:
-            with worker_pool(min(jobs, len(tasks)), "rigcal.simulate_imu", _set_state, (state,)) as pool:
-                with interrupts_deferred():
-                    futures = [pool.submit(_render_and_write, *t) for t in tasks]
-                for fut in as_completed(futures):
-                    cpu += fut.result()
-                    if bar:
-                        bar.advance()
-    finally:
-        if bar:
-            bar.close()
-        _STATE.clear()
-    return cpu
-
-
 # ----------------------------------------------------------------------------- files
 
 
@@ -390,7 +362,8 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
             d.mkdir(parents=True)
             paths[cam.name] = tuple(out_dir / "images" / cam.name / f"{s}.png" for s in timing.stems_ns)
             tasks += [(ci, fi, str(d / f"{s}.png")) for fi, s in enumerate(timing.stems_ns)]
-        cpu = _render_all(state, tasks, jobs, progress)
+        cpu = run_render_tasks(state, tasks, jobs, progress, work=_render_and_write, init=_set_state,
+                               preload="rigcal.simulate_imu")
         _write_files(tmp, rig, truth, target, T_world_board, traj, streams, timing, settings, exposure, rig_text,
                      target_text, perturbation)
     return MotionSimResult(out_dir, rig, truth, target, T_world_board, traj, timing, streams, paths, cover,
