@@ -92,11 +92,7 @@ def body_traces(length: float) -> list[go.Scatter3d]:
 def camera_traces(cam: Camera, length: float) -> list[go.Scatter3d]:
     """A posed camera's x, y, z axes (one trace each; z carries its name) and its frustum."""
     R_body_cam, t_body_cam = cam.T_body_cam[:3, :3], cam.T_body_cam[:3, 3]
-    traces = []
-    for i, axis in enumerate("xyz"):
-        pts = np.array([t_body_cam, t_body_cam + length * R_body_cam[:, i]])
-        label = [cam.name if axis == "z" else "", axis]
-        traces.append(_line(pts, f"{cam.name} {axis}", AXIS_COLOURS[axis], 5, label, group=cam.name))
+    traces = axes_traces(cam.T_body_cam, cam.name, length, "z", 5)
     p_body = frustum_points(cam.intrinsics, 0.6 * length) @ R_body_cam.T + t_body_cam
     corners = p_body[:: BORDER_SAMPLES][:4]
     ok = np.all(np.isfinite(corners), axis=1)
@@ -109,12 +105,18 @@ def camera_traces(cam: Camera, length: float) -> list[go.Scatter3d]:
 
 def imu_traces(imu: Imu, length: float) -> list[go.Scatter3d]:
     """An IMU's measurement axes x, y, z (one trace each, dotted; x carries its name)."""
-    R_body_imu, t_body_imu = imu.T_body_imu[:3, :3], imu.T_body_imu[:3, 3]
+    return axes_traces(imu.T_body_imu, imu.name, length, "x", 9, dash="dot")
+
+
+def axes_traces(T_body_frame: np.ndarray, name: str, length: float, named_axis: str, width: float,
+                dash: str = "solid") -> list[go.Scatter3d]:
+    """A frame's x, y, z axes from its origin (traces `<name> x|y|z`); `named_axis` carries the name."""
+    R, t = T_body_frame[:3, :3], T_body_frame[:3, 3]
     traces = []
     for i, axis in enumerate("xyz"):
-        pts = np.array([t_body_imu, t_body_imu + length * R_body_imu[:, i]])
-        label = [imu.name if axis == "x" else "", axis]
-        traces.append(_line(pts, f"{imu.name} {axis}", AXIS_COLOURS[axis], 9, label, group=imu.name, dash="dot"))
+        pts = np.array([t, t + length * R[:, i]])
+        label = [name if axis == named_axis else "", axis]
+        traces.append(_line(pts, f"{name} {axis}", AXIS_COLOURS[axis], width, label, group=name, dash=dash))
     return traces
 
 
