@@ -168,6 +168,7 @@ def test_cli_refuses_bad_settings(tmp_path):
              ([str(rig), "--scene", "imu", "--frames", "3"], "--frames"),
              ([str(rig), "--scene", "imu", "--exposure", "0.5"], "--exposure"),
              ([str(rig), "--scene", "imu", "--duration", "0"], "--duration"),
+             ([str(rig), "--scene", "imu", "--time-offset-ms", "500"], "--time-offset-ms"),
              ([str(rig), "--scene", "board", "--duration", "2"], "only used with --scene imu")]
     for args, expected in cases:
         out = tmp_path / "out"
@@ -308,6 +309,16 @@ def test_a_gap_in_the_imu_stream_is_reported(sim, tmp_path):
     assert check.image_t_ns["front"][0] == int(sorted(p.stem for p in (d / "images" / "front").glob("*.png"))[0])
     intact = check_motion_dataset(sim.out_dir, rig, list_dataset(sim.out_dir, rig))
     assert intact.notes == ()
+
+
+def test_images_outside_the_imu_stream_are_refused(tmp_path):
+    from rigcal.errors import InputError
+
+    delay = "    line_delay_s: 5.0e-5\n"
+    rig = parse_rig(SMALL_RIG.replace(delay, delay + "    time_offset_s: -0.6\n"))
+    with pytest.raises(InputError, match="cameras.back: its clock offset"):
+        simulate_motion_dataset(rig, tmp_path / "out", duration=0.4, camera_rate=5.0, jobs=1)
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_declared_clock_offset_is_the_nominal_one():

@@ -313,7 +313,7 @@ def check_motion_settings(rig: Rig, duration: float, camera_rate: float, exposur
     if not rig.imus:
         raise InputError(f"{label}: imus: --scene imu needs a rig that declares an IMU (imu.md)")
     for flag, v, lo, hi in (("--duration", duration, 0.0, 3600.0), ("--camera-rate", camera_rate, 0.0, 1000.0),
-                            ("--time-offset-ms", time_offset_ms, -1e-12, 1000.0)):
+                            ("--time-offset-ms", time_offset_ms, -1e-12, 100.0)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and lo < v <= hi):
             raise InputError(f"{flag}: expected a number above {max(lo, 0):g} and at most {hi:g}, got {v!r}")
     if not (isinstance(exposure, (int, float)) and math.isfinite(exposure) and 0 <= exposure < 1.0 / camera_rate):
@@ -340,8 +340,9 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
     traj = imu_model.hand_held_trajectory(np.random.default_rng([seed, 2]))
     target, T_world_board = plan_boards(truth, _mean_pose(traj), target)
     timing = frame_timing(truth, duration, camera_rate)
-    settings = RenderSettings(seed=seed, noise=float(noise), blur=0.0, optics_sigma_px=OPTICS_SIGMA_PX)
     t_end = duration + 2 * MARGIN_S
+    _check_inside_imu_stream(truth, timing, exposure, t_end, label)
+    settings = RenderSettings(seed=seed, noise=float(noise), blur=0.0, optics_sigma_px=OPTICS_SIGMA_PX)
     streams = {}
     for ii, i in enumerate(truth.imus):
         t = np.arange(int(math.floor(t_end * i.update_rate)) + 1) / i.update_rate
@@ -368,6 +369,16 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
                      target_text, perturbation)
     return MotionSimResult(out_dir, rig, truth, target, T_world_board, traj, timing, streams, paths, cover,
                            imu_model.excitation(traj.at(np.arange(0.0, t_end, 0.005))), time.perf_counter() - t0, cpu)
+
+
+def _check_inside_imu_stream(truth: Rig, timing: Timing, exposure: float, t_end: float, label: str) -> None:
+    """Every row of every image is exposed while the IMUs sample (0 .. t_end on their clock)."""
+    for c, t in zip(truth.cameras, timing.t_imu_s):
+        readout = (c.line_delay_s or 0.0) * c.intrinsics.height
+        if t[0] - exposure / 2 < 0 or t[-1] + readout + exposure / 2 > t_end:
+            raise InputError(f"{label}: cameras.{c.name}: its clock offset ({c.time_offset_s:+.3f} s with the "
+                             f"perturbation) and readout ({readout:.3f} s) put images outside the IMU stream, which "
+                             f"starts {MARGIN_S:g} s before the first image; declare a smaller time_offset_s")
 
 
 def _mean_pose(traj: imu_model.SineTrajectory) -> np.ndarray:
