@@ -105,7 +105,7 @@ class ImportFormat(str, Enum):
 def simulate(
     rig: Path = typer.Argument(..., help="rig YAML (every camera needs a pose)"),
     out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md)"),
-    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front. Default: room when some camera shares no view with the others"),
+    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md). Default: room when some camera shares no view with the others"),
     frames: Optional[int] = typer.Option(None, help="number of frames (default 60 room, 40 board)"),
     seed: int = typer.Option(0, help="random seed; the same seed writes byte-identical images"),
     noise: float = typer.Option(2.0, help="Gaussian image noise, grey levels (sigma)"),
