@@ -12,6 +12,7 @@ Sections (each also runs alone: python -m bench.<name>):
   indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
+  simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
@@ -25,10 +26,12 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import accuracy, indie, indie_noise, montecarlo, noise_limit, peer_opencv, real, scale, solver_libraries, speed
+from . import (accuracy, indie, indie_noise, montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu,
+               solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
-SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise", "solvers")
+SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise",
+            "simulate_imu", "solvers")
 
 
 def main(argv=None) -> None:
@@ -111,6 +114,12 @@ def main(argv=None) -> None:
             write_json("indie_noise", {**r, "machine": info})
             return indie_noise.tables(r)
         section("indie_noise", ind_noise)
+    if "simulate_imu" in todo:
+        def sim_imu():
+            r = simulate_imu.run(duration=5.0 if a.quick else 30.0)
+            write_json("simulate_imu", {**r, "machine": info})
+            return simulate_imu.tables(r)
+        section("simulate_imu", sim_imu)
     if "solvers" in todo:
         def solvers():
             r = solver_libraries.run((100,) if a.quick else solver_libraries.FRAMES)

@@ -13,7 +13,7 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
-MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "solver_libraries",
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "solver_libraries",
            "__main__")
 
 
@@ -141,3 +141,13 @@ def test_rigcal_and_gtsam_solvers_reach_the_same_optimum():
     assert err["trans_mm"] > 0.1 and err["rot_deg"] > 0.01  # noisy data: a real error to be far below
     assert apart["rot_deg"] < 0.01 * err["rot_deg"] and apart["trans_mm"] < 0.01 * err["trans_mm"], (err, apart)
     assert apart["intr_px"] < 0.01, apart
+
+
+def test_simulate_imu_section_runs_small(tmp_path, monkeypatch):
+    from bench import simulate_imu
+
+    monkeypatch.setattr(simulate_imu, "OUT", tmp_path)
+    r = simulate_imu.run(duration=0.3, camera_rate=5.0, jobs=1)
+    assert r["images"] == 3 and r["imu_samples"]["imu0"] == int(1.3 * 200) + 1
+    assert (tmp_path / "simulate_imu.png").stat().st_size > 0 and (tmp_path / "simulate_imu.html").exists()
+    assert "peak angular rate" in simulate_imu.tables(r)

@@ -12,12 +12,12 @@ Public API::
 from .camera import CameraModel
 from .errors import CalibrationError, InputError, RigcalError, RigFileError
 from .geometry import T_nav_body_from_axes, T_nav_body_from_heading, inv_T, make_T, transform
-from .rig import Camera, Projection, Rig, StereoPair, dump_rig, load_rig, parse_rig, save_rig
+from .rig import Camera, Imu, Projection, Rig, StereoPair, dump_rig, load_rig, parse_rig, save_rig
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "CameraModel", "Camera", "Projection", "Rig", "StereoPair",
+    "CameraModel", "Camera", "Imu", "Projection", "Rig", "StereoPair",
     "RigcalError", "InputError", "RigFileError", "CalibrationError",
     "load_rig", "parse_rig", "save_rig", "dump_rig",
     "T_nav_body_from_heading", "T_nav_body_from_axes", "make_T", "inv_T", "transform",

@@ -100,6 +100,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
     check_shared_stems(images)
+    motion_notes = _motion_notes(dataset, rig, images)
     det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True, scheduler=scheduler)
     console = _err()
     for path, reason in det.unreadable:
@@ -151,9 +152,23 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
     for w in unseen + warnings_for(cal):
         console.print(f"warning: {w}")
-    for n in cal.notes:
+    for n in list(cal.notes) + motion_notes:
         console.print(f"note: {n}")
     return console_summary(cal, out_rig, det, timings, out_path, report_path)
+
+
+def _motion_notes(dataset: Path, rig: Rig, images) -> list[str]:
+    """imu.md's checks of a motion dataset (DatasetError on bad input) and what to tell the user."""
+    from .motion import check_motion_dataset
+
+    motion = check_motion_dataset(dataset, rig, images)
+    notes = list(motion.notes)
+    if motion.imus:
+        n = ", ".join(f"{k} ({len(s.t_ns)} samples)" for k, s in motion.imus.items())
+        notes.append(f"imu/ checked: {n}; calibrating the IMU itself (time offsets, biases, T_body_cam relative to "
+                     f"the IMU) is not implemented yet: this is a camera-only calibration, the IMU blocks are carried "
+                     f"through unchanged and the image stems serve only as frame names")
+    return notes
 
 
 def _refuse_square_chessboard(target, rig: Rig, target_file) -> None:

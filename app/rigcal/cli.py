@@ -17,7 +17,7 @@ from typing import Optional
 
 import typer
 
-from .errors import RigcalError
+from .errors import InputError, RigcalError
 
 app = typer.Typer(
     add_completion=False,
@@ -72,6 +72,7 @@ def out(text) -> None:
 class Scene(str, Enum):
     room = "room"
     board = "board"
+    imu = "imu"
 
 
 class Distortion(str, Enum):
@@ -104,7 +105,7 @@ class ImportFormat(str, Enum):
 def simulate(
     rig: Path = typer.Argument(..., help="rig YAML (every camera needs a pose)"),
     out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md)"),
-    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front. Default: room when some camera shares no view with the others"),
+    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md). Default: room when some camera shares no view with the others"),
     frames: Optional[int] = typer.Option(None, help="number of frames (default 60 room, 40 board)"),
     seed: int = typer.Option(0, help="random seed; the same seed writes byte-identical images"),
     noise: float = typer.Option(2.0, help="Gaussian image noise, grey levels (sigma)"),
@@ -115,8 +116,30 @@ def simulate(
     target: Optional[Path] = typer.Option(None, help="target YAML to use instead of one generated from the rig"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
     jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
+    duration: Optional[float] = typer.Option(None, help="--scene imu: seconds of motion (default 30)"),
+    camera_rate: Optional[float] = typer.Option(None, help="--scene imu: images per second per camera (default 20)"),
+    exposure: Optional[float] = typer.Option(None, help="--scene imu: exposure in seconds, gives motion blur (default 0.005)"),
+    time_offset_ms: Optional[float] = typer.Option(None, help="--scene imu: true camera clock offsets are uniform in +-this (default 10)"),
 ):
-    """Render a synthetic ChArUco dataset with ground truth (truth.yaml)."""
+    """Render a synthetic ChArUco dataset with ground truth (truth.yaml); --scene imu: a moving
+    recording with IMU streams (imu.md)."""
+    motion_flags = {"--duration": duration, "--camera-rate": camera_rate, "--exposure": exposure,
+                    "--time-offset-ms": time_offset_ms}
+    if scene is Scene.imu:
+        from . import simulate_imu
+
+        for flag, given in (("--frames", frames is not None), ("--blur", blur != 0.0)):
+            if given:
+                raise InputError(f"{flag}: not used with --scene imu (use --duration / --camera-rate; the motion "
+                                 f"blur comes from --exposure)")
+        out(simulate_imu.run(rig_path=rig, out_dir=out_dir, duration=duration, camera_rate=camera_rate,
+                             exposure=exposure, time_offset_ms=time_offset_ms, seed=seed, noise=noise,
+                             mount_error_mm=mount_error_mm, mount_error_deg=mount_error_deg, focal_error=focal_error,
+                             target_path=target, force=force, jobs=jobs))
+        return
+    for flag, v in motion_flags.items():
+        if v is not None:
+            raise InputError(f"{flag}: only used with --scene imu")
     from . import simulate as sim
 
     out(sim.run(rig_path=rig, out_dir=out_dir, scene=scene.value if scene else None, frames=frames, seed=seed,

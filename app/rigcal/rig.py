@@ -21,9 +21,16 @@ from .io import atomic_write_text
 from .validate import read_text, _check_finite_tree, _kind, _number, _positive, _short, _unknown, _vector
 
 NAME_RE = re.compile(r"^[a-z0-9_]+$")
-TOP_KEYS = ("rig", "body_frame", "cameras", "stereo_pairs", "calibration")
+TOP_KEYS = ("rig", "body_frame", "imus", "cameras", "stereo_pairs", "calibration")
 CAMERA_KEYS = ("model", "resolution", "intrinsics", "distortion", "position", "look", "axes", "rotation",
-               "quaternion", "calibration")
+               "quaternion", "time_offset_s", "line_delay_s", "calibration")
+# imu.md: Kalibr's imu.yaml names and units; every one is required and positive
+IMU_NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_noise_density",
+                  "accelerometer_random_walk")
+IMU_KEYS = ("position", "axes", "rotation", "quaternion", "update_rate") + IMU_NOISE_KEYS + ("calibration",)
+MIN_IMU_RATE_HZ = 1.0
+MAX_TIME_OFFSET_S = 10.0  # a larger clock offset is a wrong unit (ms, ns) rather than a real offset
+MAX_FRAME_READOUT_S = 1.0  # line_delay_s times the image height
 ORIENTATION_KEYS = ("look", "axes", "rotation", "quaternion")
 INTRINSIC_KEYS = ("fx", "fy", "cx", "cy", "focal")
 PAIR_KEYS = ("left", "right", "baseline_m", "depth_check", "sanity_10m")
@@ -38,16 +45,15 @@ class Camera:
     intrinsics: CameraModel
     T_body_cam: np.ndarray | None = None
     calibration: Mapping[str, Any] | None = None
+    time_offset_s: float | None = None  # imu.md: t_imu = t_cam + time_offset_s; None when not declared
+    line_delay_s: float | None = None  # rolling shutter: row r exposed at t + r * line_delay_s; None: global
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Camera):
             return NotImplemented
-        same_pose = (self.T_body_cam is None and other.T_body_cam is None) or (
-            self.T_body_cam is not None
-            and other.T_body_cam is not None
-            and np.array_equal(self.T_body_cam, other.T_body_cam)
-        )
-        return (self.name, self.intrinsics, self.calibration) == (other.name, other.intrinsics, other.calibration) and same_pose
+        return ((self.name, self.intrinsics, self.calibration, self.time_offset_s, self.line_delay_s)
+                == (other.name, other.intrinsics, other.calibration, other.time_offset_s, other.line_delay_s)
+                and _same_pose(self.T_body_cam, other.T_body_cam))
 
     @property
     def has_pose(self) -> bool:
@@ -60,6 +66,38 @@ class Camera:
         p_cam = geo.transform(geo.inv_T(self.T_body_cam), np.atleast_2d(p_body))
         uv, valid = self.intrinsics.project(p_cam)
         return Projection(p_cam=p_cam, uv=uv, valid=valid, in_image=valid & self.intrinsics.in_image(uv))
+
+
+def _same_pose(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    return (a is None and b is None) or (a is not None and b is not None and np.array_equal(a, b))
+
+
+@dataclass(frozen=True, eq=False)
+class Imu:
+    """One IMU (imu.md): its pose T_body_imu (4x4; its axes are the measurement axes), its
+    nominal sample rate (Hz) and Kalibr's four noise figures (continuous-time densities)."""
+
+    name: str
+    T_body_imu: np.ndarray
+    update_rate: float
+    gyroscope_noise_density: float  # rad/s/sqrt(Hz)
+    gyroscope_random_walk: float  # rad/s^2/sqrt(Hz)
+    accelerometer_noise_density: float  # m/s^2/sqrt(Hz)
+    accelerometer_random_walk: float  # m/s^3/sqrt(Hz)
+    calibration: Mapping[str, Any] | None = None
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Imu):
+            return NotImplemented
+        return (self.name, self.update_rate, self.noise, self.calibration) == (
+            other.name, other.update_rate, other.noise, other.calibration) and _same_pose(self.T_body_imu,
+                                                                                           other.T_body_imu)
+
+    @property
+    def noise(self) -> tuple[float, float, float, float]:
+        """The four noise figures in IMU_NOISE_KEYS order."""
+        return (self.gyroscope_noise_density, self.gyroscope_random_walk, self.accelerometer_noise_density,
+                self.accelerometer_random_walk)
 
 
 @dataclass(frozen=True)
@@ -97,12 +135,19 @@ class Rig:
     stereo_pairs: tuple[StereoPair, ...] = ()
     calibration: Mapping[str, Any] | None = None
     body_frame: str = "FLU"
+    imus: tuple[Imu, ...] = ()
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Rig):
             return NotImplemented
-        return (self.name, self.cameras, self.stereo_pairs, self.calibration, self.body_frame) == (
-            other.name, other.cameras, other.stereo_pairs, other.calibration, other.body_frame)
+        return (self.name, self.cameras, self.stereo_pairs, self.calibration, self.body_frame, self.imus) == (
+            other.name, other.cameras, other.stereo_pairs, other.calibration, other.body_frame, other.imus)
+
+    def imu(self, name: str) -> Imu:
+        for i in self.imus:
+            if i.name == name:
+                return i
+        raise KeyError(name)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -322,11 +367,52 @@ def rig_from_dict(doc: Any, label: str = "<rig>") -> Rig:
             raise err(f"cameras.{cname}", f"camera names must match [a-z0-9_]+, got {_kind(cname)}")
         cameras.append(_camera_from_dict(cname, cdoc, f"cameras.{cname}", err))
     pairs = _pairs_from_doc(doc.get("stereo_pairs"), {c.name: c for c in cameras}, err)
+    imus = _imus_from_doc(doc.get("imus"), {c.name for c in cameras}, err) if "imus" in doc else ()
     calib = doc.get("calibration")
     if calib is not None and not isinstance(calib, dict):
         raise err("calibration", f"expected a mapping, got {_kind(calib)}")
     _check_finite_tree(calib, "calibration", err)
-    return Rig(name=str(name), cameras=tuple(cameras), stereo_pairs=pairs, calibration=calib)
+    return Rig(name=str(name), cameras=tuple(cameras), stereo_pairs=pairs, calibration=calib, imus=imus)
+
+
+def _imus_from_doc(v: Any, camera_names: set[str], err) -> tuple[Imu, ...]:
+    if not isinstance(v, dict) or not v:
+        raise err("imus", f"expected a non-empty mapping of IMU name -> IMU, got {_kind(v)}")
+    out = []
+    for name, d in v.items():
+        key = f"imus.{name}"
+        if not isinstance(name, str) or not NAME_RE.match(name):
+            raise err(key, f"IMU names must match [a-z0-9_]+, got {_kind(name)}")
+        if name in camera_names:
+            raise err(key, f"the name {name!r} is also a camera's; sensor names must be unique")
+        out.append(_imu_from_dict(name, d, key, err))
+    return tuple(out)
+
+
+def _imu_from_dict(name: str, d: Any, key: str, err) -> Imu:
+    if not isinstance(d, dict):
+        raise err(key, f"expected a mapping, got {_kind(d)}")
+    if "look" in d:
+        raise err(f"{key}.look", "an IMU has no viewing direction; give its axes, rotation or quaternion")
+    _unknown(d, IMU_KEYS, key, err)
+    if "position" not in d or not any(k in d for k in ORIENTATION_KEYS):
+        raise err(key, "missing pose (expected `position` and one of axes, rotation, quaternion)")
+    T = _pose(d, key, err)
+    if "update_rate" not in d:
+        raise err(f"{key}.update_rate", "missing (expected the nominal sample rate in Hz)")
+    rate = _number(d["update_rate"], f"{key}.update_rate", err)
+    if rate < MIN_IMU_RATE_HZ:
+        raise err(f"{key}.update_rate", f"expected at least {MIN_IMU_RATE_HZ:g} Hz, got {d['update_rate']!r}")
+    noise = []
+    for k in IMU_NOISE_KEYS:
+        if k not in d:
+            raise err(f"{key}.{k}", "missing (Kalibr's imu.yaml figure, continuous time)")
+        noise.append(_positive(d[k], f"{key}.{k}", err))
+    calib = d.get("calibration")
+    if calib is not None and not isinstance(calib, dict):
+        raise err(f"{key}.calibration", f"expected a mapping, got {_kind(calib)}")
+    _check_finite_tree(calib, f"{key}.calibration", err)
+    return Imu(name, T, rate, *noise, calibration=calib)
 
 
 def _camera_from_dict(name: str, d: Any, key: str, err) -> Camera:
@@ -351,7 +437,18 @@ def _camera_from_dict(name: str, d: Any, key: str, err) -> Camera:
     if calib is not None and not isinstance(calib, dict):
         raise err(f"{key}.calibration", f"expected a mapping, got {_kind(calib)}")
     _check_finite_tree(calib, f"{key}.calibration", err)
-    return Camera(name=name, intrinsics=cam, T_body_cam=T, calibration=calib)
+    offset = delay = None
+    if "time_offset_s" in d:
+        offset = _number(d["time_offset_s"], f"{key}.time_offset_s", err)
+        if abs(offset) > MAX_TIME_OFFSET_S:
+            raise err(f"{key}.time_offset_s", f"expected seconds within +-{MAX_TIME_OFFSET_S:g}, got {offset!r}")
+    if "line_delay_s" in d:
+        delay = _number(d["line_delay_s"], f"{key}.line_delay_s", err)
+        if delay < 0 or delay * height > MAX_FRAME_READOUT_S:
+            raise err(f"{key}.line_delay_s", f"expected seconds per row, >= 0 and at most "
+                      f"{MAX_FRAME_READOUT_S:g} s over the image's {height} rows, got {delay!r}")
+    return Camera(name=name, intrinsics=cam, T_body_cam=T, calibration=calib, time_offset_s=offset,
+                  line_delay_s=delay)
 
 
 def _intrinsics(d: Any, width: int, height: int, key: str, err) -> tuple[float, float, float, float]:
@@ -480,8 +577,24 @@ def _pairs_from_doc(v: Any, cameras: dict[str, Camera], err) -> tuple[StereoPair
 # ----------------------------------------------------------------------------- saving
 
 
+def _pose_keys(T: np.ndarray) -> dict[str, Any]:
+    # `+ 0.0` turns -0.0 into 0.0 so files read cleanly.
+    return {"position": [float(x) + 0.0 for x in T[:3, 3]],
+            "rotation": [[float(x) + 0.0 for x in row] for row in T[:3, :3]],
+            "quaternion": [float(x) + 0.0 for x in geo.quat_from_R(T[:3, :3])]}
+
+
+def _imu_to_dict(imu: Imu) -> dict[str, Any]:
+    d: dict[str, Any] = {**_pose_keys(imu.T_body_imu), "update_rate": float(imu.update_rate)}
+    d.update({k: float(v) for k, v in zip(IMU_NOISE_KEYS, imu.noise)})
+    if imu.calibration is not None:
+        d["calibration"] = _plain(imu.calibration)
+    return d
+
+
 def rig_to_dict(rig: Rig) -> dict:
-    """The calibrated-file form: every posed camera gets `rotation` and `quaternion`."""
+    """The calibrated-file form: every posed camera and every IMU gets `rotation` and
+    `quaternion`; `imus`, `time_offset_s` and `line_delay_s` only when the rig has them."""
     cams = {}
     for c in rig.cameras:
         m = c.intrinsics
@@ -492,14 +605,18 @@ def rig_to_dict(rig: Rig) -> dict:
             "distortion": [float(x) for x in m.dist],
         }
         if c.T_body_cam is not None:
-            # `+ 0.0` turns -0.0 into 0.0 so files read cleanly.
-            d["position"] = [float(x) + 0.0 for x in c.T_body_cam[:3, 3]]
-            d["rotation"] = [[float(x) + 0.0 for x in row] for row in c.T_body_cam[:3, :3]]
-            d["quaternion"] = [float(x) + 0.0 for x in geo.quat_from_R(c.T_body_cam[:3, :3])]
+            d.update(_pose_keys(c.T_body_cam))
+        if c.time_offset_s is not None:
+            d["time_offset_s"] = float(c.time_offset_s)
+        if c.line_delay_s is not None:
+            d["line_delay_s"] = float(c.line_delay_s)
         if c.calibration is not None:
             d["calibration"] = _plain(c.calibration)
         cams[c.name] = d
-    out: dict[str, Any] = {"rig": rig.name, "body_frame": rig.body_frame, "cameras": cams}
+    out: dict[str, Any] = {"rig": rig.name, "body_frame": rig.body_frame}
+    if rig.imus:
+        out["imus"] = {i.name: _imu_to_dict(i) for i in rig.imus}
+    out["cameras"] = cams
     if rig.stereo_pairs:
         pairs = []
         for p in rig.stereo_pairs:

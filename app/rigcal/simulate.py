@@ -470,7 +470,7 @@ class RenderSettings:
 _STATE: dict[str, Any] = {}
 
 
-def _set_state(state: dict[str, Any], worker: bool = True) -> None:
+def set_state(state: dict[str, Any], worker: bool = True) -> None:
     _STATE.clear()
     _STATE.update(state)
     if worker:  # one process per core already
@@ -509,7 +509,7 @@ def _render_and_write(ci: int, fi: int, path: str) -> float:
     return time.process_time() - t0
 
 
-def _prepare_state(true_rig: Rig, scene: Scene, settings: RenderSettings, threads: int) -> dict[str, Any]:
+def prepare_state(true_rig: Rig, scene: Scene, settings: RenderSettings, threads: int) -> dict[str, Any]:
     models = [c.intrinsics for c in true_rig.cameras]
     with ThreadPoolExecutor(max_workers=max(1, threads)) as pool:  # numpy releases the GIL
         rays = list(pool.map(lambda m: render.sample_rays(render.ray_map(m, settings.ss)), models))
@@ -651,39 +651,43 @@ def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path
             p = d / f"{stem}.png"
             paths[cam.name].append(p)
             tasks.append((ci, fi, str(p)))
-    state = _prepare_state(true_rig, scene, settings, jobs)
-    bar = _progress(len(tasks)) if progress else None
+    state = prepare_state(true_rig, scene, settings, jobs)
+    return paths, run_render_tasks(state, tasks, jobs, progress)
+
+
+def run_render_tasks(state: dict[str, Any], tasks: list, jobs: int, progress: bool, work=None, init=None,
+                     preload: str = "rigcal.simulate") -> float:
+    """work(*task) for every task (default: this module's render-and-write), here when jobs is 1,
+    else in forkserver workers (rigcal.workers) set up by init(state) (default: set_state),
+    each receiving the state (the ray maps) once, pickled. work and init must be module-level
+    functions of `preload`. Returns the CPU seconds the tasks report."""
+    work = work or _render_and_write
+    init = init or set_state
+    bar = RenderProgress(len(tasks)) if progress else None
     cpu = 0.0
     try:
         if jobs == 1 or len(tasks) == 1:
-            _set_state(state, worker=False)
+            init(state, worker=False)
             for t in tasks:
-                cpu += _render_and_write(*t)
+                cpu += work(*t)
                 if bar:
                     bar.advance()
         else:
-            cpu += _run_pool(state, tasks, jobs, bar)
+            with worker_pool(min(jobs, len(tasks)), preload, init, (state,)) as pool:
+                with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
+                    futures = [pool.submit(work, *t) for t in tasks]
+                for fut in as_completed(futures):
+                    cpu += fut.result()
+                    if bar:
+                        bar.advance()
     finally:
         if bar:
             bar.close()
-        _STATE.clear()
-    return paths, cpu
-
-
-def _run_pool(state: dict[str, Any], tasks: list, jobs: int, bar) -> float:
-    """Render in forkserver workers (rigcal.workers); each receives the ray maps once, pickled."""
-    cpu = 0.0
-    with worker_pool(min(jobs, len(tasks)), "rigcal.simulate", _set_state, (state,)) as pool:
-        with interrupts_deferred():  # a worker interrupted while it starts prints a traceback
-            futures = [pool.submit(_render_and_write, *t) for t in tasks]
-        for fut in as_completed(futures):
-            cpu += fut.result()
-            if bar:
-                bar.advance()
+        init({}, worker=False)  # drop the state (ray maps) this process holds
     return cpu
 
 
-class _progress:
+class RenderProgress:
     """A rich progress bar on stderr."""
 
     def __init__(self, total: int):

@@ -3,7 +3,8 @@
 
 Body axes F, L, U are drawn from the body origin; each posed camera gets its x, y, z
 axes (red, green, blue) at its pinhole, labelled with its name, and a small frustum
-traced from its image border through its own lens model. Plotly's JavaScript is
+traced from its image border through its own lens model; each IMU gets its measurement
+axes x, y, z (the same colours, dotted, thicker) at its position, labelled with its name. Plotly's JavaScript is
 embedded so the page works offline.
 """
 
@@ -16,7 +17,7 @@ import plotly.graph_objects as go
 
 from .camera import CameraModel
 from .io import atomic_write_text
-from .rig import Camera, Rig, load_rig
+from .rig import Camera, Imu, Rig, load_rig
 
 AXIS_COLOURS = {"x": "red", "y": "green", "z": "blue"}
 BODY_COLOURS = {"F": "#7f0000", "L": "#005f00", "U": "#00007f"}
@@ -27,6 +28,7 @@ BORDER_SAMPLES = 16  # points per image side traced through the lens model
 def rig_extent(rig: Rig) -> float:
     """Distance of the farthest posed camera from the body origin (m); 0.1 when none is away from it."""
     d = [float(np.linalg.norm(c.T_body_cam[:3, 3])) for c in rig.cameras if c.has_pose]
+    d += [float(np.linalg.norm(i.T_body_imu[:3, 3])) for i in rig.imus]
     return max(d) if d and max(d) > 1e-6 else 0.1
 
 
@@ -90,11 +92,7 @@ def body_traces(length: float) -> list[go.Scatter3d]:
 def camera_traces(cam: Camera, length: float) -> list[go.Scatter3d]:
     """A posed camera's x, y, z axes (one trace each; z carries its name) and its frustum."""
     R_body_cam, t_body_cam = cam.T_body_cam[:3, :3], cam.T_body_cam[:3, 3]
-    traces = []
-    for i, axis in enumerate("xyz"):
-        pts = np.array([t_body_cam, t_body_cam + length * R_body_cam[:, i]])
-        label = [cam.name if axis == "z" else "", axis]
-        traces.append(_line(pts, f"{cam.name} {axis}", AXIS_COLOURS[axis], 5, label, group=cam.name))
+    traces = axes_traces(cam.T_body_cam, cam.name, length, "z", 5)
     p_body = frustum_points(cam.intrinsics, 0.6 * length) @ R_body_cam.T + t_body_cam
     corners = p_body[:: BORDER_SAMPLES][:4]
     ok = np.all(np.isfinite(corners), axis=1)
@@ -105,19 +103,40 @@ def camera_traces(cam: Camera, length: float) -> list[go.Scatter3d]:
     return traces
 
 
+def imu_traces(imu: Imu, length: float) -> list[go.Scatter3d]:
+    """An IMU's measurement axes x, y, z (one trace each, dotted; x carries its name)."""
+    return axes_traces(imu.T_body_imu, imu.name, length, "x", 9, dash="dot")
+
+
+def axes_traces(T_body_frame: np.ndarray, name: str, length: float, named_axis: str, width: float,
+                dash: str = "solid") -> list[go.Scatter3d]:
+    """A frame's x, y, z axes from its origin (traces `<name> x|y|z`); `named_axis` carries the name."""
+    R, t = T_body_frame[:3, :3], T_body_frame[:3, 3]
+    traces = []
+    for i, axis in enumerate("xyz"):
+        pts = np.array([t, t + length * R[:, i]])
+        label = [name if axis == named_axis else "", axis]
+        traces.append(_line(pts, f"{name} {axis}", AXIS_COLOURS[axis], width, label, group=name, dash=dash))
+    return traces
+
+
 def rig_figure(rig: Rig) -> go.Figure:
     """The rig's camera frames in the FLU body frame; equal scale on all three axes.
 
     Traces: `body F`, `body L`, `body U`; per posed camera `<name> x`, `<name> y`,
-    `<name> z` and `<name> frustum`. Cameras without a pose are not drawn."""
+    `<name> z` and `<name> frustum`; per IMU `<name> x`, `<name> y`, `<name> z`. Cameras
+    without a pose are not drawn."""
     extent = rig_extent(rig)
     fig = go.Figure(body_traces(1.5 * extent))
     for cam in rig.cameras:
         if cam.has_pose:
             fig.add_traces(camera_traces(cam, 0.4 * extent))
+    for imu in rig.imus:
+        fig.add_traces(imu_traces(imu, 0.3 * extent))
     unit = {"showbackground": False, "zeroline": False}
     fig.update_layout(
-        title=f"rig {rig.name}: camera frames in the body frame (FLU; camera x red, y green, z blue)",
+        title=f"rig {rig.name}: camera frames in the body frame (FLU; camera x red, y green, z blue"
+              + ("; IMU axes dotted)" if rig.imus else ")"),
         scene={"aspectmode": "data",
                "xaxis": {"title": {"text": "F (x, m)"}, **unit},
                "yaxis": {"title": {"text": "L (y, m)"}, **unit},
@@ -136,6 +155,7 @@ def run(rig_path: str | Path, out_path: str | Path) -> str:
     html = rig_figure(rig).to_html(include_plotlyjs=True, full_html=True)
     atomic_write_text(out_path, html)
     drawn = [c.name for c in rig.cameras if c.has_pose]
-    lines = [f"wrote {out_path}: body axes F, L, U and {len(drawn)} camera(s): {', '.join(drawn) or 'none'}"]
+    lines = [f"wrote {out_path}: body axes F, L, U and {len(drawn)} camera(s): {', '.join(drawn) or 'none'}"
+             + (f"; IMU(s): {', '.join(i.name for i in rig.imus)}" if rig.imus else "")]
     lines += [f"{c.name}: no pose in the rig file; not drawn" for c in rig.cameras if not c.has_pose]
     return "\n".join(lines)
