@@ -1,0 +1,441 @@
+"""`rigcal ingest` (issue 19): EuRoC folders, ROS 1 / ROS 2 bags and videos built here from a
+small simulated recording; the dataset they give must hold the same frames (pixels, stems =
+capture times), the same IMU samples, and calibrate to the same rig as the simulated folder."""
+
+from __future__ import annotations
+
+import shutil
+from fractions import Fraction
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+import recordings as R
+from rigcal import geometry as geo
+from rigcal.cli import app
+from rigcal.errors import InputError
+from rigcal.ingest import images as ims
+from rigcal.ingest.video import frame_time_ns
+from rigcal.ingest.writer import first_of_monotonic, thin_by_rate
+from rigcal.rig import load_rig, rig_from_dict
+from rigcal.simulate import simulate_dataset
+
+RIG = """
+rig: small-stereo
+body_frame: FLU
+cameras:
+  left:
+    model: pinhole
+    resolution: [480, 320]
+    intrinsics: {fx: 340.0, fy: 340.0, cx: 240.0, cy: 160.0}
+    distortion: [-0.05, 0.02, 0.0, 0.0]
+    position: [0.1, 0.05, 0.0]
+    look: forward
+  right:
+    model: pinhole
+    resolution: [480, 320]
+    intrinsics: {fx: 340.0, fy: 340.0, cx: 240.0, cy: 160.0}
+    distortion: [-0.05, 0.02, 0.0, 0.0]
+    position: [0.1, -0.05, 0.0]
+    look: forward
+stereo_pairs:
+  - [left, right]
+"""
+IMUS = """
+imus:
+  imu0: {position: [0.0, 0.0, 0.0], axes: [U, -L, F], update_rate: 200.0, gyroscope_noise_density: 1.7e-4,
+         gyroscope_random_walk: 1.9e-5, accelerometer_noise_density: 2.0e-3, accelerometer_random_walk: 3.0e-3}
+"""
+CAMS = ("left", "right")
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ingest")
+    (root / "rig.yaml").write_text(RIG)
+    simulate_dataset(load_rig(root / "rig.yaml"), root / "sim", scene="board", frames=10, noise=1.0, jobs=2, seed=5)
+    return root
+
+
+def _stamped(sim_dir: Path, out: Path, drop: dict[str, int] | None = None) -> Path:
+    """The simulated dataset with frame i renamed to its capture time T0 + i * DT (the
+    reference every ingested dataset is compared with); `drop` removes a camera's first frames."""
+    for cam in CAMS:
+        (out / "images" / cam).mkdir(parents=True)
+        frames = R.sim_frames(sim_dir, cam)
+        for i, (t, f) in enumerate(zip(R.stamps(len(frames)), frames)):
+            if i >= (drop or {}).get(cam, 0):
+                shutil.copyfile(f, out / "images" / cam / f"{t}.png")
+    shutil.copyfile(sim_dir / "rig.yaml", out / "rig.yaml")
+    shutil.copyfile(sim_dir / "target.yaml", out / "target.yaml")
+    return out
+
+
+def _calibrate(dataset: Path, out: Path, rig: Path | None = None):
+    args = ["calibrate", str(dataset), "--out", str(out), "--jobs", "1"] + (["--rig", str(rig)] if rig else [])
+    res = runner.invoke(app, args)
+    assert res.exit_code == 0, res.output
+    return load_rig(out)
+
+
+@pytest.fixture(scope="module")
+def reference(sim):
+    ds = _stamped(sim / "sim", sim / "stamped")
+    return _calibrate(ds, sim / "stamped.yaml")
+
+
+def _assert_same_calibration(a, b, px=1e-6, m=1e-9, deg=1e-7):
+    for ca in a.cameras:
+        cb = b.camera(ca.name)
+        ia, ib = ca.intrinsics, cb.intrinsics
+        assert ia.model == ib.model
+        np.testing.assert_allclose([ia.fx, ia.fy, ia.cx, ia.cy], [ib.fx, ib.fy, ib.cx, ib.cy], rtol=0, atol=px)
+        np.testing.assert_allclose(ia.dist, ib.dist, rtol=0, atol=px * 1e-2)
+        np.testing.assert_allclose(ca.T_body_cam[:3, 3], cb.T_body_cam[:3, 3], rtol=0, atol=m)
+        assert geo.rotation_angle_deg(ca.T_body_cam[:3, :3].T @ cb.T_body_cam[:3, :3]) <= deg
+
+
+def _ingest(*args) -> object:
+    return runner.invoke(app, ["ingest", *map(str, args)])
+
+
+def _images(ds: Path, cam: str) -> dict[int, np.ndarray]:
+    return {int(p.stem): cv2.imread(str(p), cv2.IMREAD_UNCHANGED) for p in sorted((ds / "images" / cam).iterdir())}
+
+
+def _assert_same_frames(ds: Path, sim_dir: Path, stamp_of: dict[str, list[int]] | None = None):
+    for cam in CAMS:
+        got = _images(ds, cam)
+        frames = R.sim_frames(sim_dir, cam)
+        want_t = stamp_of[cam] if stamp_of else R.stamps(len(frames)).tolist()
+        assert sorted(got) == sorted(want_t)
+        for t, f in zip(R.stamps(len(frames)).tolist(), frames):
+            if t in got:
+                assert np.array_equal(got[t], cv2.imread(str(f), cv2.IMREAD_UNCHANGED)), (cam, t)
+
+
+def _read_imu(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    lines = path.read_text().splitlines()
+    assert lines[0] == R.IMU_HEADER
+    t = np.array([int(ln.split(",")[0]) for ln in lines[1:]], np.int64)
+    v = np.array([[float(x) for x in ln.split(",")[1:]] for ln in lines[1:]])
+    return t, v
+
+
+def _rig_without_imus(ds: Path, out: Path) -> Path:
+    """DATASET/rig.yaml without its `imus` block: the rig loader on this branch does not read
+    `imus` yet (added in parallel, imu.md); re-check with the whole file after the merge."""
+    doc = yaml.safe_load((ds / "rig.yaml").read_text())
+    doc.pop("imus", None)
+    out.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return out
+
+
+# ----------------------------------------------------------------------------- EuRoC
+
+
+@pytest.fixture(scope="module")
+def euroc(sim):
+    src = sim / "euroc"
+    R.write_euroc(src, sim / "sim", load_rig(sim / "rig.yaml"), {"cam0": "left", "cam1": "right"})
+    return src
+
+
+def test_euroc_folder_gives_the_same_frames_imu_rig_and_calibration(sim, euroc, reference, tmp_path):
+    ds = tmp_path / "ds"
+    before = sorted(p.relative_to(euroc) for p in euroc.rglob("*"))
+    res = _ingest(euroc, "--out", ds, "--camera", "left=cam0", "--camera", "right=cam1",
+                  "--target", sim / "sim" / "target.yaml")
+    assert res.exit_code == 0, res.output
+    assert "images/left/: 10 of 10 frames" in res.output and "imu/imu0.csv: " in res.output
+    assert sorted(p.relative_to(euroc) for p in euroc.rglob("*")) == before  # the source is untouched
+    _assert_same_frames(ds, sim / "sim")
+    assert all(p.is_symlink() for p in (ds / "images" / "left").iterdir())
+    t, v = _read_imu(ds / "imu" / "imu0.csv")
+    t_src, v_src = _read_imu(euroc / "mav0" / "imu0" / "data.csv")
+    assert np.array_equal(t, t_src) and np.array_equal(v, v_src)  # full precision: every double survives
+
+    doc = yaml.safe_load((ds / "rig.yaml").read_text())
+    declared = load_rig(sim / "rig.yaml")
+    got = rig_from_dict({k: v for k, v in doc.items() if k != "imus"})
+    for c in declared.cameras:
+        g = got.camera(c.name)
+        np.testing.assert_allclose(g.T_body_cam, c.T_body_cam, atol=1e-12)
+        assert g.intrinsics.fx == c.intrinsics.fx and g.intrinsics.dist[:4] == c.intrinsics.dist[:4]
+    assert doc["stereo_pairs"] == [["left", "right"]]
+    imu = doc["imus"]["imu0"]  # imu.md: pose in FLU, rate and Kalibr's noise figures from sensor.yaml
+    np.testing.assert_allclose(imu["rotation"], [[0, 0, 1], [0, -1, 0], [1, 0, 0]], atol=0)
+    assert imu["position"] == [0.0, 0.0, 0.0] and imu["update_rate"] == 200.0
+    assert {k: imu[k] for k in R.NOISE} == R.NOISE
+
+    cal = _calibrate(ds, tmp_path / "cal.yaml", rig=_rig_without_imus(ds, tmp_path / "rig.yaml"))
+    _assert_same_calibration(cal, reference)
+
+
+def test_euroc_default_names_copy_and_body_axes(sim, euroc, tmp_path):
+    ds = tmp_path / "ds"
+    res = _ingest(euroc / "mav0", "--out", ds, "--copy", "--body-axes", "F", "L", "U")
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in (ds / "images").iterdir()) == ["cam0", "cam1"]
+    assert not any(p.is_symlink() for p in (ds / "images" / "cam0").iterdir())
+    doc = yaml.safe_load((ds / "rig.yaml").read_text())
+    # B taken as FLU: the declared poses are T_BS itself, which write_euroc made with U -L F
+    R_BS = np.array(doc["cameras"]["cam0"]["rotation"])
+    R_flu_B = geo.R_from_axes(["U", "-L", "F"])
+    np.testing.assert_allclose(R_flu_B @ R_BS, geo.R_from_look("forward"), atol=1e-12)
+    assert "gravity" in res.output and "check --body-axes" in res.output  # gravity reads +x = F here, not U
+    res = _ingest(euroc, "--out", tmp_path / "ds2")
+    assert res.exit_code == 0 and "gravity" not in res.output
+
+
+def test_start_end_window_and_rate_keeps_the_sharpest_shared_instant(sim, tmp_path):
+    src = tmp_path / "euroc"
+    R.write_euroc(src, sim / "sim", load_rig(sim / "rig.yaml"), {"cam0": "left", "cam1": "right"}, imu=False)
+    for cam in ("cam0", "cam1"):  # blur every frame but the odd ones: at 10 Hz each slot holds one sharp frame
+        for i, p in enumerate(sorted((src / "mav0" / cam / "data").iterdir())):
+            if i % 2 == 0:
+                cv2.imwrite(str(p), cv2.GaussianBlur(cv2.imread(str(p), cv2.IMREAD_UNCHANGED), (0, 0), 3.0))
+    t = R.stamps(10)
+    res = _ingest(src, "--out", tmp_path / "thin", "--rate", "10")
+    assert res.exit_code == 0, res.output
+    for cam in ("cam0", "cam1"):
+        assert sorted(int(p.stem) for p in (tmp_path / "thin" / "images" / cam).iterdir()) == t[1::2].tolist()
+    res = _ingest(src, "--out", tmp_path / "win", "--start", "0.1", "--end", "0.3")
+    assert res.exit_code == 0, res.output
+    assert sorted(int(p.stem) for p in (tmp_path / "win" / "images" / "cam0").iterdir()) == t[2:7].tolist()
+
+
+def test_thin_by_rate_unsynchronised_cameras_keep_their_own_sharpest():
+    t0 = 0
+    focus = {"a": {0: 1.0, 30: 5.0, 100: 2.0}, "b": {10: 3.0, 40: 1.0, 110: 1.0, 120: 4.0}}
+    kept = thin_by_rate(focus, t0, rate_hz=1e9 / 100)  # slots of 100 ns
+    assert kept == {"a": [30, 100], "b": [10, 120]}
+    shared = thin_by_rate({"a": {0: 1.0, 50: 2.0}, "b": {0: 9.0, 50: 1.5}}, 0, 1e9 / 100)
+    assert shared == {"a": [50], "b": [50]}  # the instant whose blurrier camera is sharpest
+
+
+# ----------------------------------------------------------------------------- bags
+
+
+def _bag_images(sim_dir: Path, colour: bool = False) -> dict[str, list[tuple[int, np.ndarray]]]:
+    out = {}
+    for cam in CAMS:
+        frames = R.sim_frames(sim_dir, cam)
+        imgs = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in frames]
+        if colour:
+            imgs = [cv2.cvtColor(i, cv2.COLOR_GRAY2BGR) for i in imgs]
+        out[cam] = list(zip(R.stamps(len(frames)).tolist(), imgs))
+    return out
+
+
+def _imu(n: int = 10):
+    t = R.stamps(n)
+    return R.synthetic_imu(int(t[0]), int(t[-1]))
+
+
+@pytest.mark.parametrize("kind,compressed,encoding", [("ros1", False, "mono8"), ("sqlite3", True, None),
+                                                      ("mcap", False, "rgb8"), ("ros1", True, None)])
+def test_bag_gives_the_same_frames_imu_and_calibration(sim, reference, tmp_path, kind, compressed, encoding):
+    colour = encoding == "rgb8"
+    bag = R.write_bag(tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind, _bag_images(sim / "sim", colour),
+                      _imu(), compressed=compressed, encoding=encoding)
+    suffix = "/compressed" if compressed else ""
+    ds = tmp_path / "ds"
+    (tmp_path / "rig_imu.yaml").write_text(RIG + IMUS)
+    res = _ingest(bag, "--out", ds, "--camera", f"left=/left/image_raw{suffix}", "--camera",
+                  f"right=/right/image_raw{suffix}", "--imu", "imu0=/imu0", "--rig", tmp_path / "rig_imu.yaml",
+                  "--target", sim / "sim" / "target.yaml")
+    assert res.exit_code == 0, res.output
+    if colour:
+        for cam in CAMS:
+            for t, img in _images(ds, cam).items():
+                assert img.ndim == 3 and np.array_equal(img[:, :, 0], img[:, :, 2])
+                (ds / "images" / cam / f"{t}.png").unlink()
+                cv2.imwrite(str(ds / "images" / cam / f"{t}.png"), cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+    _assert_same_frames(ds, sim / "sim")  # stems are header stamps, not the later record times
+    t, v = _read_imu(ds / "imu" / "imu0.csv")
+    t_src, g, a = _imu()
+    assert np.array_equal(t, t_src) and np.array_equal(v, np.column_stack([g, a]))
+    assert (ds / "rig.yaml").read_text() == RIG + IMUS  # --rig is copied as written
+    cal = _calibrate(ds, tmp_path / "cal.yaml", rig=_rig_without_imus(ds, tmp_path / "rig.yaml"))
+    _assert_same_calibration(cal, reference)
+
+
+def test_rig_must_declare_the_ingested_sensors(sim, tmp_path):
+    bag = R.write_bag(tmp_path / "rec.bag", "ros1", _bag_images(sim / "sim"), _imu())
+    res = _ingest(bag, "--out", tmp_path / "ds", "--camera", "left=/left/image_raw", "--camera",
+                  "right=/right/image_raw", "--imu", "imu0=/imu0", "--rig", sim / "rig.yaml")
+    assert res.exit_code == 2 and "imus: declares none but the recording gives imu0" in res.output
+    res = _ingest(bag, "--out", tmp_path / "ds", "--camera", "left=/left/image_raw", "--rig", sim / "rig.yaml")
+    assert res.exit_code == 2 and "declares left, right but the recording gives left" in res.output
+    assert not (tmp_path / "ds").exists()
+
+
+def test_bag_without_camera_lists_topics_and_writes_nothing(sim, tmp_path):
+    bag = R.write_bag(tmp_path / "rec.bag", "ros1", _bag_images(sim / "sim"), _imu())
+    res = _ingest(bag, "--out", tmp_path / "ds")
+    assert res.exit_code == 2
+    assert "/left/image_raw" in res.output and "/imu0" in res.output and "20.0 Hz" in res.output
+    assert "200" in res.output and not (tmp_path / "ds").exists()
+    res = _ingest(bag, "--out", tmp_path / "ds", "--camera", "left=/nope")
+    assert res.exit_code == 2 and "/nope" in res.output and "/right/image_raw" in res.output
+    assert not (tmp_path / "ds").exists()
+
+
+def test_bad_bags_are_one_line_and_write_nothing(sim, tmp_path):
+    junk = tmp_path / "junk.bag"
+    junk.write_bytes(b"this is not a bag\n" * 50)
+    bag = R.write_bag(tmp_path / "rec.bag", "ros1", _bag_images(sim / "sim"), None)
+    cut = tmp_path / "cut.bag"
+    cut.write_bytes(bag.read_bytes()[: bag.stat().st_size // 2])
+    for src in (junk, cut):
+        res = _ingest(src, "--out", tmp_path / "ds", "--camera", "left=/left/image_raw")
+        assert res.exit_code == 2, res.output
+        assert str(src) in res.output and len(res.output.strip().splitlines()) == 1
+        assert not (tmp_path / "ds").exists() and not list(tmp_path.glob(".ds*"))
+
+
+def test_unsupported_encoding_is_named(sim, tmp_path):
+    img = np.zeros((8, 8), np.float32)
+    imgs = {"left": [(R.T0_NS, img)]}
+    bag = R.write_bag(tmp_path / "rec.bag", "ros1", imgs, None, encoding="32FC1")
+    res = _ingest(bag, "--out", tmp_path / "ds", "--camera", "left=/left/image_raw")
+    assert res.exit_code == 2 and "'32FC1'" in res.output and "/left/image_raw, message 1" in res.output
+    assert not (tmp_path / "ds").exists()
+
+
+def test_duplicated_and_backwards_stamps_keep_the_first(sim, tmp_path):
+    imgs = _bag_images(sim / "sim")["left"]
+    t = [s for s, _ in imgs]
+    # message 4 repeats message 3's stamp; message 6 goes back before message 5
+    order = [(t[0], imgs[0][1]), (t[1], imgs[1][1]), (t[2], imgs[2][1]), (t[2], imgs[3][1]), (t[4], imgs[4][1]),
+             (t[3], imgs[5][1]), (t[5], imgs[6][1])]
+    bag = tmp_path / "rec.bag"
+    _write_in_order(bag, order)  # record times increase in message order, whatever the header stamps say
+    res = _ingest(bag, "--out", tmp_path / "ds", "--camera", "left=/left/image_raw")
+    assert res.exit_code == 0, res.output
+    assert "1 duplicated and 1 backwards" in res.output
+    got = _images(tmp_path / "ds", "left")
+    assert sorted(got) == [t[0], t[1], t[2], t[4], t[5]]
+    assert np.array_equal(got[t[2]], imgs[2][1])  # the first of the two frames stamped t[2]
+
+
+def _write_in_order(path: Path, frames):
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS1_NOETIC)
+    with Writer(path) as w:
+        c = w.add_connection("/left/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+        for i, (t, img) in enumerate(frames):
+            w.write(c, R.T0_NS + i * 1000, ts.serialize_ros1(R.image_msg(ts, img, t, True), "sensor_msgs/msg/Image"))
+
+
+def test_out_needs_force(sim, euroc, tmp_path):
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (ds / "keep.txt").write_text("mine")
+    res = _ingest(euroc, "--out", ds)
+    assert res.exit_code == 2 and "--force" in res.output
+    assert [p.name for p in ds.iterdir()] == ["keep.txt"]
+    res = _ingest(euroc, "--out", ds, "--force")
+    assert res.exit_code == 0 and not (ds / "keep.txt").exists() and (ds / "images" / "cam0").is_dir()
+
+
+# ----------------------------------------------------------------------------- video
+
+
+def test_videos_with_a_start_offset_give_the_same_frames_and_calibration(sim, tmp_path):
+    drop = 3  # the right camera started 3 frames (0.15 s) after the left one
+    frames = {c: [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in R.sim_frames(sim / "sim", c)] for c in CAMS}
+    (tmp_path / "videos").mkdir()
+    R.write_video(tmp_path / "videos" / "left.mkv", frames["left"])
+    R.write_video(tmp_path / "videos" / "right.mkv", frames["right"][drop:])
+    ds = tmp_path / "ds"
+    res = _ingest(tmp_path / "videos", "--out", ds, "--camera", "left=left.mkv", "--camera", "right=right.mkv", "--offset",
+                  "right=0.15", "--rig", sim / "rig.yaml", "--target", sim / "sim" / "target.yaml")
+    assert res.exit_code == 0, res.output
+    t = (R.stamps(10) - R.T0_NS).tolist()  # container clocks start at 0
+    for cam, first in (("left", 0), ("right", drop)):
+        got = _images(ds, cam)
+        assert sorted(got) == t[first:]
+        for i in range(first, 10):
+            assert np.array_equal(got[t[i]], frames[cam][i])  # ffv1 is lossless
+    ref = _stamped(sim / "sim", tmp_path / "ref", drop={"right": drop})
+    for cam in CAMS:  # the same stems as the video dataset, so both calibrate the same frames
+        for p in (ref / "images" / cam).iterdir():
+            p.rename(p.with_name(f"{int(p.stem) - R.T0_NS}.png"))
+    _assert_same_calibration(_calibrate(ds, tmp_path / "cal.yaml"), _calibrate(ref, tmp_path / "ref.yaml"))
+
+
+def test_video_without_timestamps_and_listing(sim, tmp_path):
+    import av
+
+    raw = tmp_path / "cam.h264"  # a raw H.264 stream: no container, no timestamps
+    with av.open(str(raw), "w", format="h264") as c:
+        s = c.add_stream("libx264", rate=20)
+        s.width, s.height, s.pix_fmt = 64, 48, "yuv420p"
+        for i in range(3):
+            for p in s.encode(av.VideoFrame.from_ndarray(np.full((48, 64, 3), 40 * i, np.uint8), format="bgr24")):
+                c.mux(p)
+        for p in s.encode():
+            c.mux(p)
+    res = _ingest(raw, "--out", tmp_path / "ds")
+    assert res.exit_code == 2 and "no timestamp" in res.output and str(raw) in res.output
+    assert not (tmp_path / "ds").exists()
+    res = _ingest(tmp_path, "--out", tmp_path / "ds")
+    assert res.exit_code == 2 and "cam.h264" in res.output and "--camera" in res.output
+
+
+def test_frame_time_is_exact_rational():
+    assert frame_time_ns(3, Fraction(1, 30), Fraction("0.1"), "x") == 200_000_000
+    assert frame_time_ns(1001, Fraction(1, 30000), Fraction(0), "x") == 33_366_667  # rounded to the nearest ns
+    with pytest.raises(InputError, match="no timestamp"):
+        frame_time_ns(None, Fraction(1, 30), Fraction(0), "x")
+
+
+# ----------------------------------------------------------------------------- pixels
+
+
+def test_bayer_rggb_demosaics_to_the_right_colours():
+    h, w = 32, 32
+    bgr = np.zeros((h, w, 3), np.uint8)
+    bgr[:] = (30, 120, 220)  # flat colour: B 30, G 120, R 220
+    mosaic = np.empty((h, w), np.uint8)  # rggb: R at (even, even), B at (odd, odd)
+    mosaic[0::2, 0::2] = 220
+    mosaic[0::2, 1::2] = 120
+    mosaic[1::2, 0::2] = 120
+    mosaic[1::2, 1::2] = 30
+    out = ims.raw_pixels("bayer_rggb8", h, w, w, False, mosaic.ravel())
+    np.testing.assert_allclose(out[4:-4, 4:-4].reshape(-1, 3).mean(axis=0), (30, 120, 220), atol=1.0)
+    swapped = ims.raw_pixels("bayer_bggr8", h, w, w, False, mosaic.ravel())
+    assert abs(float(swapped[8:-8, 8:-8, 2].mean()) - 30) < 1.0  # read as bggr, red and blue swap
+
+
+def test_mono16_keeps_the_significant_bits_and_padding_is_skipped():
+    img = np.array([[0, 4095], [2048, 1024]], np.uint16)  # a 12-bit sensor
+    data = np.zeros((2, 6), np.uint8)  # step 6: 2 bytes of row padding
+    data[:, :4] = img.astype("<u2").view(np.uint8).reshape(2, 4)
+    out = ims.raw_pixels("mono16", 2, 2, 6, False, data.ravel())
+    assert out.tolist() == [[0, 255], [128, 64]]
+    big = ims.raw_pixels("mono16", 2, 2, 4, True, img.astype(">u2").view(np.uint8).ravel())
+    assert big.tolist() == out.tolist()
+    with pytest.raises(ims.EncodingError, match="holds 3 bytes"):
+        ims.raw_pixels("mono8", 2, 2, 2, False, np.zeros(3, np.uint8))
+
+
+def test_focus_measure_prefers_the_sharp_frame():
+    rng = np.random.default_rng(0)
+    img = (rng.random((64, 64)) > 0.5).astype(np.uint8) * 255
+    assert ims.focus_measure(img) > 10 * ims.focus_measure(cv2.GaussianBlur(img, (0, 0), 2.0))
+
+
+def test_first_of_monotonic_counts():
+    keep, dup, back = first_of_monotonic(np.array([1, 2, 2, 5, 3, 4, 6, 6]))
+    assert keep.tolist() == [True, True, False, True, False, False, True, False]
+    assert (dup, back) == (2, 2)
