@@ -389,6 +389,8 @@ def test_video_without_timestamps_and_listing(sim, tmp_path):
     assert res.exit_code == 2 and "no timestamp" in res.output and str(raw) in res.output
     assert not (tmp_path / "ds").exists()
     res = _ingest(tmp_path, "--out", tmp_path / "ds")
+    assert res.exit_code == 2 and "overlaps the source" in res.output  # --force would delete the source
+    res = _ingest(tmp_path, "--out", tmp_path.parent / f"{tmp_path.name}_ds")
     assert res.exit_code == 2 and "cam.h264" in res.output and "--camera" in res.output
 
 
@@ -439,3 +441,93 @@ def test_first_of_monotonic_counts():
     keep, dup, back = first_of_monotonic(np.array([1, 2, 2, 5, 3, 4, 6, 6]))
     assert keep.tolist() == [True, True, False, True, False, False, True, False]
     assert (dup, back) == (2, 2)
+
+
+# ----------------------------------------------------------------------------- EuRoC's own files
+
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "euroc_imu_april"
+CAM0_YAML = """%YAML:1.0
+# General sensor definitions.
+sensor_type: camera
+comment: VI-Sensor cam0 (MT9M034)
+
+# Sensor extrinsics wrt. the body-frame.
+T_BS:
+  cols: 4
+  rows: 4
+  data: [0.0148655429818, -0.999880929698, 0.00414029679422, -0.0216401454975,
+         0.999557249008, 0.0149672133247, 0.025715529948, -0.064676986768,
+        -0.0257744366974, 0.00375618835797, 0.999660727178, 0.00981073058949,
+         0.0, 0.0, 0.0, 1.0]
+
+# Camera specific definitions.
+rate_hz: 20
+resolution: [752, 480]
+camera_model: pinhole
+intrinsics: [458.654, 457.296, 367.215, 248.375] #fu, fv, cu, cv
+distortion_model: radial-tangential
+distortion_coefficients: [-0.28340811, 0.07395907, 0.00019359, 1.76187114e-05]
+"""
+CAM1_T_BS = """  data: [0.0125552670891, -0.999755099723, 0.0182237714554, -0.0198435579556,
+         0.999598781151, 0.0130119051815, 0.0251588363115, 0.0453689425024,
+        -0.0253898008918, 0.0179005838253, 0.999517347078, 0.00786212447038,
+         0.0, 0.0, 0.0, 1.0]
+"""
+IMU0_YAML = """#Default imu sensor yaml file
+sensor_type: imu
+comment: VI-Sensor IMU (ADIS16448)
+
+# Sensor extrinsics wrt. the body-frame.
+T_BS:
+  cols: 4
+  rows: 4
+  data: [1.0, 0.0, 0.0, 0.0,
+         0.0, 1.0, 0.0, 0.0,
+         0.0, 0.0, 1.0, 0.0,
+         0.0, 0.0, 0.0, 1.0]
+rate_hz: 200
+
+# inertial sensor noise model parameters (static)
+gyroscope_noise_density: 1.6968e-04     # [ rad / s / sqrt(Hz) ]   ( gyro "white noise" )
+gyroscope_random_walk: 1.9393e-05       # [ rad / s^2 / sqrt(Hz) ] ( gyro bias diffusion )
+accelerometer_noise_density: 2.0000e-3  # [ m / s^2 / sqrt(Hz) ]  ( accel "white noise" )
+accelerometer_random_walk: 3.0000e-3    # [ m / s^3 / sqrt(Hz) ].  ( accel bias diffusion )
+"""
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real is not beside this checkout")
+def test_euroc_sensor_yaml_as_shipped_gives_a_forward_stereo_rig_with_the_imu_up(tmp_path):
+    """EuRoC's published sensor.yaml files and its real imu0 stream: with the default body
+    axes (U -L F) both cameras look forward, cam0 is the left one 110.07 mm from cam1, and
+    gravity at the start of the recording reads up; taking B as FLU is flagged."""
+    mav0 = tmp_path / "src" / "mav0"
+    lines = CAM0_YAML.splitlines(keepends=True)
+    cam1 = "".join(lines[:9]) + CAM1_T_BS + "".join(lines[13:])
+    t_imu = np.array([int(ln.split(",")[0]) for ln in (REAL / "imu0.csv").read_text().splitlines()[1:200]])
+    for cam, text in (("cam0", CAM0_YAML), ("cam1", cam1.replace("cam0", "cam1"))):
+        (mav0 / cam / "data").mkdir(parents=True)
+        (mav0 / cam / "sensor.yaml").write_text(text)
+        rows = [int(t) for t in t_imu[40:120:4]]
+        for t in rows:
+            cv2.imwrite(str(mav0 / cam / "data" / f"{t}.png"), np.zeros((480, 752), np.uint8))
+        (mav0 / cam / "data.csv").write_text(R.EUROC_HEADER + "\n" + "".join(f"{t},{t}.png\n" for t in rows))
+    (mav0 / "imu0").mkdir()
+    shutil.copyfile(REAL / "imu0.csv", mav0 / "imu0" / "data.csv")
+    (mav0 / "imu0" / "sensor.yaml").write_text(IMU0_YAML)
+    res = _ingest(tmp_path / "src", "--out", tmp_path / "ds")
+    assert res.exit_code == 0, res.output
+    assert "gravity" not in res.output
+    doc = yaml.safe_load((tmp_path / "ds" / "rig.yaml").read_text())
+    rig = rig_from_dict({k: v for k, v in doc.items() if k != "imus"})
+    for cam in rig.cameras:
+        z_body = cam.T_body_cam[:3, 2]  # the optical axis in FLU
+        assert np.degrees(np.arccos(z_body[0])) < 3.0, (cam.name, z_body)
+    left, right = rig.camera("cam0").T_body_cam[:3, 3], rig.camera("cam1").T_body_cam[:3, 3]
+    assert left[1] > right[1]  # cam0 sits to the left
+    assert abs(np.linalg.norm(left - right) * 1000 - 110.07) < 0.01
+    assert doc["stereo_pairs"] == [["cam0", "cam1"]]
+    assert doc["imus"]["imu0"]["gyroscope_noise_density"] == pytest.approx(1.6968e-04, rel=1e-12)
+    t, v = _read_imu(tmp_path / "ds" / "imu" / "imu0.csv")
+    assert len(t) > 100 and np.all(np.diff(t) > 0)
+    res = _ingest(tmp_path / "src", "--out", tmp_path / "ds2", "--body-axes", "F", "L", "U")
+    assert res.exit_code == 0 and "check --body-axes" in res.output

@@ -268,5 +268,6 @@ def gravity_warning(block: ImuBlock, imu_entry: dict, name: str, seconds: float 
     f_body = np.array(imu_entry["rotation"]) @ first
     if np.linalg.norm(f_body) == 0 or f_body[2] >= 0.7 * np.linalg.norm(f_body):
         return None
-    return (f"warning: {name}: gravity over the first {seconds:g} s reads {np.round(f_body, 2).tolist()} m/s^2 in FLU, "
+    reads = (np.round(f_body, 2) + 0.0).tolist()
+    return (f"warning: {name}: gravity over the first {seconds:g} s reads {reads} m/s^2 in FLU, "
             f"not mostly up (+U); if the rig was not held tilted, check --body-axes")
