@@ -11,6 +11,7 @@ Sections (each also runs alone: python -m bench.<name>):
   real         real photographs vs published references
   indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
+  ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
@@ -24,10 +25,10 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import accuracy, indie, indie_noise, montecarlo, noise_limit, peer_opencv, real, scale, speed
+from . import accuracy, indie, indie_noise, ingest, montecarlo, noise_limit, peer_opencv, real, scale, speed
 from .common import OUT, machine, say, write_json
 
-SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise")
+SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise", "ingest")
 
 
 def main(argv=None) -> None:
@@ -110,6 +111,12 @@ def main(argv=None) -> None:
             write_json("indie_noise", {**r, "machine": info})
             return indie_noise.tables(r)
         section("indie_noise", ind_noise)
+    if "ingest" in todo:
+        def ing():
+            r = ingest.run(seconds=10.0 if a.quick else 60.0)
+            write_json("ingest", {**r, "machine": info})
+            return ingest.tables(r)
+        section("ingest", ing)
     total = time.perf_counter() - t0
     head = (f"# rigcal benchmarks\n\n{info['date']}; {info['cpus']} CPUs; load average at start "
             f"{info['load_avg_1_5_15']}; {info['platform']}; Python {info['python']}, OpenCV {info['opencv']}, "

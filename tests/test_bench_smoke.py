@@ -13,7 +13,7 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
-MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "__main__")
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "ingest", "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -124,3 +124,13 @@ def test_view_offsets_leave_out_the_corners_the_solve_rejected(micro):
     assert bad["view_offset_rms_px"] == pytest.approx(base["view_offset_rms_px"], rel=0.3)
     assert bad["view_offset_rms_px"] < 2 * bad["white_expectation_px"]
     assert bad["rejected_corners"] == base["rejected_corners"] + 1
+
+
+def test_ingest_bench_runs_at_small_size():
+    """bench.ingest end to end on 0.5 s of tiny images: both bags ingest every frame."""
+    from bench import ingest
+
+    r = ingest.run(seconds=0.5, scale=0.3, log=lambda *a: None)
+    assert [x["kind"] for x in r["rows"]] == ["ros1", "mcap"]
+    assert all(x["ok"] and x["images"] == 20 for x in r["rows"]), r["rows"]
+    assert "ros1" in ingest.tables(r)

@@ -158,8 +158,11 @@ def ingest(source: str | Path, out_dir: str | Path, opts: IngestOptions, rig_pat
         window = Window(rec.first_stamp_ns(), opts.start_s, opts.end_s)
         with atomic_dir(out_dir, force=force) as tmp:
             writer = DatasetWriter(tmp, cam_src, imu_src, window, opts.rate_hz, opts.link)
-            _copy(rec, writer, progress, warnings, rig_doc if kind == "euroc" and rig_path is None else None)
-            writer.finish()
+            try:
+                _copy(rec, writer, progress, warnings, rig_doc if kind == "euroc" and rig_path is None else None)
+                writer.finish()
+            finally:
+                writer.close()
             _check_written(writer)
             if rig_text is not None:
                 (tmp / "rig.yaml").write_text(rig_text, encoding="utf-8")

@@ -12,6 +12,8 @@ from __future__ import annotations
 import io
 import os
 import shutil
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -113,7 +115,7 @@ class DatasetWriter:
     """Writes frames and IMU samples under `root` (see the module docstring)."""
 
     def __init__(self, root: Path, cameras: dict[str, str], imus: dict[str, str], window: Window,
-                 rate_hz: float | None = None, link: bool = True):
+                 rate_hz: float | None = None, link: bool = True, threads: int | None = None):
         self.root = root
         self.window = window
         self.rate_hz = rate_hz
@@ -125,6 +127,18 @@ class DatasetWriter:
         self._focus: dict[str, dict[int, float]] = {c: {} for c in cameras}
         for c in cameras:
             (root / "images" / c).mkdir(parents=True, exist_ok=True)
+        # PNG encoding is most of the work and OpenCV releases the GIL while it encodes, so
+        # frames are encoded and written by threads, at most `_max_pending` ahead (memory).
+        self._threads = threads or os.cpu_count() or 1
+        self._pool = ThreadPoolExecutor(self._threads) if self._threads > 1 else None
+        self._pending: deque = deque()
+        self._max_pending = 4 * self._threads
+
+    def close(self) -> None:
+        """Stop the writer threads (after finish, or on an error: queued frames are dropped)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
 
     def add_frame(self, camera: str, frame: Frame) -> None:
         n = self.cameras[camera]
@@ -146,12 +160,25 @@ class DatasetWriter:
         n._last_kept = t
         n.first_ns = t if n.first_ns is None else n.first_ns
         n.last_ns = t
-        self._written[camera][t] = self._write(camera, frame)
-        if self.rate_hz is not None:
-            self._focus[camera][t] = focus_measure(frame.image())
         n.written += 1
+        if self._pool is None:
+            self._done(*self._write(camera, frame))
+            return
+        self._pending.append(self._pool.submit(self._write, camera, frame))
+        while len(self._pending) > self._max_pending:
+            self._done(*self._pending.popleft().result())
 
-    def _write(self, camera: str, frame: Frame) -> Path:
+    def _done(self, camera: str, t: int, path: Path, focus: float | None) -> None:
+        self._written[camera][t] = path
+        if focus is not None:
+            self._focus[camera][t] = focus
+
+    def _write(self, camera: str, frame: Frame) -> tuple[str, int, Path, float | None]:
+        """(camera, t_ns, written path, focus measure with --rate else None)."""
+        focus = focus_measure(frame.image()) if self.rate_hz is not None else None
+        return camera, frame.t_ns, self._write_file(camera, frame), focus
+
+    def _write_file(self, camera: str, frame: Frame) -> Path:
         folder = self.root / "images" / camera
         if frame.file is not None and frame.file.suffix.lower() in IMAGE_EXTENSIONS:
             dst = folder / f"{frame.t_ns}{frame.file.suffix.lower()}"
@@ -176,7 +203,10 @@ class DatasetWriter:
         self._imu_blocks[name].append(block)
 
     def finish(self) -> None:
-        """Write imu/*.csv and thin the frames (--rate)."""
+        """Wait for the frames in flight, write imu/*.csv and thin the frames (--rate)."""
+        while self._pending:
+            self._done(*self._pending.popleft().result())
+        self.close()
         for name, blocks in self._imu_blocks.items():
             self._finish_imu(name, blocks)
         if self.rate_hz is not None:
