@@ -531,3 +531,34 @@ def test_euroc_sensor_yaml_as_shipped_gives_a_forward_stereo_rig_with_the_imu_up
     assert len(t) > 100 and np.all(np.diff(t) > 0)
     res = _ingest(tmp_path / "src", "--out", tmp_path / "ds2", "--body-axes", "F", "L", "U")
     assert res.exit_code == 0 and "check --body-axes" in res.output
+
+
+@pytest.mark.parametrize("fault,expect", [
+    ("missing_image", "cam0/data.csv: row 3: image"),
+    ("imu_cell", "imu0/data.csv: row 5: expected numbers"),
+    ("imu_columns", "imu0/data.csv: row 2: expected 7 columns"),
+    ("camera_stamp", "cam1/data.csv: row 2: expected an integer timestamp in ns, got '14037x'"),
+    ("t_bs", "cam0/sensor.yaml: T_BS: expected a rigid 4x4 transform"),
+])
+def test_bad_euroc_folders_name_file_and_row(sim, tmp_path, fault, expect):
+    src = tmp_path / "src"
+    R.write_euroc(src, sim / "sim", load_rig(sim / "rig.yaml"), {"cam0": "left", "cam1": "right"})
+    mav0 = src / "mav0"
+    if fault == "missing_image":
+        sorted((mav0 / "cam0" / "data").iterdir())[1].unlink()
+    elif fault in ("imu_cell", "imu_columns"):
+        lines = (mav0 / "imu0" / "data.csv").read_text().splitlines()
+        i = 4 if fault == "imu_cell" else 1
+        lines[i] = lines[i].replace(",", ",x", 1) if fault == "imu_cell" else lines[i].rsplit(",", 1)[0]
+        (mav0 / "imu0" / "data.csv").write_text("\n".join(lines) + "\n")
+    elif fault == "camera_stamp":
+        lines = (mav0 / "cam1" / "data.csv").read_text().splitlines()
+        lines[1] = "14037x," + lines[1].split(",")[1]
+        (mav0 / "cam1" / "data.csv").write_text("\n".join(lines) + "\n")
+    else:
+        text = (mav0 / "cam0" / "sensor.yaml").read_text()
+        (mav0 / "cam0" / "sensor.yaml").write_text(text.replace("data: [0.0, -1.0,", "data: [2.0, -1.0,"))
+    res = _ingest(src, "--out", tmp_path / "ds")
+    assert res.exit_code == 2, res.output
+    assert expect in res.output and len(res.output.strip().splitlines()) == 1
+    assert not (tmp_path / "ds").exists() and not list(tmp_path.glob(".ds*"))
