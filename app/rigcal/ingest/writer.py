@@ -66,8 +66,8 @@ class ImuBlock:
 
 
 @dataclass
-class CameraCounts:
-    """What happened to one camera's frames."""
+class StreamCounts:
+    """What happened to one camera's frames or one IMU's samples."""
 
     source: str
     read: int = 0
@@ -75,9 +75,13 @@ class CameraCounts:
     duplicated: int = 0
     backwards: int = 0
     outside: int = 0
-    thinned: int = 0
     first_ns: int | None = None
     last_ns: int | None = None
+
+
+@dataclass
+class CameraCounts(StreamCounts):
+    thinned: int = 0
     _last_kept: int | None = field(default=None, repr=False)
 
     @property
@@ -85,16 +89,7 @@ class CameraCounts:
         return self.written - self.thinned
 
 
-@dataclass
-class ImuCounts:
-    source: str
-    read: int = 0
-    written: int = 0
-    duplicated: int = 0
-    backwards: int = 0
-    outside: int = 0
-    first_ns: int | None = None
-    last_ns: int | None = None
+ImuCounts = StreamCounts
 
 
 @dataclass(frozen=True)
