@@ -4,6 +4,7 @@ capture times), the same IMU samples, and calibrate to the same rig as the simul
 
 from __future__ import annotations
 
+import os
 import shutil
 from fractions import Fraction
 from pathlib import Path
@@ -562,3 +563,45 @@ def test_bad_euroc_folders_name_file_and_row(sim, tmp_path, fault, expect):
     assert res.exit_code == 2, res.output
     assert expect in res.output and len(res.output.strip().splitlines()) == 1
     assert not (tmp_path / "ds").exists() and not list(tmp_path.glob(".ds*"))
+
+
+def test_compressed_jpeg_is_written_as_recorded(sim, tmp_path):
+    """A CompressedImage's JPEG bytes become the .jpg file unchanged (no second lossy encode)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    imgs = _bag_images(sim / "sim")["left"][:3]
+    msgs = [R.compressed_msg(ts, img, t, False, fmt="jpg") for t, img in imgs]
+    with Writer(tmp_path / "rec", version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
+        c = w.add_connection("/left/image_raw/compressed", "sensor_msgs/msg/CompressedImage", typestore=ts)
+        for (t, _), m in zip(imgs, msgs):
+            w.write(c, t, ts.serialize_cdr(m, "sensor_msgs/msg/CompressedImage"))
+    res = _ingest(tmp_path / "rec", "--out", tmp_path / "ds", "--camera", "left=/left/image_raw/compressed")
+    assert res.exit_code == 0, res.output
+    for (t, _), m in zip(imgs, msgs):
+        assert (tmp_path / "ds" / "images" / "left" / f"{t}.jpg").read_bytes() == bytes(m.data)
+
+
+def test_unwritable_output_and_a_full_disk_mid_way_leave_nothing(sim, euroc, tmp_path, monkeypatch):
+    import errno
+
+    from rigcal.ingest import writer
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("keep me")
+    res = _ingest(euroc, "--out", blocker / "ds")
+    assert res.exit_code == 2 and str(blocker) in res.output and blocker.read_text() == "keep me"
+    calls = []
+    real = writer.os.symlink
+
+    def fills_up(src, dst, *a, **k):
+        calls.append(dst)
+        if len(calls) > 3:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return real(src, dst, *a, **k)
+
+    monkeypatch.setattr(writer.os, "symlink", fills_up)
+    res = _ingest(euroc, "--out", tmp_path / "ds")
+    assert res.exit_code == 2 and "No space left on device" in res.output and str(tmp_path / "ds") in res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
