@@ -136,12 +136,27 @@ def imu_msg(ts, t_ns: int, g, a, ros1: bool):
         linear_acceleration=V(x=float(a[0]), y=float(a[1]), z=float(a[2])), linear_acceleration_covariance=z9)
 
 
+def camera_info_msg(ts, m, t_ns: int, ros1: bool):
+    """A CameraInfo for rigcal CameraModel m (plumb_bob: k1 k2 p1 p2 k3)."""
+    K = np.array([m.fx, 0.0, m.cx, 0.0, m.fy, m.cy, 0.0, 0.0, 1.0])
+    D = np.zeros(5)
+    D[: len(m.dist[:5])] = m.dist[:5]
+    P = np.array([m.fx, 0.0, m.cx, 0.0, 0.0, m.fy, m.cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+    roi = ts.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+    keys = ("D", "K", "R", "P") if ros1 else ("d", "k", "r", "p")
+    return ts.types["sensor_msgs/msg/CameraInfo"](
+        header=_header(ts, t_ns, ros1), height=m.height, width=m.width, distortion_model="plumb_bob",
+        binning_x=0, binning_y=0, roi=roi, **dict(zip(keys, (D, K, np.eye(3).ravel(), P))))
+
+
 def write_bag(path: Path, kind: str, images: dict[str, list[tuple[int, np.ndarray]]],
               imu: tuple[np.ndarray, np.ndarray, np.ndarray] | None, compressed: bool = False,
-              encoding: str | None = None, record_delay_ns: int = 3_000_000) -> Path:
+              encoding: str | None = None, record_delay_ns: int = 3_000_000, camera_info: dict | None = None
+              ) -> Path:
     """A bag (kind 'ros1', 'sqlite3' or 'mcap') with one image topic per entry of `images`
     (`/<name>/image_raw`, or `/<name>/image_raw/compressed`) and `/imu0` when imu is given.
-    Record times lag the header stamps by record_delay_ns, as a real recorder's do."""
+    Record times lag the header stamps by record_delay_ns, as a real recorder's do;
+    camera_info (name -> CameraModel) adds `/<name>/camera_info` with each frame."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = kind == "ros1"
@@ -154,6 +169,9 @@ def write_bag(path: Path, kind: str, images: dict[str, list[tuple[int, np.ndarra
         for t, img in frames:
             msg = compressed_msg(ts, img, t, ros1) if compressed else image_msg(ts, img, t, ros1, encoding)
             msgs.append((t + record_delay_ns, topic, mtype, msg))
+            if camera_info and name in camera_info:
+                msgs.append((t + record_delay_ns, f"/{name}/camera_info", "sensor_msgs/msg/CameraInfo",
+                             camera_info_msg(ts, camera_info[name], t, ros1)))
     if imu is not None:
         for t, g, a in zip(*imu):
             msgs.append((int(t) + record_delay_ns, "/imu0", "sensor_msgs/msg/Imu", imu_msg(ts, int(t), g, a, ros1)))

@@ -277,6 +277,29 @@ def test_rig_must_declare_the_ingested_sensors(sim, tmp_path):
     assert not (tmp_path / "ds").exists()
 
 
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_bag_camera_info_gives_a_rig_of_intrinsics(sim, tmp_path, kind):
+    declared = load_rig(sim / "rig.yaml")
+    info = {c.name: c.intrinsics for c in declared.cameras}
+    bag = R.write_bag(tmp_path / ("rec.bag" if kind == "ros1" else "rec"), kind, _bag_images(sim / "sim"), None,
+                      camera_info=info)
+    res = _ingest(bag, "--out", tmp_path / "ds", "--camera", "left=/left/image_raw", "--camera",
+                  "right=/right/image_raw", "--target", sim / "sim" / "target.yaml")
+    assert res.exit_code == 0, res.output
+    assert "rig.yaml: from CameraInfo topics" in res.output
+    rig = load_rig(tmp_path / "ds" / "rig.yaml")
+    for c in rig.cameras:
+        m = declared.camera(c.name).intrinsics
+        assert c.T_body_cam is None  # a CameraInfo does not say where the camera is
+        assert (c.intrinsics.fx, c.intrinsics.cy, c.intrinsics.width) == (m.fx, m.cy, m.width)
+        assert c.intrinsics.dist == tuple(m.dist[:4])
+    res = runner.invoke(app, ["calibrate", str(tmp_path / "ds"), "--out", str(tmp_path / "cal.yaml"), "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    res = _ingest(bag, "--out", tmp_path / "ds2", "--camera", "left=/left/image_raw", "--camera",
+                  "right=/nope/image_raw")
+    assert res.exit_code == 2 and "/nope/image_raw" in res.output
+
+
 def test_bag_without_camera_lists_topics_and_writes_nothing(sim, tmp_path):
     bag = R.write_bag(tmp_path / "rec.bag", "ros1", _bag_images(sim / "sim"), _imu())
     res = _ingest(bag, "--out", tmp_path / "ds")

@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..io import atomic_dir
 from ..rig import NAME_RE, rig_from_dict
 from . import euroc
-from .bag import BagRecording, is_bag, open_bag, topic_table, topics
+from .bag import BagRecording, declared_cameras, is_bag, open_bag, topic_table, topics
 from .video import VIDEO_SUFFIXES, VideoRecording, is_video
 from .writer import CameraCounts, DatasetWriter, ImuCounts, Window
 
@@ -146,13 +146,15 @@ def ingest(source: str | Path, out_dir: str | Path, opts: IngestOptions, rig_pat
     with contextlib.ExitStack() as stack:
         kind, rec = open_recording(source, opts, stack)
         cam_src, imu_src = rec.sources
-        if rig_text is None and kind == "euroc":
-            rig_doc = euroc.declared_rig(rec, opts.body_axes)
+        rig_from, rig_doc = None, None
+        if rig_text is not None:
+            rig_from, rig_doc = str(rig_path), _rig_doc(rig_text, rig_path)
+        elif kind == "euroc":
+            rig_from, rig_doc = "sensor.yaml files", euroc.declared_rig(rec, opts.body_axes, name=_rig_name(source))
+        elif kind == "bag":
+            rig_from, rig_doc = _rig_from_camera_info(rec, source)
+        if rig_text is None and rig_doc is not None:
             rig_text = _dump(rig_doc)
-        elif rig_text is not None:
-            rig_doc = _rig_doc(rig_text, rig_path)
-        else:
-            rig_doc = None
         if rig_doc is not None:
             _check_rig_names(rig_doc, list(cam_src), list(imu_src), str(rig_path or "the declared rig"))
         window = Window(rec.first_stamp_ns(), opts.start_s, opts.end_s)
@@ -169,8 +171,10 @@ def ingest(source: str | Path, out_dir: str | Path, opts: IngestOptions, rig_pat
             if target_text is not None:
                 (tmp / "target.yaml").write_text(target_text, encoding="utf-8")
     warnings += _stamp_warnings(writer)
-    return IngestResult(out_dir, kind, writer.cameras, writer.imus,
-                        str(rig_path) if rig_path else ("sensor.yaml files" if kind == "euroc" else None),
+    if opts.rate_hz is not None and writer.imus:
+        warnings.append("warning: --rate with an IMU: the camera-IMU terms want every frame; thinned frames weaken "
+                        "the time offset and rotation estimates")
+    return IngestResult(out_dir, kind, writer.cameras, writer.imus, rig_from,
                         str(target_path) if target_path else None, time.perf_counter() - t_start, tuple(warnings))
 
 
@@ -190,6 +194,25 @@ def _copy(rec, writer: DatasetWriter, progress: bool, warnings: list[str], euroc
     finally:
         if bar:
             bar.close()
+
+
+def _rig_from_camera_info(rec: BagRecording, source: Path) -> tuple[str, dict | None]:
+    """A rig of intrinsics only (no poses: calibrate finds them, the first camera being the
+    body frame) from the bag's CameraInfo topics; none when a camera lacks one, or with an
+    IMU (its noise figures are not in the bag)."""
+    if rec.imus:
+        return "not written: the bag does not give the IMU's noise figures (pass --rig)", None
+    cams, why = declared_cameras(rec.reader, source, {c: rec.topic_of[c] for c in rec.cameras})
+    if cams is None:
+        return f"not written: {why} (pass --rig)", None
+    return "CameraInfo topics (intrinsics only, no poses)", {"rig": _rig_name(source), "body_frame": "FLU",
+                                                             "cameras": cams}
+
+
+def _rig_name(source: Path) -> str:
+    """The recording's folder name (EuRoC: MH_01_easy for MH_01_easy/mav0)."""
+    folder = source.resolve()
+    return (folder.parent if folder.name == "mav0" else folder).name or "euroc"
 
 
 def _check_out(source: Path, out_dir: Path, force: bool) -> None:
@@ -307,6 +330,7 @@ def summary(res: IngestResult) -> str:
         span = ((n.last_ns or 0) - (n.first_ns or 0)) / 1e9
         lines.append(f"  imu/{name}.csv: {n.written} of {n.read} samples from {n.source}, {span:.1f} s, "
                      f"~{(n.written - 1) / span if span > 0 else 0.0:.1f} Hz")
-    lines.append(f"  rig.yaml: {'from ' + res.rig_from if res.rig_from else 'not written (pass --rig)'}")
+    rig = res.rig_from or "not written (pass --rig)"
+    lines.append(f"  rig.yaml: {rig if rig.startswith('not written') else 'from ' + rig}")
     lines.append(f"  target.yaml: {'from ' + res.target_from if res.target_from else 'not written (pass --target)'}")
     return "\n".join(lines)

@@ -20,6 +20,9 @@ from .writer import Frame, ImuBlock
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 IMU_TYPE = "sensor_msgs/msg/Imu"
+INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+# CameraInfo distortion models -> rigcal camera model and the number of coefficients kept
+_INFO_MODELS = {"plumb_bob": ("pinhole", 5), "rational_polynomial": ("pinhole", 8), "equidistant": ("fisheye", 4)}
 BAG_SUFFIXES = (".bag", ".db3", ".mcap")
 
 
@@ -153,6 +156,47 @@ class BagRecording:
             if e.__class__.__module__.startswith("rosbags"):
                 raise InputError(f"{self.source}: cannot read the bag ({' '.join(str(e).split())})") from None
             raise
+
+
+def info_topic(image_topic: str) -> str:
+    """The CameraInfo topic beside an image topic (image_transport's layout):
+    /cam0/image_raw and /cam0/image_raw/compressed -> /cam0/camera_info."""
+    base = image_topic[: -len("/compressed")] if image_topic.endswith("/compressed") else image_topic
+    return base.rsplit("/", 1)[0] + "/camera_info"
+
+
+def declared_cameras(reader, source: Path, cameras: dict[str, str]) -> tuple[dict | None, str]:
+    """(rig `cameras` mapping from each camera's first CameraInfo, or None; why not). The
+    poses are left out: a CameraInfo does not say where the camera sits on the body."""
+    conns = {c.topic: c for c in reader.connections if c.msgtype == INFO_TYPE}
+    out = {}
+    for name, topic in cameras.items():
+        conn = conns.get(info_topic(topic))
+        if conn is None:
+            return None, f"no {info_topic(topic)} (CameraInfo) for {name}"
+        msg = next((reader.deserialize(raw, conn.msgtype) for _, _, raw in reader.messages(connections=[conn])), None)
+        entry = _camera_from_info(msg) if msg is not None else None
+        if entry is None:
+            model = getattr(msg, "distortion_model", "?")
+            return None, f"{conn.topic}: distortion model {model!r} or its K/D cannot be used"
+        out[name] = entry
+    return out, ""
+
+
+def _camera_from_info(msg) -> dict | None:
+    K = np.asarray(getattr(msg, "k", getattr(msg, "K", None)), np.float64).ravel()
+    D = np.asarray(getattr(msg, "d", getattr(msg, "D", [])), np.float64).ravel()
+    model = _INFO_MODELS.get(str(msg.distortion_model).lower())
+    if model is None or K.size != 9 or K[0] <= 0 or K[4] <= 0 or not np.isfinite(D).all():
+        return None
+    kind, n = model
+    dist = np.zeros(n)
+    dist[: min(n, D.size)] = D[:n]
+    if kind == "pinhole" and n == 5 and dist[4] == 0.0:
+        dist = dist[:4]  # plumb_bob with k3 = 0 is radtan4
+    return {"model": kind, "resolution": [int(msg.width), int(msg.height)],
+            "intrinsics": {"fx": float(K[0]), "fy": float(K[4]), "cx": float(K[2]), "cy": float(K[5])},
+            "distortion": [float(x) for x in dist]}
 
 
 def _stamp(msg, topic: str, index: int) -> int:
