@@ -205,10 +205,13 @@ class DatasetWriter:
         for name, blocks in self._imu_blocks.items():
             self._finish_imu(name, blocks)
         if self.rate_hz is not None:
+            kept = thin_by_rate(self._focus, self.window.t0_ns, self.rate_hz)
             for camera, paths in self._written.items():
-                for t in sorted(set(paths) - set(thin_by_rate(self._focus, self.window.t0_ns, self.rate_hz)[camera])):
+                for t in sorted(set(paths) - set(kept[camera])):
                     paths.pop(t).unlink()
                     self.cameras[camera].thinned += 1
+                if paths:
+                    self.cameras[camera].first_ns, self.cameras[camera].last_ns = min(paths), max(paths)
 
     def _finish_imu(self, name: str, blocks: list[ImuBlock]) -> None:
         n = self.imus[name]
