@@ -628,3 +628,12 @@ def test_unwritable_output_and_a_full_disk_mid_way_leave_nothing(sim, euroc, tmp
     res = _ingest(euroc, "--out", tmp_path / "ds")
     assert res.exit_code == 2 and "No space left on device" in res.output and str(tmp_path / "ds") in res.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file"]
+
+
+def test_a_file_that_is_not_a_video_is_named(tmp_path):
+    bad = tmp_path / "src" / "cam.mp4"
+    bad.parent.mkdir()
+    bad.write_bytes(b"\x00not a video" * 100)
+    res = _ingest(bad, "--out", tmp_path / "ds")
+    assert res.exit_code == 2 and f"{bad}: not a readable video" in res.output
+    assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "ds").exists()

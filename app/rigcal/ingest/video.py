@@ -28,7 +28,7 @@ def _open(path: Path):
 
     try:
         container = av.open(str(path))
-    except (av.FFmpegError, OSError) as e:
+    except (av.error.FFmpegError, OSError) as e:
         raise InputError(f"{path}: not a readable video ({' '.join(str(e).split())})") from None
     if not container.streams.video:
         container.close()
@@ -90,7 +90,7 @@ class VideoRecording:
                     where = f"{path}: frame {i + 1}"
                     t = frame_time_ns(frame.pts, frame.time_base or stream.time_base, self.offsets[c], where)
                     yield "camera", c, Frame(t_ns=t, where=where, pixels=frame.to_ndarray(format=fmt))
-            except av.FFmpegError as e:
+            except av.error.FFmpegError as e:
                 raise InputError(f"{path}: cannot decode ({' '.join(str(e).split())})") from None
             finally:
                 container.close()
