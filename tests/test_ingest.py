@@ -317,7 +317,13 @@ def test_bad_bags_are_one_line_and_write_nothing(sim, tmp_path):
     bag = R.write_bag(tmp_path / "rec.bag", "ros1", _bag_images(sim / "sim"), None)
     cut = tmp_path / "cut.bag"
     cut.write_bytes(bag.read_bytes()[: bag.stat().st_size // 2])
-    for src in (junk, cut):
+    cut2 = []
+    for kind in ("sqlite3", "mcap"):  # ROS 2 bag folders whose storage file was cut short
+        d = R.write_bag(tmp_path / kind, kind, _bag_images(sim / "sim"), None)
+        f = next(p for p in d.iterdir() if p.suffix in (".db3", ".mcap"))
+        f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+        cut2.append(d)
+    for src in (junk, cut, *cut2):
         res = _ingest(src, "--out", tmp_path / "ds", "--camera", "left=/left/image_raw")
         assert res.exit_code == 2, res.output
         assert str(src) in res.output and len(res.output.strip().splitlines()) == 1
