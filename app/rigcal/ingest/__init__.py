@@ -12,6 +12,7 @@ yielding ("camera", name, Frame) and ("imu", name, ImuBlock) in one pass, which
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import time
 from dataclasses import dataclass
@@ -134,8 +135,6 @@ def _video_files(source: Path, cameras: dict[str, str]) -> dict[str, Path]:
 def ingest(source: str | Path, out_dir: str | Path, opts: IngestOptions, rig_path: Path | None = None,
            target_path: Path | None = None, force: bool = False, progress: bool = False) -> IngestResult:
     """Read SOURCE and write the dataset at out_dir, whole or not at all."""
-    import contextlib
-
     t_start = time.perf_counter()
     check_options(opts)
     source, out_dir = Path(source), Path(out_dir)
@@ -210,9 +209,11 @@ def _rig_from_camera_info(rec: BagRecording, source: Path) -> tuple[str, dict | 
 
 
 def _rig_name(source: Path) -> str:
-    """The recording's folder name (EuRoC: MH_01_easy for MH_01_easy/mav0)."""
-    folder = source.resolve()
-    return (folder.parent if folder.name == "mav0" else folder).name or "euroc"
+    """The recording's name: its folder's (MH_01_easy for MH_01_easy/mav0) or file's stem."""
+    path = source.resolve()
+    if path.is_file():
+        return path.stem
+    return (path.parent if path.name == "mav0" else path).name or "recording"
 
 
 def _check_out(source: Path, out_dir: Path, force: bool) -> None:
