@@ -196,7 +196,7 @@ def test_euroc_default_names_copy_and_body_axes(sim, euroc, tmp_path):
 
 def test_start_end_window_and_rate_keeps_the_sharpest_shared_instant(sim, tmp_path):
     src = tmp_path / "euroc"
-    R.write_euroc(src, sim / "sim", load_rig(sim / "rig.yaml"), {"cam0": "left", "cam1": "right"}, imu=False)
+    R.write_euroc(src, sim / "sim", load_rig(sim / "rig.yaml"), {"cam0": "left", "cam1": "right"})
     for cam in ("cam0", "cam1"):  # blur every frame but the odd ones: at 10 Hz each slot holds one sharp frame
         for i, p in enumerate(sorted((src / "mav0" / cam / "data").iterdir())):
             if i % 2 == 0:
@@ -209,6 +209,13 @@ def test_start_end_window_and_rate_keeps_the_sharpest_shared_instant(sim, tmp_pa
     res = _ingest(src, "--out", tmp_path / "win", "--start", "0.1", "--end", "0.3")
     assert res.exit_code == 0, res.output
     assert sorted(int(p.stem) for p in (tmp_path / "win" / "images" / "cam0").iterdir()) == t[2:7].tolist()
+    res = _ingest(src, "--out", tmp_path / "late", "--start", "0.35")
+    assert res.exit_code == 0, res.output
+    assert sorted(int(p.stem) for p in (tmp_path / "late" / "images" / "cam1").iterdir()) == t[7:].tolist()
+    t_imu, _ = _read_imu(tmp_path / "late" / "imu" / "imu0.csv")  # the window widened by 0.5 s
+    t_src, _ = _read_imu(src / "mav0" / "imu0" / "data.csv")
+    inside = t_src[t_src >= t[0] + 350_000_000 - 500_000_000]
+    assert np.array_equal(t_imu, inside) and len(inside) < len(t_src)
 
 
 def test_thin_by_rate_unsynchronised_cameras_keep_their_own_sharpest():

@@ -100,10 +100,15 @@ class Window:
     start_s: float | None = None
     end_s: float | None = None
 
-    def bounds(self, pad_ns: int = 0) -> tuple[float, float]:
-        lo = -np.inf if self.start_s is None else self.t0_ns + self.start_s * 1e9 - pad_ns
-        hi = np.inf if self.end_s is None else self.t0_ns + self.end_s * 1e9 + pad_ns
+    def bounds(self, pad_ns: int = 0) -> tuple[int, int]:
+        """(lo, hi) in integer ns: stamps near 1.4e18 ns are 256 ns apart as doubles, so the
+        window is never computed in floating point."""
+        lo = _INT64_MIN if self.start_s is None else self.t0_ns + round(self.start_s * 1e9) - pad_ns
+        hi = _INT64_MAX if self.end_s is None else self.t0_ns + round(self.end_s * 1e9) + pad_ns
         return lo, hi
+
+
+_INT64_MIN, _INT64_MAX = -(2**63), 2**63 - 1
 
 
 class DatasetWriter:
