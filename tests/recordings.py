@@ -215,3 +215,57 @@ def write_video(path: Path, frames: list[np.ndarray], fps: int = 20, codec: str 
         for p in s.encode():
             c.mux(p)
     return path
+
+
+# ----------------------------------------------------------------------------- the README's examples
+
+SMALL_STEREO = """
+rig: small-stereo
+body_frame: FLU
+cameras:
+  left: {model: pinhole, resolution: [480, 320], intrinsics: {fx: 340.0, fy: 340.0, cx: 240.0, cy: 160.0},
+         distortion: [-0.05, 0.02, 0.0, 0.0], position: [0.1, 0.05, 0.0], look: forward}
+  right: {model: pinhole, resolution: [480, 320], intrinsics: {fx: 340.0, fy: 340.0, cx: 240.0, cy: 160.0},
+          distortion: [-0.05, 0.02, 0.0, 0.0], position: [0.1, -0.05, 0.0], look: forward}
+stereo_pairs:
+  - [left, right]
+"""
+IMU_BLOCK = """imus:
+  imu0: {position: [0.0, 0.0, 0.0], axes: [U, -L, F], update_rate: 200.0, gyroscope_noise_density: 1.7e-4,
+         gyroscope_random_walk: 1.9e-5, accelerometer_noise_density: 2.0e-3, accelerometer_random_walk: 3.0e-3}
+"""
+
+
+def build_examples(out: Path, frames: int = 10, drop: int = 3) -> None:
+    """What README's "From your recording" runs on: OUT/rig.yaml (cameras), rig_imu.yaml (and
+    imu0), target.yaml, euroc_seq/, rec.bag (ROS 1, raw, IMU), rec_mcap/ (ROS 2 mcap,
+    PNG-compressed, CameraInfo), videos/{left,right}.mkv (right started `drop` / 20 s later)."""
+    from rigcal.rig import parse_rig
+    from rigcal.simulate import simulate_dataset
+
+    out.mkdir(parents=True, exist_ok=True)
+    rig = parse_rig(SMALL_STEREO)
+    (out / "rig.yaml").write_text(SMALL_STEREO)
+    (out / "rig_imu.yaml").write_text(SMALL_STEREO + IMU_BLOCK)
+    sim = out / "sim"
+    simulate_dataset(rig, sim, scene="board", frames=frames, noise=1.0, jobs=2, seed=5)
+    (out / "target.yaml").write_text((sim / "target.yaml").read_text())
+    write_euroc(out / "euroc_seq", sim, rig, {"cam0": "left", "cam1": "right"})
+    imgs = {c: [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in sim_frames(sim, c)] for c in ("left", "right")}
+    images = {c: list(zip(stamps(frames).tolist(), v)) for c, v in imgs.items()}
+    t = stamps(frames)
+    imu = synthetic_imu(int(t[0]), int(t[-1]))
+    write_bag(out / "rec.bag", "ros1", images, imu)
+    write_bag(out / "rec_mcap", "mcap", images, None, compressed=True,
+              camera_info={c.name: c.intrinsics for c in rig.cameras})
+    (out / "videos").mkdir()
+    write_video(out / "videos" / "left.mkv", imgs["left"])
+    write_video(out / "videos" / "right.mkv", imgs["right"][drop:])
+
+
+if __name__ == "__main__":
+    import argparse
+
+    ap = argparse.ArgumentParser(description=build_examples.__doc__)
+    ap.add_argument("--out", type=Path, required=True)
+    build_examples(ap.parse_args().out)

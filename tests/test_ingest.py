@@ -46,11 +46,7 @@ cameras:
 stereo_pairs:
   - [left, right]
 """
-IMUS = """
-imus:
-  imu0: {position: [0.0, 0.0, 0.0], axes: [U, -L, F], update_rate: 200.0, gyroscope_noise_density: 1.7e-4,
-         gyroscope_random_walk: 1.9e-5, accelerometer_noise_density: 2.0e-3, accelerometer_random_walk: 3.0e-3}
-"""
+IMUS = "\n" + R.IMU_BLOCK
 CAMS = ("left", "right")
 runner = CliRunner()
 

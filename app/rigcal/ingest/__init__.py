@@ -253,8 +253,10 @@ def _check_rig_names(doc: dict, cameras: list[str], imus: list[str], label: str)
         if what == "imus" and not got:
             continue
         if sorted(declared) != sorted(got):
+            hint = ("declare each IMU under `imus:` (imu.md) or leave out --imu" if what == "imus" else
+                    "choose and name the cameras with --camera NAME=...")
             raise InputError(f"{label}: {what}: declares {', '.join(declared) or 'none'} but the recording gives "
-                             f"{', '.join(got) or 'none'} (name them with --camera/--imu NAME=...)")
+                             f"{', '.join(got) or 'none'} ({hint})")
 
 
 def _check_written(writer: DatasetWriter) -> None:
