@@ -646,3 +646,26 @@ def test_a_file_that_is_not_a_video_is_named(tmp_path):
     res = _ingest(bad, "--out", tmp_path / "ds")
     assert res.exit_code == 2 and f"{bad}: not a readable video" in res.output
     assert len(res.output.strip().splitlines()) == 1 and not (tmp_path / "ds").exists()
+
+
+def _readme_commands() -> list[list[str]]:
+    """The shell block of README's "From your recording", one argv per command."""
+    import shlex
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    section = text[text.index("## From your recording"):]
+    block = section[section.index("```sh") + 5: section.index("```", section.index("```sh") + 5)]
+    lines = block.replace("\\\n", " ").splitlines()
+    return [shlex.split(ln, comments=True)[1:] for ln in lines if ln.strip().startswith("rigcal ")]
+
+
+def test_readme_commands_run_on_the_example_recordings(tmp_path, monkeypatch):
+    R.build_examples(tmp_path / "recs")
+    monkeypatch.chdir(tmp_path / "recs")
+    cmds = _readme_commands()
+    assert len(cmds) >= 7 and {c[1] for c in cmds if c[0] == "ingest"} >= {"euroc_seq", "rec.bag", "rec_mcap", "videos"}
+    for argv in cmds:
+        lists_topics = argv[0] == "ingest" and argv[1] == "rec.bag" and "--camera" not in argv
+        res = runner.invoke(app, argv)
+        assert res.exit_code == (2 if lists_topics else 0), (argv, res.output)
+    assert (tmp_path / "recs" / "calibrated.yaml").is_file()
