@@ -25,27 +25,7 @@ from rigcal.ingest.writer import first_of_monotonic, thin_by_rate
 from rigcal.rig import load_rig, rig_from_dict
 from rigcal.simulate import simulate_dataset
 
-RIG = """
-rig: small-stereo
-body_frame: FLU
-cameras:
-  left:
-    model: pinhole
-    resolution: [480, 320]
-    intrinsics: {fx: 340.0, fy: 340.0, cx: 240.0, cy: 160.0}
-    distortion: [-0.05, 0.02, 0.0, 0.0]
-    position: [0.1, 0.05, 0.0]
-    look: forward
-  right:
-    model: pinhole
-    resolution: [480, 320]
-    intrinsics: {fx: 340.0, fy: 340.0, cx: 240.0, cy: 160.0}
-    distortion: [-0.05, 0.02, 0.0, 0.0]
-    position: [0.1, -0.05, 0.0]
-    look: forward
-stereo_pairs:
-  - [left, right]
-"""
+RIG = R.SMALL_STEREO
 IMUS = "\n" + R.IMU_BLOCK
 CAMS = ("left", "right")
 runner = CliRunner()
@@ -146,7 +126,7 @@ def euroc(sim):
 def test_euroc_folder_gives_the_same_frames_imu_rig_and_calibration(sim, euroc, reference, tmp_path):
     ds = tmp_path / "ds"
     before = sorted(p.relative_to(euroc) for p in euroc.rglob("*"))
-    res = _ingest(euroc, "--out", ds, "--camera", "left=cam0", "--camera", "right=cam1",
+    res = _ingest(euroc, "--out", ds, "--camera", "left=cam0", "--camera", "right=cam1", "--imu", "imu0=imu0",
                   "--target", sim / "sim" / "target.yaml")
     assert res.exit_code == 0, res.output
     assert "images/left/: 10 of 10 frames" in res.output and "imu/imu0.csv: " in res.output
@@ -179,6 +159,7 @@ def test_euroc_default_names_copy_and_body_axes(sim, euroc, tmp_path):
     res = _ingest(euroc / "mav0", "--out", ds, "--copy", "--body-axes", "F", "L", "U")
     assert res.exit_code == 0, res.output
     assert sorted(p.name for p in (ds / "images").iterdir()) == ["cam0", "cam1"]
+    assert (ds / "imu" / "imu0.csv").is_file()  # neither --camera nor --imu: every sensor
     assert not any(p.is_symlink() for p in (ds / "images" / "cam0").iterdir())
     doc = yaml.safe_load((ds / "rig.yaml").read_text())
     # B taken as FLU: the declared poses are T_BS itself, which write_euroc made with U -L F
@@ -188,6 +169,9 @@ def test_euroc_default_names_copy_and_body_axes(sim, euroc, tmp_path):
     assert "gravity" in res.output and "check --body-axes" in res.output  # gravity reads +x = F here, not U
     res = _ingest(euroc, "--out", tmp_path / "ds2")
     assert res.exit_code == 0 and "gravity" not in res.output
+    res = _ingest(euroc, "--out", tmp_path / "ds3", "--camera", "cam0=cam0")  # cameras chosen, no --imu: no IMU
+    assert res.exit_code == 0 and not (tmp_path / "ds3" / "imu").exists()
+    assert "imus" not in yaml.safe_load((tmp_path / "ds3" / "rig.yaml").read_text())
 
 
 def test_start_end_window_and_rate_keeps_the_sharpest_shared_instant(sim, tmp_path):

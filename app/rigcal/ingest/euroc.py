@@ -88,8 +88,9 @@ class EurocRecording:
 
 
 def open_euroc(mav0: Path, cameras: dict[str, str], imus: dict[str, str]) -> EurocRecording:
-    """Pick sensors: `cameras`/`imus` map dataset names to sensor folder names; empty
-    means every camera (imu) folder under its own name."""
+    """Pick sensors: `cameras`/`imus` map dataset names to sensor folder names. Neither
+    given: every camera and IMU folder under its own name; cameras chosen and no IMU: no
+    IMU (as for a bag, where only --imu brings one in)."""
     kinds: dict[str, list[str]] = {"camera": [], "imu": []}
     for d in sorted(p for p in mav0.iterdir() if p.is_dir() and (p / "sensor.yaml").is_file()):
         kind = str(read_sensor_yaml(d / "sensor.yaml").get("sensor_type", "")).lower()
@@ -98,7 +99,8 @@ def open_euroc(mav0: Path, cameras: dict[str, str], imus: dict[str, str]) -> Eur
     cams = _choose(mav0, "camera", kinds["camera"], cameras)
     if not cams:
         raise InputError(f"{mav0}: no camera folder (a sensor.yaml with sensor_type: camera and a data.csv)")
-    return EurocRecording(mav0, cams, _choose(mav0, "imu", kinds["imu"], imus),
+    chosen_imus = _choose(mav0, "imu", kinds["imu"], imus) if imus or not cameras else {}
+    return EurocRecording(mav0, cams, chosen_imus,
                           {c: read_camera_csv(d / "data.csv") for c, d in cams.items()})
 
 
@@ -208,7 +210,7 @@ def _imu_entry(doc: dict, path: Path, T_flu_B: np.ndarray) -> dict:
             entry[k] = float(doc[k])
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{path}: expected rate_hz and {', '.join(IMU_NOISE_KEYS)} as numbers "
-                         f"({e.__class__.__name__}: {e})") from None
+                         f"({e.__class__.__name__}: {e}); or give the rig with --rig") from None
     return entry
 
 
