@@ -13,6 +13,7 @@ Sections (each also runs alone: python -m bench.<name>):
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
+  ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
@@ -26,12 +27,12 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import (accuracy, indie, indie_noise, montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu,
-               solver_libraries, speed)
+from . import (accuracy, indie, indie_noise, ingest, montecarlo, noise_limit, peer_opencv, real, scale,
+               simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise",
-            "simulate_imu", "solvers")
+            "simulate_imu", "solvers", "ingest")
 
 
 def main(argv=None) -> None:
@@ -126,6 +127,12 @@ def main(argv=None) -> None:
             write_json("solver_libraries", {"results": r, "machine": info})
             return solver_libraries.tables(r)
         section("solvers", solvers)
+    if "ingest" in todo:
+        def ing():
+            r = ingest.run(seconds=10.0 if a.quick else 60.0)
+            write_json("ingest", {**r, "machine": info})
+            return ingest.tables(r)
+        section("ingest", ing)
     total = time.perf_counter() - t0
     head = (f"# rigcal benchmarks\n\n{info['date']}; {info['cpus']} CPUs; load average at start "
             f"{info['load_avg_1_5_15']}; {info['platform']}; Python {info['python']}, OpenCV {info['opencv']}, "

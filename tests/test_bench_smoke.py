@@ -13,7 +13,7 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
-MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "solver_libraries",
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "solver_libraries", "ingest",
            "__main__")
 
 
@@ -151,3 +151,13 @@ def test_simulate_imu_section_runs_small(tmp_path, monkeypatch):
     assert r["images"] == 3 and r["imu_samples"]["imu0"] == int(1.3 * 200) + 1
     assert (tmp_path / "simulate_imu.png").stat().st_size > 0 and (tmp_path / "simulate_imu.html").exists()
     assert "peak angular rate" in simulate_imu.tables(r)
+
+
+def test_ingest_bench_runs_at_small_size():
+    """bench.ingest end to end on 0.5 s of tiny images: both bags ingest every frame."""
+    from bench import ingest
+
+    r = ingest.run(seconds=0.5, scale=0.3, log=lambda *a: None)
+    assert [x["kind"] for x in r["rows"]] == ["ros1", "mcap"]
+    assert all(x["ok"] and x["images"] == 20 for x in r["rows"]), r["rows"]
+    assert "ros1" in ingest.tables(r)

@@ -258,6 +258,36 @@ def view(
     out(vw.run(rig, out_path))
 
 
+@app.command()
+@guarded
+def ingest(
+    source: Path = typer.Argument(..., help="EuRoC folder (mav0/), ROS 1 .bag, ROS 2 bag (folder, .db3, .mcap), "
+                                            "or a video file / folder of videos"),
+    out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md, imu.md)"),
+    rig: Optional[Path] = typer.Option(None, help="rig YAML to copy in as DATASET/rig.yaml (EuRoC: default "
+                                                  "written from the sensor.yaml files)"),
+    target: Optional[Path] = typer.Option(None, help="target YAML to copy in as DATASET/target.yaml"),
+    camera: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag), NAME=FILE (video) or NAME=camN "
+                                                          "(EuRoC); repeat per camera"),
+    imu: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag) or NAME=imuN (EuRoC)"),
+    rate: Optional[float] = typer.Option(None, help="keep one instant per 1/HZ s, the sharpest (variance of the "
+                                                    "Laplacian); default: every frame"),
+    start: Optional[float] = typer.Option(None, help="seconds after the first image stamp to start at"),
+    end: Optional[float] = typer.Option(None, help="seconds after the first image stamp to end at"),
+    offset: Optional[list[str]] = typer.Option(None, help="NAME=SECONDS added to a video camera's frame times"),
+    body_axes: Optional[tuple[str, str, str]] = typer.Option(
+        None, help="EuRoC: the body frame B's x, y, z axes in FLU terms (default U -L F: EuRoC's IMU, x up, "
+                   "y right, z forward)"),
+    copy: bool = typer.Option(False, help="copy image files instead of linking them (EuRoC)"),
+    force: bool = typer.Option(False, help="replace a non-empty output folder"),
+):
+    """Turn a recording (EuRoC folder, ROS bag, videos) into a dataset folder."""
+    from . import ingest as ing
+
+    out(ing.run(source, out_dir, rig_path=rig, target_path=target, cameras=camera, imus=imu, rate=rate, start=start,
+                end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force))
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the program is so that every atomic writer and worker pool
     cleans up as it does for Ctrl-C (Python's default for SIGTERM is to die on the spot,
