@@ -352,9 +352,10 @@ def _need(dof: int) -> float:
     return float(chdtri(dof, INTRINSICS_LEVEL))
 
 
-def _refit(res: SolveResult, c: int, it: Intrinsics) -> SolveResult:
+def refit(res: SolveResult, c: int, it: Intrinsics) -> SolveResult:
     """res's problem solved again with camera c's intrinsics replaced by `it`, on exactly
-    res's inlier corners (no rejection), so the costs compare."""
+    res's inlier corners (no rejection), so the costs compare: the likelihood ratio of
+    the two is (sum r'^2 - sum r^2) / res.sigma_px^2."""
     st = res.state.copy()
     st.intrinsics[c] = it
     pb = res.problem
@@ -377,7 +378,7 @@ def select_structure(res: SolveResult, c: int, cov: np.ndarray, centre) -> tuple
     base = float(np.sum(res.residuals ** 2))
 
     def lr(tie: bool, hold: bool) -> float:
-        return (float(np.sum(_refit(res, c, with_structure(it, tie, hold, centre)).residuals ** 2)) - base) / s2
+        return (float(np.sum(refit(res, c, with_structure(it, tie, hold, centre)).residuals ** 2)) - base) / s2
 
     ok = {}
     for name, wald, key, dof in (("fx = fy", tie_w, (True, False), 1), ("principal point held", hold_w,
@@ -448,7 +449,7 @@ def own_views_intrinsics(views: list[ViewIn], corners: dict, start: Intrinsics, 
         reduced, lines = select_structure(res, 0, full, centre)
         lines = [f"own views: {x}" for x in lines]
         if reduced is not None:
-            res = _refit(res, 0, reduced)
+            res = refit(res, 0, reduced)
             full = _intrinsics_cov(res)
     return OwnViews(res.state.intrinsics[0], lines, full, free)
 
@@ -695,10 +696,13 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
                                 covariance if covariance is not None else _covariance(res))
     cams = []
     stats = {}
-    gross: list[str | None] = []
     inl_obs = obs.subset(res.inliers)
     r_all = res.problem.residuals(res.problem.x0()).reshape(-1, 2)
     lost = [n for c, n in enumerate(cam_names) if not np.any(obs.cam[res.inliers] == c)]
+    judged = _judged_rms(obs, res, fix, len(cam_names))
+    gross = [_gross_rms(n, judged[c], inits[c].rms_px, rig.camera(n).intrinsics.width,
+                        rig.camera(n).intrinsics.height) for c, n in enumerate(cam_names)]
+    _refuse_gross_rms(gross)
     if lost:
         raise CalibrationError(f"{', '.join(lost)}: every corner was rejected as an outlier; the views of "
                                f"this camera disagree with the rest of the rig (wrong target, or a moved camera?)")
@@ -709,7 +713,6 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         T_bc = T_out_solve @ T_body_cam_solve[c]
         m = inl_obs.cam == c
         rms = float(np.sqrt(np.mean(np.sum(r_all[m] ** 2, axis=1)))) if m.any() else float("nan")
-        gross.append(_gross_rms(n, rms, inits[c].rms_px, declared.width, declared.height))
         st = CameraStats(
             name=n, rms_px=rms, observations=int(m.sum()), frames=int(len(np.unique(inl_obs.frame[m]))),
             outliers=int((~res.inliers & (obs.cam == c)).sum()) + int(refused[c]),
@@ -727,7 +730,6 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         st.sigma_intrinsics_free = free_sigma.get(c)
         stats[n] = st
         cams.append(Camera(n, model, T_bc, None))
-    _refuse_gross_rms(gross)
     out_rig = replace(rig, cameras=tuple(cams))
     rms_all = float(np.sqrt(np.mean(np.sum(r_all**2, axis=1))))
     timings["total_core_s"] = time.perf_counter() - t0
@@ -802,6 +804,20 @@ def rigidity_check(res, inits: list[MonoInit], cam_names: list[str]) -> str | No
     return (f"the cameras' views disagree with one rigid rig per frame: reprojection RMS in the joint solve is "
             f"{factor:.1f}x each camera's own fit (px: {detail}); are the frames synchronised, and did the rig "
             f"stay rigid? Intrinsics were taken from each camera's own views and held fixed for the extrinsics")
+
+
+def _judged_rms(obs: Observations, res: SolveResult, fix: np.ndarray, C: int) -> np.ndarray:
+    """(C,) each camera's reprojection RMS px for the gross-failure test: over its inlier
+    corners, or over all its corners when more than half were rejected. A camera whose
+    images are mirrored can otherwise lose nearly every corner as an outlier and pass on
+    the few that happen to fit."""
+    pb = Problem(obs, res.state, res.problem.gauge_cam, res.problem.gauge_board, fix)
+    e2 = np.sum(pb.residuals(pb.x0()).reshape(-1, 2) ** 2, axis=1)
+    n_all = np.bincount(obs.cam, minlength=C)
+    n_in = np.bincount(obs.cam[res.inliers], minlength=C)
+    use = res.inliers | (n_in < 0.5 * n_all)[obs.cam]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.bincount(obs.cam[use], e2[use], minlength=C) / np.bincount(obs.cam[use], minlength=C))
 
 
 def _gross_rms(name: str, rms: float, own_rms: float | None, width: int, height: int) -> str | None:
