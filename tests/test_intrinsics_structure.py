@@ -23,6 +23,8 @@ from rigcal.solve import (Intrinsics, Observations, Problem, State, bundle_adjus
                           intrinsics_covariance)
 from rigcal.synthetic import grid_corners, room_scene, with_noise
 
+from synthetic_obs import central_jacobian
+
 DIST = (-0.03, 0.01, 2e-4, -1e-4)
 
 
@@ -97,13 +99,7 @@ def test_masked_jacobian_matches_central_differences(drone):
     rng = np.random.default_rng(1)
     x = pb.x0() + rng.normal(0, 1e-3, pb.layout.size)
     J = pb.jacobian(x).toarray()
-    Jn = np.empty_like(J)
-    for k in range(pb.layout.size):
-        h = 1e-6 * max(1.0, abs(x[k]))
-        xp, xm = x.copy(), x.copy()
-        xp[k] += h
-        xm[k] -= h
-        Jn[:, k] = (pb.residuals(xp) - pb.residuals(xm)) / (2 * h)
+    Jn = central_jacobian(pb.residuals, x)
     scale = np.abs(Jn).max(axis=0) + 1e-9
     assert np.max(np.abs(J - Jn) / scale) < 1e-5
     st = pb.state(x)
@@ -151,13 +147,7 @@ def test_masked_covariance_equals_the_reduced_problem_dense_reference():
 
     theta = np.concatenate([[sol[0]], sol[4:]] + [np.concatenate([cv2.Rodrigues(T[:3, :3])[0].ravel(), T[:3, 3]])
                                                  for T in res.state.T_body_world])
-    J = np.empty((12 * n, len(theta)))
-    for k in range(len(theta)):
-        h = 1e-6 * max(1.0, abs(theta[k]))
-        tp, tm = theta.copy(), theta.copy()
-        tp[k] += h
-        tm[k] -= h
-        J[:, k] = (residuals(tp) - residuals(tm)) / (2 * h)
+    J = central_jacobian(residuals, theta)
     ref = res.sigma_px ** 2 * np.linalg.inv(J.T @ J)[:5, :5]
     mine = full[np.ix_([0, 4, 5, 6, 7], [0, 4, 5, 6, 7])]
     np.testing.assert_allclose(mine, ref, rtol=2e-3, atol=1e-3 * np.sqrt(np.outer(np.diag(ref), np.diag(ref))).max())
@@ -194,7 +184,8 @@ def test_auto_ties_and_holds_when_the_truth_is_square_and_centred(drone):
         assert m.fx == m.fy
         d = drone.camera(n).intrinsics
         assert (m.cx, m.cy) == (d.cx, d.cy)
-        assert st.sigma_intrinsics["cx"] == 0.0 and st.sigma_intrinsics["fy"] == pytest.approx(st.sigma_intrinsics["fx"])
+        sig = st.sigma_intrinsics
+        assert sig["cx"] == 0.0 and sig["fy"] == pytest.approx(sig["fx"])
         assert abs(m.fx / d.fx - 1) < 5 * st.sigma_intrinsics["fx"] / d.fx  # the tied focal is right
 
 
@@ -280,3 +271,10 @@ def test_poorly_determined_warning_fires_on_a_weak_set_only(drone):
     assert len(pp) == 1 and "1-sigma" in pp[0], lines
     assert "none seen in" in pp[0] and "top left" in pp[0], lines
     assert not any(intrinsics_warnings(weak, weak.cam_names.index(n), n) for n in ("front_left", "front_right"))
+
+
+def test_cli_offers_the_structures_and_refuses_others(tmp_path):
+    r = CliRunner().invoke(app, ["calibrate", "--help"])
+    assert r.exit_code == 0 and "--intrinsics" in r.output
+    r = CliRunner().invoke(app, ["calibrate", str(tmp_path), "--out", str(tmp_path / "o.yaml"), "--intrinsics", "round"])
+    assert r.exit_code == 2 and not (tmp_path / "o.yaml").exists()

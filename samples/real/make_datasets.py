@@ -1,10 +1,12 @@
 """Real calibration photos from ../shared/data/real in rigcal's dataset layout.
 
-    python samples/real/make_datasets.py OUTDIR [NAME ...]      # NAME: caliscope caliscope_b wideangle trinocular (default all)
+    python samples/real/make_datasets.py OUTDIR [NAME ...]      # NAME: caliscope caliscope_b wideangle trinocular
+                                                                 # (default all)
     python samples/real/make_datasets.py --samples               # rebuild samples/real/bumblebee2, opencv_stereo
 
 The big sets (caliscope, wideangle, trinocular) become folders under OUTDIR whose
-images are symbolic links into the shared copy (nothing is duplicated); rig.yaml and
+images are symbolic links into the shared copy (nothing is duplicated; caliscope_b's
+frames are decoded from its videos into PNG files); rig.yaml and
 target.yaml are written beside them. The two small chessboard sets are copied, with
 their licences, into samples/real/ (--samples), which is how the committed samples
 were made. Every rig.yaml here is a *declared* rig: resolutions, rough nominal focal
