@@ -46,11 +46,12 @@ RATIONAL_LEVEL = 1e-4
 RATIONAL_MIN_Z = 3.0
 RATIONAL_MIN_GAIN = 0.05
 # `--intrinsics auto`: fx = fy (square pixels) and the principal point at its declared value
-# (the image centre unless declared) are the model; the data free them only by a Wald test
-# at the level k3 must pass, on the covariance of the solve that estimated them (1 degree
-# of freedom for fx - fy, 2 for cx, cy). Webcams seen through a small board cannot pin a
-# principal point (caliscope: sigma 5-20 px) and a free one is then fitted to noise that
-# the extrinsics absorb; every rig whose data resolve it keeps it free.
+# (the image centre unless declared) are the model; the data free them by a Wald test at
+# the level k3 must pass, on the covariance of the solve that estimated them (1 degree of
+# freedom for fx - fy, 2 for cx, cy), or when the likelihood ratio of the reduced refit
+# rejects the reduction at that level (select_structure). Webcams seen through a small
+# board cannot pin a principal point (caliscope: 1-sigma 1.3-21 px); every rig whose data
+# resolve it keeps it free (the simulated rigs: Wald 9,100 and more).
 INTRINSICS_LEVEL = K3_LEVEL
 # --intrinsics NAME -> (tie_focal, hold_centre); auto: tested per camera
 INTRINSICS_CHOICES = {"free": (False, False), "square": (True, False), "centred": (False, True),
@@ -369,8 +370,9 @@ def select_structure(res: SolveResult, c: int, cov: np.ndarray, centre) -> tuple
     the data do not reject it. Screened by the Wald test (structure_tests), then each
     reduction, and both together, confirmed by the likelihood ratio of the refit at
     INTRINSICS_LEVEL, the rational model's statistic: on weak data (webcams, a 12-corner
-    board) the covariance is too local, e.g. caliscope's cam_2 passes the Wald screen of its
-    principal point (17.6 < 18.4) while holding it costs an LR of about 200.
+    board) the covariance is too local, e.g. caliscope's cam_2 passes both Wald screens
+    (13.8 and 17.6) and each reduction alone its LR, but tying and holding together costs
+    an LR of 207 (needs 21.1).
     -> (the reduced intrinsics or None to keep them free, log lines)."""
     it = res.state.intrinsics[c]
     tie_w, hold_w, lines = structure_tests(it, cov, centre)
