@@ -317,7 +317,7 @@ def tables(res: dict) -> str:
 
 def _structure(c: dict) -> str:
     st = c.get("structure")
-    return "-" if not st else f"{st['focal']}, cx,cy {st['principal_point']}"
+    return "-" if not st else f"{st['focal']}; cx,cy {st['principal_point']}"
 
 
 def _caliscope_tables(key: str, cs: dict) -> list[str]:

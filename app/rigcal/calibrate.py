@@ -440,7 +440,7 @@ def structure_text(model: dict | None) -> str:
         return "-"
     if model["focal"] == "declared":
         return "declared, held"
-    return f"{model['focal']}, cx,cy {model['principal_point']}"
+    return f"{model['focal']}; cx,cy {model['principal_point']}"
 
 
 def _fmt(x, nd) -> str:
