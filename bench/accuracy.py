@@ -44,6 +44,7 @@ def run_scenario(scn, seed: int = 0, log=say) -> dict:
                    "rot_deg": e.get("rot_deg"), "pos_mm": e.get("pos_mm"),
                    "declared_focal_rel_pct": d["focal_rel_pct"], "declared_proj_rms_px": d["proj_rms_px"],
                    "model": cal.stats[n].distortion_model, "rms_px": cal.stats[n].rms_px,
+                   "intrinsics_model": cal.stats[n].intrinsics_model,
                    "observations": cal.stats[n].observations, "outliers": cal.stats[n].outliers}
     stereo = {k: {**e, "declared_error_mm": declared["stereo"].get(k, {}).get("error_mm")}
               for k, e in est["stereo"].items()}

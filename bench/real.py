@@ -28,6 +28,7 @@ try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: tomllib is 3.11+
     import tomli as tomllib
+from dataclasses import replace
 from pathlib import Path
 from typing import NamedTuple
 
@@ -151,23 +152,26 @@ def wideangle(log=say) -> dict | None:
             "reference_mm": WIDEANGLE_REF_MM, **_cal_row(run.cal)}
 
 
-def _caliscope_doc() -> dict:
-    return tomllib.loads((SHARED / "caliscope_4cam_charuco_a" / "camera_array.toml").read_text())
+CALISCOPE_SETS = {"caliscope": "caliscope_4cam_charuco_a", "caliscope_b": "caliscope_4cam_charuco_b"}
 
 
-def caliscope_reference() -> dict[str, np.ndarray]:
+def _caliscope_doc(name: str = "caliscope") -> dict:
+    return tomllib.loads((SHARED / CALISCOPE_SETS[name] / "camera_array.toml").read_text())
+
+
+def caliscope_reference(name: str = "caliscope") -> dict[str, np.ndarray]:
     """caliscope's T_cam_world per camera (its camera_array.toml: x_cam = R x_world + t)."""
     return {f"cam_{k}": geo.make_T(np.array(v["rotation"]), np.array(v["translation"]))
-            for k, v in _caliscope_doc()["cameras"].items()}
+            for k, v in _caliscope_doc(name)["cameras"].items()}
 
 
-def caliscope_intrinsics_rig(rig):
+def caliscope_intrinsics_rig(rig, name: str = "caliscope"):
     """The declared rig with caliscope's own intrinsics (its camera_array.toml, calibrated by
-    caliscope from separate recordings that are not in the set)."""
+    caliscope from separate recordings that are not in the set; the same in both sets)."""
     from rigcal.camera import CameraModel
     from rigcal.rig import Camera
 
-    doc = _caliscope_doc()["cameras"]
+    doc = _caliscope_doc(name)["cameras"]
     cams = []
     for c in rig.cameras:
         v = doc[c.name.split("_")[1]]
@@ -200,22 +204,56 @@ def _intrinsics_vs(cal, ref_rig) -> dict:
         m, r = c.intrinsics, ref_rig.camera(c.name).intrinsics
         out[c.name] = {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy, "ref_fx": r.fx, "ref_fy": r.fy,
                        "ref_cx": r.cx, "ref_cy": r.cy, "model": cal.stats[c.name].distortion_model,
-                       "sigma": cal.stats[c.name].sigma_intrinsics}
+                       "sigma": cal.stats[c.name].sigma_intrinsics,
+                       # getattr: this bench also runs on code from before these fields (before/after tables)
+                       "structure": getattr(cal.stats[c.name], "intrinsics_model", None),
+                       "sigma_free": getattr(cal.stats[c.name], "sigma_intrinsics_free", None)}
     return out
 
 
-def caliscope(log=say) -> dict | None:
-    run = _linked_run("caliscope", log)
+def caliscope(log=say, name: str = "caliscope") -> dict | None:
+    run = _linked_run(name, log)
     if run is None:
         return None
     rig, corners, views, head, cal = run
-    ref = caliscope_reference()
-    ref_rig = caliscope_intrinsics_rig(rig)
+    ref = caliscope_reference(name)
+    ref_rig = caliscope_intrinsics_rig(rig, name)
     # diagnostic: the same detections with caliscope's intrinsics held fixed (extrinsics only)
     fixed = calibrate_views(views, ref_rig, corners, fix_intrinsics=True)
+    # and with only caliscope's principal points held (focal lengths and distortion from
+    # this set): does the gap come from the principal points?
+    centred = calibrate_views(views, caliscope_centre_rig(rig, ref_rig), corners, intrinsics="centred")
     return {**head, "pairs": _caliscope_pairs(cal, ref), "intrinsics": _intrinsics_vs(cal, ref_rig),
             "fixed_reference_intrinsics": {"pairs": _caliscope_pairs(fixed, ref), "rms_px": fixed.rms_px},
+            "reference_centres": {"pairs": _caliscope_pairs(centred, ref),
+                                  "lr": centre_lr(rig, corners, views, ref_rig)},
             **_cal_row(cal)}
+
+
+def caliscope_centre_rig(rig, ref_rig):
+    """The declared rig with caliscope's principal points declared (nothing else of its)."""
+    return rig.with_cameras([replace(c, intrinsics=c.intrinsics.with_(cx=ref_rig.camera(c.name).intrinsics.cx,
+                                                                        cy=ref_rig.camera(c.name).intrinsics.cy))
+                             for c in rig.cameras])
+
+
+def centre_lr(rig, corners: dict, views: list, ref_rig) -> dict:
+    """Per camera, how strongly its own views reject caliscope's principal point: the
+    likelihood ratio (chi-square, 2 degrees of freedom; 18.4 at rigcal's level 1e-4) of a
+    one-camera bundle adjustment (radtan4) with cx, cy held at caliscope's values against
+    cx, cy free, on the same corners."""
+    from rigcal.core import one_camera_solve, refit, with_structure
+    from rigcal.solve import Intrinsics
+
+    out = {}
+    for c in rig.cameras:
+        vs = [v for v in views if v.camera == c.name and len(v.ids) >= 4]
+        r = ref_rig.camera(c.name).intrinsics
+        start = Intrinsics("pinhole", np.array([r.fx, r.fy, r.cx, r.cy, *r.dist[:4]], float))
+        free = one_camera_solve([corners[v.board][v.ids] for v in vs], [v.uv for v in vs], start)
+        held = refit(free, 0, with_structure(free.state.intrinsics[0], False, True, (r.cx, r.cy)))
+        out[c.name] = float((np.sum(held.residuals ** 2) - np.sum(free.residuals ** 2)) / free.sigma_px ** 2)
+    return out
 
 
 def trinocular(log=say) -> dict | None:
@@ -227,8 +265,12 @@ def trinocular(log=say) -> dict | None:
     return {**run.head, "baselines": base, **_cal_row(run.cal)}
 
 
+def caliscope_b(log=say) -> dict | None:
+    return caliscope(log, "caliscope_b")
+
+
 SETS = {"bumblebee2": bumblebee2, "opencv_stereo": opencv_stereo, "wideangle": wideangle, "caliscope": caliscope,
-        "trinocular": trinocular}
+        "caliscope_b": caliscope_b, "trinocular": trinocular}
 
 
 def run(names: list[str] | None = None, log=say) -> dict:
@@ -266,27 +308,46 @@ def tables(res: dict) -> str:
                          f"{100 * (b['squares'] / b['opencv_pairwise'] - 1):+.2f} %", tri["rms_px"], tri["seconds"]])
     parts = [md_table(["set", "run", "quantity", "rigcal", "reference", "difference", "reproj RMS px", "calib s"],
                       rows, "Real images: calibrated vs published reference")]
-    cs = res.get("caliscope")
-    if cs:
-        fx = cs["fixed_reference_intrinsics"]["pairs"]
-        rows = [[k, f"{p['distance_m']:.3f}", f"{p['reference_distance_m']:.3f}", 100 * p["translation_diff_m"],
-                 p["rotation_diff_deg"], 100 * fx[k]["translation_diff_m"], fx[k]["rotation_diff_deg"]]
-                for k, p in cs["pairs"].items()]
-        parts.append(md_table(["pair", "rigcal distance m", "caliscope distance m", "rel. translation diff cm",
-                               "rel. rotation diff deg", "with caliscope's intrinsics fixed: cm", "deg"], rows,
-                              f"caliscope 4-camera set vs caliscope's own solution (target 2.5 cm / 2 deg; "
-                              f"reproj RMS {cs['rms_px']:.3f} px, {cs['corners']} corners, models "
-                              f"{sorted(set(cs['models'].values()))})"))
-        rows = [[n, f"{c['fx']:.1f} / {c['fy']:.1f}", f"{c['ref_fx']:.1f} / {c['ref_fy']:.1f}",
-                 f"{c['cx']:.1f} / {c['cy']:.1f}", f"{c['ref_cx']:.1f} / {c['ref_cy']:.1f}", c["model"],
-                 (f"{c['sigma']['cx']:.1f} / {c['sigma']['cy']:.1f}" if c.get("sigma") else "-")]
-                for n, c in cs["intrinsics"].items()]
-        parts.append(md_table(["camera", "rigcal fx / fy", "caliscope fx / fy", "rigcal cx / cy", "caliscope cx / cy",
-                               "model", "rigcal 1-sigma cx / cy"], rows, "caliscope: intrinsics from this set alone"))
+    for key in CALISCOPE_SETS:
+        cs = res.get(key)
+        if cs:
+            parts.extend(_caliscope_tables(key, cs))
     missing = [k for k in SETS if k in res and res[k] is None]
     if missing:
         parts.append(f"\nnot run (no {SHARED}): {', '.join(missing)}")
     return "\n".join(parts)
+
+
+def _structure(c: dict) -> str:
+    st = c.get("structure")
+    return "-" if not st else f"{st['focal']}; cx,cy {st['principal_point']}"
+
+
+def _caliscope_tables(key: str, cs: dict) -> list[str]:
+    fx = cs["fixed_reference_intrinsics"]["pairs"]
+    pc = cs.get("reference_centres", {}).get("pairs", {})
+    rows = [[k, f"{p['distance_m']:.3f}", f"{p['reference_distance_m']:.3f}", 100 * p["translation_diff_m"],
+             p["rotation_diff_deg"], 100 * fx[k]["translation_diff_m"], fx[k]["rotation_diff_deg"],
+             100 * pc[k]["translation_diff_m"] if k in pc else None, pc[k]["rotation_diff_deg"] if k in pc else None]
+            for k, p in cs["pairs"].items()]
+    out = [md_table(["pair", "rigcal distance m", "caliscope distance m", "rel. translation diff cm",
+                     "rel. rotation diff deg", "with caliscope's intrinsics fixed: cm", "deg",
+                     "only caliscope's principal points held: cm", "deg"], rows,
+                    f"{key} ({CALISCOPE_SETS[key]}) vs caliscope's own solution (target 2.5 cm / 2 deg; "
+                    f"reproj RMS {cs['rms_px']:.3f} px, {cs['corners']} corners, models "
+                    f"{sorted(set(cs['models'].values()))})")]
+    lr = cs.get("reference_centres", {}).get("lr", {})
+    rows = [[n, _structure(c), f"{c['fx']:.1f} / {c['fy']:.1f}", f"{c['ref_fx']:.1f} / {c['ref_fy']:.1f}",
+             f"{c['cx']:.1f} / {c['cy']:.1f}", f"{c['ref_cx']:.1f} / {c['ref_cy']:.1f}", c["model"],
+             (f"{c['sigma']['cx']:.1f} / {c['sigma']['cy']:.1f}" if c.get("sigma") else "-"),
+             (f"{c['sigma_free']['cx']:.1f} / {c['sigma_free']['cy']:.1f}" if c.get("sigma_free") else "-"),
+             lr.get(n)]
+            for n, c in cs["intrinsics"].items()]
+    out.append(md_table(["camera", "intrinsics", "rigcal fx / fy", "caliscope fx / fy", "rigcal cx / cy",
+                         "caliscope cx / cy", "model", "rigcal 1-sigma cx / cy", "free: 1-sigma cx / cy",
+                         "own views' LR against caliscope's cx, cy (needs 18.4)"], rows,
+                        f"{key}: intrinsics from this set alone"))
+    return out
 
 
 def main(argv=None) -> None:

@@ -38,3 +38,16 @@ def noisy_room(truth: Rig, rng, noise_px: float, **scene) -> tuple[list[ViewIn],
     noise_px Gaussian pixel noise drawn from the same rng after the scene."""
     sc = room_scene(truth, rng, **scene)
     return with_noise(sc.views, noise_px, rng), dict(sc.corners)
+
+
+def central_jacobian(fun, x: np.ndarray) -> np.ndarray:
+    """(len(fun(x)), len(x)) central-difference Jacobian of fun at x, step 1e-6 relative
+    (absolute below 1): the tests' reference for analytic Jacobians."""
+    J = np.empty((len(fun(x)), len(x)))
+    for k in range(len(x)):
+        h = 1e-6 * max(1.0, abs(x[k]))
+        xp, xm = x.copy(), x.copy()
+        xp[k] += h
+        xm[k] -= h
+        J[:, k] = (fun(xp) - fun(xm)) / (2 * h)
+    return J

@@ -20,7 +20,16 @@ from .io import atomic_write_texts, output_target
 SIGMA_WARN_MM = 2.0
 SIGMA_WARN_DEG = 0.1
 SIGMA_WARN_FOCAL = 0.01  # relative 1-sigma of fx, fy
-SIGMA_WARN_PP_PX = 5.0  # 1-sigma of cx, cy
+# 1-sigma of cx, cy as the camera rotation it is (sigma / f): a principal point off by
+# sigma turns every ray, and the camera's T_body_cam with it, by that angle. Eight well
+# moved views of one board at f = 300 px give 0.13 deg (tests/test_faults.py, degenerate
+# motion); caliscope's webcams 0.15-0.44 deg, where the set's principal points and
+# caliscope's differ by 10-30 px (README, Real image sets).
+SIGMA_WARN_PP_DEG = 0.25
+# a board must tilt this much (deg, from facing the camera) for its perspective to
+# separate the focal length and principal point from the board's distance and position
+GOOD_TILT_DEG = 30.0
+REGIONS = ("top left", "top", "top right", "left", "centre", "right", "bottom left", "bottom", "bottom right")
 AXES = ("F", "L", "U")
 MOTION_HINT = {
     "F": "move the rig (or board) towards and away from the cameras, and tilt the board",
@@ -75,7 +84,7 @@ def _same_file(a: Path, b: Path) -> bool:
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
         report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
         distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False, guided: str = "auto",
-        scheduler: str | None = None):
+        intrinsics: str = "auto", scheduler: str | None = None):
     from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
     from .detect import detect_dataset
     from .target import load_target
@@ -136,7 +145,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
 
     rerefine = rerefiner(images, rig, target, jobs=jobs or os.cpu_count() or 1, mode=guided, scheduler=scheduler)
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
-                          reference=reference, rerefine=rerefine)
+                          reference=reference, rerefine=rerefine, intrinsics=intrinsics)
     from .checks import stereo_checks
 
     pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
@@ -240,6 +249,8 @@ def calibrated_rig(cal: Calibration, pairs: dict, dataset: str) -> Rig:
             "frames": st.frames,
             "outliers": st.outliers,
         }
+        if st.intrinsics_model is not None:
+            block["intrinsics_model"] = dict(st.intrinsics_model)
         if st.sigma_position_mm is not None:
             sig = {"position_mm": [_r(x, 4) for x in st.sigma_position_mm],
                    "rotation_deg": [_r(x, 5) for x in st.sigma_rotation_deg]}
@@ -324,18 +335,8 @@ def warnings_for(cal: Calibration) -> list[str]:
     """Poorly constrained intrinsics and extrinsics: name the parameter or axis and the
     motion that would fix it; and contradictions of the declared rig (declared_disagreements)."""
     out = declared_disagreements(cal)
-    for n, st in cal.stats.items():
-        sig = st.sigma_intrinsics or {}
-        m = cal.rig.camera(n).intrinsics
-        for k, value in (("fx", m.fx), ("fy", m.fy)):
-            if k in sig and sig[k] > SIGMA_WARN_FOCAL * value:
-                out.append(f"{n}: focal length {k} is poorly constrained (1-sigma {sig[k]:.2f} px = "
-                           f"{100 * sig[k] / value:.1f} % > {100 * SIGMA_WARN_FOCAL:g} %); tilt the board "
-                           f"towards the camera by 30-50 degrees both ways and vary its distance")
-        for k in ("cx", "cy"):
-            if k in sig and sig[k] > SIGMA_WARN_PP_PX:
-                out.append(f"{n}: principal point {k} is poorly constrained (1-sigma {sig[k]:.2f} px > "
-                           f"{SIGMA_WARN_PP_PX:g} px); tilt the board and cover the image edges and corners")
+    for c, (n, st) in enumerate(cal.stats.items()):
+        out.extend(intrinsics_warnings(cal, c, n))
         if st.sigma_position_mm is None:
             continue
         for i, s in enumerate(st.sigma_position_mm):
@@ -349,17 +350,81 @@ def warnings_for(cal: Calibration) -> list[str]:
     return out
 
 
+def view_coverage(cal: Calibration, c: int) -> tuple[int, int, list[str]]:
+    """(how many of camera c's board views tilt GOOD_TILT_DEG or more from facing it, how
+    many views it has, the REGIONS of a 3x3 split of its image where none of its inlier
+    corners lies): what its views lack."""
+    m = cal.inliers & (cal.obs.cam == c)
+    if not m.any():
+        return 0, 0, list(REGIONS)
+    st = cal.state
+    fb = np.unique(np.stack([cal.obs.frame[m], cal.obs.board[m]], axis=1), axis=0)
+    R = st.T_cam_body[c, :3, :3] @ st.T_body_world[fb[:, 0], :3, :3] @ st.T_world_board[fb[:, 1], :3, :3]
+    tilt = np.degrees(np.arccos(np.clip(np.abs(R[:, 2, 2]), 0.0, 1.0)))  # board normal vs optical axis
+    cam = cal.rig.camera(cal.cam_names[c]).intrinsics
+    uv = cal.obs.uv[m]
+    col = np.clip((3 * (uv[:, 0] + 0.5) / cam.width).astype(int), 0, 2)
+    row = np.clip((3 * (uv[:, 1] + 0.5) / cam.height).astype(int), 0, 2)
+    seen = np.bincount(3 * row + col, minlength=9) > 0
+    return int(np.sum(tilt >= GOOD_TILT_DEG)), len(fb), [r for r, s in zip(REGIONS, seen) if not s]
+
+
+def intrinsics_warnings(cal: Calibration, c: int, name: str) -> list[str]:
+    """Camera c's focal length or principal point still poorly determined after the
+    structure was chosen (SIGMA_WARN_FOCAL, SIGMA_WARN_PP_DEG): the parameter, its 1-sigma
+    and the views that would pin it. A held principal point is judged by its sigma when it
+    was free: held because the data could not place it, it may be off by that much."""
+    st = cal.stats[name]
+    sig = st.sigma_intrinsics or {}
+    m = cal.rig.camera(name).intrinsics
+    model = st.intrinsics_model or {}
+    weak = []  # (kind, line head)
+    tied = model.get("focal") == "fx=fy"
+    for k in (("fx",) if tied else ("fx", "fy")):
+        if k in sig and sig[k] > SIGMA_WARN_FOCAL * m.fx:
+            weak.append(("focal", f"focal length {k} is poorly constrained ({'fx = fy tied, ' if tied else ''}"
+                                  f"1-sigma {sig[k]:.2f} px = {100 * sig[k] / m.fx:.1f} % > "
+                                  f"{100 * SIGMA_WARN_FOCAL:g} %)"))
+    held = model.get("principal_point") == "held"
+    sig_c = st.sigma_intrinsics_free if held else sig
+    if sig_c and "cx" in sig_c:
+        deg = float(np.degrees(max(sig_c["cx"], sig_c["cy"]) / m.fx))
+        if deg > SIGMA_WARN_PP_DEG:
+            what = ("held at the declared centre because the data cannot place it; free, its 1-sigma is" if held
+                    else "1-sigma")
+            weak.append(("centre", f"principal point is poorly constrained ({what} cx {sig_c['cx']:.1f}, cy "
+                                   f"{sig_c['cy']:.1f} px, i.e. {deg:.2f} deg of camera rotation > "
+                                   f"{SIGMA_WARN_PP_DEG:g} deg)"))
+    if not weak:
+        return []
+    tilted, views, empty = view_coverage(cal, c)
+    out = []
+    for kind, head in weak:
+        fix = []
+        if tilted < max(3, views / 2):
+            fix.append(f"the board tilted {GOOD_TILT_DEG:.0f}-50 deg from facing the camera, about both image axes "
+                       f"(only {tilted} of its {views} views tilt {GOOD_TILT_DEG:.0f} deg or more)")
+        if kind == "focal":
+            fix.append("the board at several distances")
+        if kind == "centre" and empty:
+            fix.append(f"corners in every part of the image (none seen in: {', '.join(empty)})")
+        if not fix:
+            fix.append("the board tilted and near the image corners")
+        out.append(f"{name}: {head}; add views with {'; '.join(fix)}")
+    return out
+
+
 def console_summary(cal: Calibration, out_rig: Rig, det, timings: dict, out_path, report_path):
     cams = Table(title="cameras", show_lines=False)
-    for col in ("camera", "model", "rms px", "obs", "frames", "outliers", "sigma pos mm (F L U)",
+    for col in ("camera", "model", "intrinsics", "rms px", "obs", "frames", "outliers", "sigma pos mm (F L U)",
                 "sigma rot deg (F L U)"):
-        cams.add_column(col, justify="right" if col not in ("camera", "model") else "left")
+        cams.add_column(col, justify="right" if col not in ("camera", "model", "intrinsics") else "left")
     for c in out_rig.cameras:
         st = cal.stats[c.name]
         sp = " ".join(f"{x:.3f}" for x in st.sigma_position_mm) if st.sigma_position_mm is not None else "-"
         sr = " ".join(f"{x:.4f}" for x in st.sigma_rotation_deg) if st.sigma_rotation_deg is not None else "-"
-        cams.add_row(c.name, st.distortion_model, f"{st.rms_px:.3f}", str(st.observations), str(st.frames),
-                     str(st.outliers), sp, sr)
+        cams.add_row(c.name, st.distortion_model, structure_text(st.intrinsics_model), f"{st.rms_px:.3f}",
+                     str(st.observations), str(st.frames), str(st.outliers), sp, sr)
     parts = [det.summary() if hasattr(det, "summary") else "", cams]
     if out_rig.stereo_pairs:
         pt = Table(title="stereo pairs")
@@ -382,6 +447,15 @@ def console_summary(cal: Calibration, out_rig: Rig, det, timings: dict, out_path
                  + f"total {timings['total_s']:.1f} s")
     parts.append(f"wrote {out_path}" + (f" and {report_path}" if report_path else ""))
     return Group(*[p for p in parts if p != ""])
+
+
+def structure_text(model: dict | None) -> str:
+    """'fx=fy, cx,cy held' for the console table (calibration.intrinsics_model)."""
+    if not model:
+        return "-"
+    if model["focal"] == "declared":
+        return "declared, held"
+    return f"{model['focal']}; cx,cy {model['principal_point']}"
 
 
 def _fmt(x, nd) -> str:

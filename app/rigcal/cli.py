@@ -83,6 +83,14 @@ class Distortion(str, Enum):
     rational8 = "rational8"
 
 
+class IntrinsicsChoice(str, Enum):
+    auto = "auto"
+    free = "free"
+    square = "square"
+    centred = "centred"
+    square_centred = "square-centred"
+
+
 class Guided(str, Enum):
     auto = "auto"
     on = "on"
@@ -160,6 +168,11 @@ def calibrate(
     distortion: Distortion = typer.Option(
         Distortion.auto, help="pinhole distortion model; auto: radtan4, plus k3 or the rational terms when the data "
                               "show them"),
+    intrinsics: IntrinsicsChoice = typer.Option(
+        IntrinsicsChoice.auto, help="which of fx, fy, cx, cy to estimate; auto: fx = fy and the principal point at "
+                                    "its declared value (default the image centre) unless the data show otherwise; "
+                                    "free: all four; square: fx = fy; centred: cx, cy held at the declared value; "
+                                    "square-centred: both"),
     fix_intrinsics: bool = typer.Option(False, help="keep the declared intrinsics and distortion"),
     allow_resize: bool = typer.Option(False, help="accept images whose size differs from the rig's resolution (intrinsics are scaled)"),
     guided: Guided = typer.Option(
@@ -175,7 +188,8 @@ def calibrate(
 
     out(cal.run(dataset=dataset, out_path=out_yaml, rig_path=rig, target_path=target, report_path=report, jobs=jobs,
                 reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
-                allow_resize=allow_resize, guided=guided.value, scheduler=scheduler))
+                allow_resize=allow_resize, guided=guided.value, intrinsics=intrinsics.value,
+                scheduler=scheduler))
 
 
 @app.command()

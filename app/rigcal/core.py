@@ -21,7 +21,7 @@ from .initialise import (MAX_INIT_VIEWS, MonoFit, PosedView, _select_views, corn
                          inlier_masks, pnp_views, pose_graph, resolve_flips)
 from .rig import Camera, Rig
 from .solve import (Intrinsics, NoiseModel, Observations, Problem, SolveResult, State, bundle_adjust,
-                    camera_covariance, fit_noise_model, judge_inliers, noise_weights)
+                    camera_covariance, fit_noise_model, intrinsics_covariance, judge_inliers, noise_weights)
 
 DISTORTION_CHOICES = {"radial2": 2, "radtan4": 4, "radtan5": 5, "rational8": 8}
 # `--distortion auto` for a pinhole camera: radtan4 (k1 k2 p1 p2) is the least it fits,
@@ -45,6 +45,17 @@ K3_LEVEL = 1e-4
 RATIONAL_LEVEL = 1e-4
 RATIONAL_MIN_Z = 3.0
 RATIONAL_MIN_GAIN = 0.05
+# `--intrinsics auto`: fx = fy (square pixels) and the principal point at its declared value
+# (the image centre unless declared) are the model; the data free them by a Wald test at
+# the level k3 must pass, on the covariance of the solve that estimated them (1 degree of
+# freedom for fx - fy, 2 for cx, cy), or when the likelihood ratio of the reduced refit
+# rejects the reduction at that level (select_structure). Webcams seen through a small
+# board cannot pin a principal point (caliscope: 1-sigma 1.3-21 px); every rig whose data
+# resolve it keeps it free (the simulated rigs: Wald 9,100 and more).
+INTRINSICS_LEVEL = K3_LEVEL
+# --intrinsics NAME -> (tie_focal, hold_centre); auto: tested per camera
+INTRINSICS_CHOICES = {"free": (False, False), "square": (True, False), "centred": (False, True),
+                      "square-centred": (True, True)}
 # joint / own-views RMS beyond which a rig is judged not rigid per frame (rigidity_check)
 RIGIDITY_RATIO = 3.0
 MIN_VIEW_CORNERS = 4
@@ -87,6 +98,12 @@ class CameraStats:
     sigma_rotation_deg: np.ndarray | None = None
     sigma_intrinsics: dict | None = None
     model_selection: list = field(default_factory=list)
+    # which intrinsics were estimated: {focal: fx=fy | fx,fy | declared, principal_point:
+    # held | free | declared, distortion: model name} (intrinsics_model)
+    intrinsics_model: dict | None = None
+    # 1-sigma of fx, fy, cx, cy (px) when all four were estimated, before the structure was
+    # chosen: how poorly a tied or held parameter is determined (None: not tested)
+    sigma_intrinsics_free: dict | None = None
 
 
 @dataclass
@@ -278,23 +295,171 @@ def _init_fisheye(obj: list, img: list, declared: CameraModel) -> tuple[np.ndarr
     """One-camera bundle adjustment from the declared intrinsics and per-view PnP:
     (intrinsics values, RMS reprojection px)."""
     values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
+    res = one_camera_solve(obj, img, Intrinsics("fisheye", values), MAX_INIT_VIEWS)
+    if res is None:
+        raise CalibrationError("fisheye: fewer than 2 views could be posed from the declared intrinsics")
+    return res.state.intrinsics[0].values, float(np.sqrt(np.mean(np.sum(res.residuals**2, axis=1))))
+
+
+def one_camera_solve(obj: list, img: list, intr: Intrinsics, limit: int | None = None) -> SolveResult | None:
+    """Bundle adjustment of one camera on its own views (each view a frame), started from
+    `intr` (its structure kept) and per-view PnP; at most `limit` views (_select_views)
+    when given. None when fewer than 2 views can be posed."""
     keep, Ts = [], []
-    for k, r in enumerate(pnp_views(obj, img, values, "fisheye")):
+    for k, r in enumerate(pnp_views(obj, img, intr.values, intr.model)):
         if r is not None:
             keep.append(k)
             Ts.append(r[0])
     if len(keep) < 2:
-        raise CalibrationError("fisheye: fewer than 2 views could be posed from the declared intrinsics")
-    sel = [keep[j] for j in _select_views(np.array([len(obj[k]) for k in keep]), MAX_INIT_VIEWS)]
+        return None
     pos = {k: j for j, k in enumerate(keep)}
+    sel = keep if limit is None else [keep[j] for j in _select_views(np.array([len(obj[k]) for k in keep]), limit)]
     P = np.concatenate([obj[k] for k in sel])
     uv = np.concatenate([img[k] for k in sel])
     frame = np.concatenate([np.full(len(obj[k]), j) for j, k in enumerate(sel)])
     obs = Observations(np.zeros(len(P), int), frame, np.zeros(len(P), int), P, uv, frame)
-    state = State([Intrinsics("fisheye", values.copy())], np.eye(4)[None],
+    state = State([replace(intr, values=intr.values.copy())], np.eye(4)[None],
                   np.array([Ts[pos[k]] for k in sel]), np.eye(4)[None])
-    res = bundle_adjust(obs, state, gauge_cam=0, gauge_board=0)
-    return res.state.intrinsics[0].values, float(np.sqrt(np.mean(np.sum(res.residuals**2, axis=1))))
+    return bundle_adjust(obs, state, gauge_cam=0, gauge_board=0)
+
+
+# ----------------------------------------------------------------------------- intrinsics structure
+
+
+def structure_tests(it: Intrinsics, cov: np.ndarray, centre) -> tuple[bool, bool, list[str]]:
+    """Wald screen of fx = fy and of the principal point at `centre` (cx, cy), from freely
+    estimated intrinsics `it` and the covariance cov (n, n) of their values, at
+    INTRINSICS_LEVEL (fx - fy: 1 degree of freedom; the offset from centre: 2).
+    -> (fx = fy not rejected, centre not rejected, log lines). select_structure confirms
+    each by the likelihood ratio of the refit."""
+    v = it.values
+    d = float(v[0] - v[1])
+    w_f = d * d / max(float(cov[0, 0] + cov[1, 1] - 2.0 * cov[0, 1]), 1e-300)
+    off = v[2:4] - np.asarray(centre, float)
+    try:
+        w_c = float(off @ np.linalg.solve(cov[2:4, 2:4], off))
+    except np.linalg.LinAlgError:  # a singular block cannot say the offset is noise
+        w_c = float("inf")
+    tie, hold = bool(w_f <= _need(1)), bool(w_c <= _need(2))
+    sd = np.sqrt(np.clip(np.diag(cov)[:4], 0, None))
+    return tie, hold, [
+        f"fx - fy = {d:+.2f} px (sigma fx {sd[0]:.2f}, fy {sd[1]:.2f}): Wald {w_f:.1f} (needs {_need(1):.1f})",
+        f"principal point {off[0]:+.1f}, {off[1]:+.1f} px from ({centre[0]:.1f}, {centre[1]:.1f}) (sigma cx "
+        f"{sd[2]:.1f}, cy {sd[3]:.1f}): Wald {w_c:.1f} (needs {_need(2):.1f})"]
+
+
+def _need(dof: int) -> float:
+    """The chi-square threshold of the intrinsics' tests (INTRINSICS_LEVEL)."""
+    return float(chdtri(dof, INTRINSICS_LEVEL))
+
+
+def refit(res: SolveResult, c: int, it: Intrinsics) -> SolveResult:
+    """res's problem solved again with camera c's intrinsics replaced by `it`, on exactly
+    res's inlier corners (no rejection), so the costs compare: the likelihood ratio of
+    the two is (sum r'^2 - sum r^2) / res.sigma_px^2."""
+    st = res.state.copy()
+    st.intrinsics[c] = it
+    pb = res.problem
+    return bundle_adjust(pb.obs, st, pb.gauge_cam, pb.gauge_board, pb.fix_intr,
+                         inliers=np.ones(len(pb.obs), bool), max_rounds=0)
+
+
+def select_structure(res: SolveResult, c: int, cov: np.ndarray, centre) -> tuple[Intrinsics | None, list[str]]:
+    """Camera c's structure from a solve `res` where it was estimated freely (cov: the (n, n)
+    covariance of its values): fx = fy and the principal point held at `centre` each where
+    the data do not reject it. Screened by the Wald test (structure_tests), then each
+    reduction, and both together, confirmed by the likelihood ratio of the refit at
+    INTRINSICS_LEVEL, the rational model's statistic: on weak data (webcams, a 12-corner
+    board) the covariance is too local, e.g. caliscope's cam_2 passes both Wald screens
+    (13.8 and 17.6) and each reduction alone its LR, but tying and holding together costs
+    an LR of 207 (needs 21.1).
+    -> (the reduced intrinsics or None to keep them free, log lines)."""
+    it = res.state.intrinsics[c]
+    tie_w, hold_w, lines = structure_tests(it, cov, centre)
+    s2 = max(res.sigma_px ** 2, 1e-300)
+    base = float(np.sum(res.residuals ** 2))
+
+    def lr(tie: bool, hold: bool) -> float:
+        return (float(np.sum(refit(res, c, with_structure(it, tie, hold, centre)).residuals ** 2)) - base) / s2
+
+    ok = {}
+    for name, wald, key, dof in (("fx = fy", tie_w, (True, False), 1), ("principal point held", hold_w,
+                                                                         (False, True), 2)):
+        if not wald:
+            lines.append(f"{name}: rejected by the Wald test -> free")
+            ok[key] = False
+            continue
+        stat = lr(*key)
+        ok[key] = stat <= _need(dof)
+        lines.append(f"{name}: LR {stat:.1f} (needs {_need(dof):.1f}) -> {'accepted' if ok[key] else 'free'}")
+    tie, hold = ok[(True, False)], ok[(False, True)]
+    if tie and hold:
+        stat = lr(True, True)
+        if stat > _need(3):
+            # each alone is noise, both together are not: keep the one that costs less
+            hold = False
+            lines.append(f"fx = fy and principal point held together: LR {stat:.1f} (needs {_need(3):.1f}) -> "
+                         f"principal point free")
+    return (with_structure(it, tie, hold, centre) if tie or hold else None), lines
+
+
+def with_structure(it: Intrinsics, tie_focal: bool, hold_centre: bool, centre) -> Intrinsics:
+    """`it` with fx = fy tied (at their mean) and/or cx, cy held at `centre`."""
+    v = it.values.copy()
+    if tie_focal:
+        v[0] = v[1] = 0.5 * (v[0] + v[1])
+    if hold_centre:
+        v[2:4] = centre
+    return replace(it, values=v, tie_focal=bool(tie_focal), hold_centre=bool(hold_centre))
+
+
+def forced_structure(it: Intrinsics, mode: str, centre) -> Intrinsics:
+    """The start of the solve for --intrinsics `mode`: a named structure imposed, auto
+    (tested after the solve) and free left free."""
+    if mode == "auto":
+        return it
+    if mode not in INTRINSICS_CHOICES:
+        raise InputError(f"--intrinsics: expected one of auto, {', '.join(INTRINSICS_CHOICES)}, got {mode!r}")
+    return with_structure(it, *INTRINSICS_CHOICES[mode], centre)
+
+
+@dataclass(frozen=True)
+class OwnViews:
+    """One camera's intrinsics from its own views (own_views_intrinsics): the structure
+    chosen, the log, and the covariance (n, n) of the values as solved and as estimated
+    freely before the choice (None when unknown)."""
+
+    intrinsics: Intrinsics
+    log: list
+    cov: np.ndarray | None
+    cov_free: np.ndarray | None
+
+
+def own_views_intrinsics(views: list[ViewIn], corners: dict, start: Intrinsics, centre, mode: str) -> OwnViews:
+    """One camera's intrinsics from its own views alone (a rig whose frames are not rigid):
+    one_camera_solve over every view from `start`, the structure imposed (--intrinsics NAME)
+    or chosen (auto, select_structure) and the solve redone with it."""
+    obj, img = _views_obj_img(views, corners)
+    start = forced_structure(start, mode, centre)
+    res = one_camera_solve(obj, img, start)
+    if res is None:
+        return OwnViews(start, ["own views: fewer than 2 views could be posed; intrinsics kept as fitted"], None, None)
+    full = _intrinsics_cov(res)
+    free, lines = None, []
+    if mode == "auto" and full is not None:
+        free = full
+        reduced, lines = select_structure(res, 0, full, centre)
+        lines = [f"own views: {x}" for x in lines]
+        if reduced is not None:
+            res = refit(res, 0, reduced)
+            full = _intrinsics_cov(res)
+    return OwnViews(res.state.intrinsics[0], lines, full, free)
+
+
+def _intrinsics_cov(res: SolveResult) -> np.ndarray | None:
+    """The (n, n) covariance of a one-camera solve's intrinsic values, or None (singular)."""
+    cov = _covariance(res)
+    return None if cov is None else intrinsics_covariance(cov[0], cov[1], res.state.intrinsics)[0]
 
 
 # ----------------------------------------------------------------------------- main entry
@@ -370,8 +535,12 @@ def _guided_solve(res: SolveResult, obs: Observations, uv_g: np.ndarray, refined
 
 def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndarray],
                     distortion: str = "auto", fix_intrinsics: bool = False, reference: str = "aligned",
-                    progress=None, weight_corners: bool = False, rerefine: Callable | None = None) -> Calibration:
+                    progress=None, weight_corners: bool = False, rerefine: Callable | None = None,
+                    intrinsics: str = "auto") -> Calibration:
     """The whole calibration from detected views. corners: board name -> (N, 3) object points.
+
+    intrinsics: auto (fx = fy and the principal point held at its declared value unless the
+    data show otherwise, INTRINSICS_LEVEL) or a structure of INTRINSICS_CHOICES imposed.
 
     weight_corners: weight each corner by its detector sigma (ViewIn.sigma) calibrated per
     camera (weighted_solve). Off by default: measured over 10 seeds (bench.noise_limit) it
@@ -390,6 +559,9 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     bi = {n: i for i, n in enumerate(board_names)}
     fi = {n: i for i, n in enumerate(frames)}
     _check_reference(reference, rig)
+    if intrinsics != "auto" and intrinsics not in INTRINSICS_CHOICES:
+        raise InputError(f"--intrinsics: expected one of auto, {', '.join(INTRINSICS_CHOICES)}, got {intrinsics!r}")
+    centres = [(rig.camera(n).intrinsics.cx, rig.camera(n).intrinsics.cy) for n in cam_names]
 
     by_cam = {n: [v for v in views_in if v.camera == n and len(v.ids) >= MIN_VIEW_CORNERS] for n in cam_names}
     repeats = {}
@@ -456,8 +628,13 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     use = [p for p in posed if frame_posed[p.frame] and p.board not in missing_b]
     obs = _observations(use, corners, board_names)
     sigma_det = _detected_sigma(use)
-    state = State([Intrinsics(m, v.copy()) for m, v in zip(models, intr)], T_cam_body, T_body_world, T_world_board)
+    start = [Intrinsics(m, v.copy()) for m, v in zip(models, intr)]
+    if not fix_intrinsics:
+        start = [forced_structure(it, intrinsics, centres[c]) for c, it in enumerate(start)]
+    state = State(start, T_cam_body, T_body_world, T_world_board)
     fix = np.full(len(cam_names), fix_intrinsics)
+    own: list = [None] * len(cam_names)  # OwnViews per camera when the rig is not rigid per frame
+    free_sigma: dict = {}  # camera -> intrinsic_sigmas with fx, fy, cx, cy free (where the structure was tested)
     res = bundle_adjust(obs, state, gauge_cam, gauge_board, fix)
     solve_s = res.seconds
     covariance = None  # camera_covariance() of the current `res` once computed
@@ -468,14 +645,24 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         st = res.state.copy()
         for c, mi in enumerate(inits):
             v, line = mi.mono()
-            st.intrinsics[c] = Intrinsics(st.intrinsics[c].model, np.array(v, float))
+            own[c] = own_views_intrinsics(by_cam[cam_names[c]], corners,
+                                          Intrinsics(st.intrinsics[c].model, np.array(v, float)), centres[c],
+                                          intrinsics)
+            st.intrinsics[c] = own[c].intrinsics
+            if own[c].cov_free is not None:
+                free_sigma[c] = intrinsic_sigmas(own[c].cov_free)
             selection[cam_names[c]].append(f"rig not rigid per frame: intrinsics {line}")
+            selection[cam_names[c]].extend(own[c].log)
         fix = np.ones(len(cam_names), bool)
         res = bundle_adjust(obs, st, gauge_cam, gauge_board, fix)
         solve_s += res.seconds
-    elif distortion == "auto" and not fix_intrinsics:
+    elif (distortion == "auto" or intrinsics == "auto") and not fix_intrinsics:
         covariance = _covariance(res)
-        reduced, logs = _reduce_models(res, covariance)
+        reduced, logs = _reduce_models(res, covariance, centres, distortion == "auto", intrinsics == "auto")
+        if intrinsics == "auto" and covariance is not None:
+            free_sigma = {c: intrinsic_sigmas(C) for c, C in
+                          enumerate(intrinsics_covariance(covariance[0], covariance[1], res.state.intrinsics))
+                          if C is not None}
         for c, log in logs.items():
             selection[cam_names[c]].extend(log)
         if reduced is not None:
@@ -511,10 +698,13 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
                                 covariance if covariance is not None else _covariance(res))
     cams = []
     stats = {}
-    gross: list[str | None] = []
     inl_obs = obs.subset(res.inliers)
     r_all = res.problem.residuals(res.problem.x0()).reshape(-1, 2)
     lost = [n for c, n in enumerate(cam_names) if not np.any(obs.cam[res.inliers] == c)]
+    judged = _judged_rms(obs, res, fix, len(cam_names))
+    gross = [_gross_rms(n, judged[c], inits[c].rms_px, rig.camera(n).intrinsics.width,
+                        rig.camera(n).intrinsics.height) for c, n in enumerate(cam_names)]
+    _refuse_gross_rms(gross)
     if lost:
         raise CalibrationError(f"{', '.join(lost)}: every corner was rejected as an outlier; the views of "
                                f"this camera disagree with the rest of the rig (wrong target, or a moved camera?)")
@@ -525,21 +715,23 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         T_bc = T_out_solve @ T_body_cam_solve[c]
         m = inl_obs.cam == c
         rms = float(np.sqrt(np.mean(np.sum(r_all[m] ** 2, axis=1)))) if m.any() else float("nan")
-        gross.append(_gross_rms(n, rms, inits[c].rms_px, declared.width, declared.height))
         st = CameraStats(
             name=n, rms_px=rms, observations=int(m.sum()), frames=int(len(np.unique(inl_obs.frame[m]))),
             outliers=int((~res.inliers & (obs.cam == c)).sum()) + int(refused[c]),
             distortion_model=("fisheye" if model.model == "fisheye" else PINHOLE_MODEL_NAMES[len(model.dist)]),
             model_selection=selection[n])
+        st.intrinsics_model = intrinsics_model(res.state.intrinsics[c], st.distortion_model, fix_intrinsics)
         if cov is not None:
             blk = cov["extrinsics"][6 * c:6 * c + 6, 6 * c:6 * c + 6]
             sd = np.sqrt(np.clip(np.diag(blk), 0, None))
             st.sigma_rotation_deg = np.degrees(sd[:3])
             st.sigma_position_mm = sd[3:] * 1000.0
             st.sigma_intrinsics = cov["intrinsics"][c]
+        if st.sigma_intrinsics is None and own[c] is not None and own[c].cov is not None:
+            st.sigma_intrinsics = intrinsic_sigmas(own[c].cov)
+        st.sigma_intrinsics_free = free_sigma.get(c)
         stats[n] = st
         cams.append(Camera(n, model, T_bc, None))
-    _refuse_gross_rms(gross)
     out_rig = replace(rig, cameras=tuple(cams))
     rms_all = float(np.sqrt(np.mean(np.sum(r_all**2, axis=1))))
     timings["total_core_s"] = time.perf_counter() - t0
@@ -616,6 +808,20 @@ def rigidity_check(res, inits: list[MonoInit], cam_names: list[str]) -> str | No
             f"stay rigid? Intrinsics were taken from each camera's own views and held fixed for the extrinsics")
 
 
+def _judged_rms(obs: Observations, res: SolveResult, fix: np.ndarray, C: int) -> np.ndarray:
+    """(C,) each camera's reprojection RMS px for the gross-failure test: over its inlier
+    corners, or over all its corners when more than half were rejected. A camera whose
+    images are mirrored can otherwise lose nearly every corner as an outlier and pass on
+    the few that happen to fit."""
+    pb = Problem(obs, res.state, res.problem.gauge_cam, res.problem.gauge_board, fix)
+    e2 = np.sum(pb.residuals(pb.x0()).reshape(-1, 2) ** 2, axis=1)
+    n_all = np.bincount(obs.cam, minlength=C)
+    n_in = np.bincount(obs.cam[res.inliers], minlength=C)
+    use = res.inliers | (n_in < 0.5 * n_all)[obs.cam]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.sqrt(np.bincount(obs.cam[use], e2[use], minlength=C) / np.bincount(obs.cam[use], minlength=C))
+
+
 def _gross_rms(name: str, rms: float, own_rms: float | None, width: int, height: int) -> str | None:
     """'name: RMS x px (own views y px)' when a camera's final RMS says its calibration
     failed (GROSS_RMS_*), else None. Its own views' fit tells where to look: small there,
@@ -645,24 +851,55 @@ def _covariance(res) -> tuple | None:
         return None
 
 
-def _reduce_models(res, covariance: tuple | None) -> tuple[State | None, dict[int, list[str]]]:
-    """The joint solve's radtan5 cameras without k3 where it is not significant (keep_k3);
-    None when every camera keeps its model. covariance: _covariance(res)."""
+def _reduce_models(res, covariance: tuple | None, centres: list, test_k3: bool = True,
+                   test_structure: bool = False) -> tuple[State | None, dict[int, list[str]]]:
+    """The joint solve's models reduced where the data do not support them: radtan5 without
+    k3 (keep_k3) and, with test_structure, fx = fy tied and the principal point held at
+    centres[c] (structure_tests) on cameras estimated freely; None when every camera keeps
+    its model. covariance: _covariance(res)."""
     if covariance is None:
         return None, {}
     cov, intr_sl, _ = covariance
+    full = intrinsics_covariance(cov, intr_sl, res.state.intrinsics)
     state = res.state.copy()
     logs, changed = {}, False
     for c, intr in enumerate(state.intrinsics):
-        s = intr_sl[c]
-        if intr.model == "fisheye" or s is None or len(intr.values) != 9:
+        C = full[c]
+        if C is None:
             continue
-        keep, line = keep_k3(intr.values[8], cov[s, s][8, 8])
-        logs[c] = [f"joint solve: {line}"]
-        if not keep:
-            state.intrinsics[c] = Intrinsics(intr.model, intr.values[:8].copy())
+        logs[c] = []
+        new = intr
+        if test_k3 and intr.model != "fisheye" and len(intr.values) == 9:
+            keep, line = keep_k3(intr.values[8], C[8, 8])
+            logs[c].append(f"joint solve: {line}")
+            if not keep:
+                new = replace(new, values=new.values[:8].copy())
+        if test_structure and not (intr.tie_focal or intr.hold_centre):
+            reduced, lines = select_structure(res, c, C, centres[c])
+            logs[c].extend(f"joint solve: {x}" for x in lines)
+            if reduced is not None:
+                new = replace(reduced, values=np.concatenate([reduced.values[:4], new.values[4:]]))
+        if new is not intr:
+            state.intrinsics[c] = new
             changed = True
     return (state if changed else None), logs
+
+
+def intrinsics_model(it: Intrinsics, distortion: str, fixed: bool) -> dict:
+    """The calibrated YAML's `calibration.intrinsics_model` of one camera."""
+    if fixed:
+        return {"focal": "declared", "principal_point": "declared", "distortion": distortion}
+    return {"focal": "fx=fy" if it.tie_focal else "fx,fy", "principal_point": "held" if it.hold_centre else "free",
+            "distortion": distortion}
+
+
+def intrinsic_sigmas(cov: np.ndarray) -> dict:
+    """{fx, fy, cx, cy: 1-sigma px, distortion: [1-sigma]} from the (n, n) covariance of
+    [fx, fy, cx, cy, dist...] (held values: 0)."""
+    sd = np.sqrt(np.clip(np.diag(cov), 0, None))
+    d = {k: float(sd[i]) for i, k in enumerate(("fx", "fy", "cx", "cy"))}
+    d["distortion"] = [float(x) for x in sd[4:]]
+    return d
 
 
 def _detected_sigma(views: list[PosedView]) -> np.ndarray | None:
@@ -777,14 +1014,6 @@ def _extrinsic_covariance(res, rig: Rig, reference: str, T_body_cam_solve: np.nd
     idx = np.concatenate([np.arange(cam_sl[c].start, cam_sl[c].stop) for c in free]) if free else np.zeros(0, int)
     Ce = cov[np.ix_(idx, idx)] if len(idx) else np.zeros((0, 0))
     ext = G @ Ce @ G.T if len(idx) else np.zeros((6 * C, 6 * C))
-    names = ("fx", "fy", "cx", "cy")
-    intr = []
-    for c, s in enumerate(intr_sl):
-        if s is None:
-            intr.append(None)
-            continue
-        sd = np.sqrt(np.clip(np.diag(cov[s, s]), 0, None))
-        d = {k: float(sd[i]) for i, k in enumerate(names)}
-        d["distortion"] = [float(x) for x in sd[4:]]
-        intr.append(d)
+    intr = [None if C is None else intrinsic_sigmas(C)
+            for C in intrinsics_covariance(cov, intr_sl, res.state.intrinsics)]
     return {"extrinsics": ext, "intrinsics": intr}

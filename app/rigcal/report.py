@@ -24,7 +24,7 @@ from plotly.subplots import make_subplots
 
 from . import __version__
 from . import geometry as geo
-from .calibrate import warnings_for
+from .calibrate import structure_text, warnings_for
 from .checks import depth_samples as checks_depth_samples
 from .core import Calibration
 from .rig import Rig
@@ -191,8 +191,10 @@ def intrinsics_table(cal: Calibration, out_rig: Rig) -> str:
 
 
 def model_choice_html(cal: Calibration, out_rig: Rig) -> str:
-    """Why each camera has its distortion model: the tests core.py ran, per camera."""
+    """Why each camera has its distortion model and intrinsics structure: the tests core.py ran, per camera."""
     items = [f"<li>{_e(cam.name)}: {_e(cal.stats[cam.name].distortion_model)}"
+             + (f"; intrinsics {_e(structure_text(cal.stats[cam.name].intrinsics_model))}"
+                if cal.stats[cam.name].intrinsics_model else "")
              + "".join(f"<br>{_e(line)}" for line in cal.stats[cam.name].model_selection) + "</li>"
              for cam in out_rig.cameras]
     return "<ul class=\"model\">" + "".join(items) + "</ul>"

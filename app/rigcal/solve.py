@@ -25,7 +25,7 @@ the plain RMS in px, and the covariance is variance_factor (J^T W J)^-1.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -134,14 +134,56 @@ def noise_weights(s_det: np.ndarray, cam: np.ndarray, models: list) -> np.ndarra
 
 @dataclass(frozen=True)
 class Intrinsics:
-    """One camera's intrinsics in optimiser form: model, [fx, fy, cx, cy, dist...]."""
+    """One camera's intrinsics in optimiser form: model, [fx, fy, cx, cy, dist...], and
+    which of them the solve estimates. tie_focal: fx = fy, one focal parameter (square
+    pixels); hold_centre: cx, cy stay at their values and are no parameters. A tied or
+    held value is not a parameter at all (basis()), so the covariance of the rest is
+    that of the reduced problem, not of the full one with a prior."""
 
     model: str  # pinhole | fisheye
     values: np.ndarray  # (4 + n_dist,)
+    tie_focal: bool = False
+    hold_centre: bool = False
 
     @property
     def n_dist(self) -> int:
         return len(self.values) - 4
+
+    def basis(self) -> np.ndarray:
+        """(n_values, n_params) 0/1 matrix E: values = E @ params on the estimated rows
+        (rows of zeros are held at `values`)."""
+        return intrinsic_basis(len(self.values), self.tie_focal, self.hold_centre)
+
+    def params(self) -> np.ndarray:
+        """The estimated parameters of `values` (a tied focal is the mean of fx and fy)."""
+        E = self.basis()
+        return (E.T @ self.values) / E.sum(axis=0)
+
+    def with_params(self, x: np.ndarray) -> "Intrinsics":
+        """These intrinsics with the estimated parameters set to x (held values kept)."""
+        E = self.basis()
+        v = self.values.copy()
+        est = E.any(axis=1)
+        v[est] = (E @ x)[est]
+        return replace(self, values=v)
+
+    @property
+    def structure(self) -> str:
+        """'fx=fy' / 'fx,fy', and 'cx,cy held' / 'cx,cy free', for logs and reports."""
+        return f"{'fx=fy' if self.tie_focal else 'fx,fy'}, {'cx,cy held' if self.hold_centre else 'cx,cy free'}"
+
+
+def intrinsic_basis(n_values: int, tie_focal: bool, hold_centre: bool) -> np.ndarray:
+    """(n_values, n_params) E mapping the estimated parameters onto [fx, fy, cx, cy, dist...]
+    (see Intrinsics.basis): one column for a tied focal, none for a held centre."""
+    cols = [[0, 1]] if tie_focal else [[0], [1]]
+    if not hold_centre:
+        cols += [[2], [3]]
+    cols += [[k] for k in range(4, n_values)]
+    E = np.zeros((n_values, len(cols)))
+    for j, rows in enumerate(cols):
+        E[rows, j] = 1.0
+    return E
 
 
 @dataclass
@@ -154,7 +196,7 @@ class State:
     T_world_board: np.ndarray  # (B, 4, 4)
 
     def copy(self) -> "State":
-        return State([Intrinsics(i.model, i.values.copy()) for i in self.intrinsics], self.T_cam_body.copy(),
+        return State([replace(i, values=i.values.copy()) for i in self.intrinsics], self.T_cam_body.copy(),
                      self.T_body_world.copy(), self.T_world_board.copy())
 
 
@@ -178,8 +220,9 @@ def make_layout(state: State, gauge_cam: int, gauge_board: int, fix_intrinsics: 
         if fix_intrinsics[c]:
             intr.append(None)
         else:
-            intr.append(slice(k, k + len(it.values)))
-            k += len(it.values)
+            n = it.basis().shape[1]
+            intr.append(slice(k, k + n))
+            k += n
         if c == gauge_cam:
             cam.append(None)
         else:
@@ -239,7 +282,7 @@ class Problem:
         x = np.zeros(self.layout.size)
         for c, s in enumerate(self.layout.intr):
             if s is not None:
-                x[s] = self.ref.intrinsics[c].values
+                x[s] = self.ref.intrinsics[c].params()
         for T, slices in ((self.ref.T_cam_body, self.layout.cam), (self.ref.T_body_world, self.layout.frame),
                           (self.ref.T_world_board, self.layout.board)):
             for i, s in enumerate(slices):
@@ -264,7 +307,7 @@ class Problem:
         intr = []
         for c, s in enumerate(self.layout.intr):
             it = self.ref.intrinsics[c]
-            intr.append(Intrinsics(it.model, x[s].copy() if s is not None else it.values.copy()))
+            intr.append(it.with_params(x[s]) if s is not None else replace(it, values=it.values.copy()))
         out = []
         for T_ref, slices in ((self.ref.T_cam_body, self.layout.cam), (self.ref.T_body_world, self.layout.frame),
                               (self.ref.T_world_board, self.layout.board)):
@@ -279,7 +322,8 @@ class Problem:
     def _intrinsic_arrays(self, x: np.ndarray):
         vals = []
         for c, s in enumerate(self.layout.intr):
-            vals.append(x[s] if s is not None else self.ref.intrinsics[c].values)
+            it = self.ref.intrinsics[c]
+            vals.append(it.with_params(x[s]).values if s is not None else it.values)
         return vals
 
     def _chain(self, x: np.ndarray):
@@ -333,7 +377,8 @@ class Problem:
             if s is None:
                 continue
             mask = o.cam == c
-            add_block(mask, np.full(mask.sum(), s.start), J_intr[c])
+            # d uv / d params = d uv / d values @ E: a tied focal's column is fx's + fy's
+            add_block(mask, np.full(mask.sum(), s.start), J_intr[c] @ self.ref.intrinsics[c].basis())
         # camera extrinsics: p = exp(dc) Rc0 q2 + tc
         Jl_c = _left_jacobian(ch["dc"])
         D_rot_c = -geo.skew(ch["c_rot"]) @ Jl_c[o.cam]
@@ -667,3 +712,17 @@ def camera_covariance(result: SolveResult) -> tuple[np.ndarray, list, list]:
     _, S = schur_solve(J, np.zeros(J.shape[0]), w, 0.0, split)
     cov = (result.variance_factor if weighted else result.sigma_px**2) * np.linalg.inv(S)
     return cov, list(pb.layout.intr), list(pb.layout.cam)
+
+
+def intrinsics_covariance(cov: np.ndarray, intr_slices: list, intrinsics: list[Intrinsics]) -> list:
+    """Per camera the (n_values, n_values) covariance of [fx, fy, cx, cy, dist...], E C E^T
+    from the covariance of its estimated parameters (camera_covariance): a tied fy has fx's
+    variance and full correlation, a held cx, cy zero variance. None for fixed cameras."""
+    out = []
+    for s, it in zip(intr_slices, intrinsics):
+        if s is None:
+            out.append(None)
+            continue
+        E = it.basis()
+        out.append(E @ cov[s, s] @ E.T)
+    return out

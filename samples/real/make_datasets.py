@@ -1,10 +1,12 @@
 """Real calibration photos from ../shared/data/real in rigcal's dataset layout.
 
-    python samples/real/make_datasets.py OUTDIR [NAME ...]      # NAME: caliscope wideangle trinocular (default all)
+    python samples/real/make_datasets.py OUTDIR [NAME ...]      # NAME: caliscope caliscope_b wideangle trinocular
+                                                                 # (default all)
     python samples/real/make_datasets.py --samples               # rebuild samples/real/bumblebee2, opencv_stereo
 
 The big sets (caliscope, wideangle, trinocular) become folders under OUTDIR whose
-images are symbolic links into the shared copy (nothing is duplicated); rig.yaml and
+images are symbolic links into the shared copy (nothing is duplicated; caliscope_b's
+frames are decoded from its videos into PNG files); rig.yaml and
 target.yaml are written beside them. The two small chessboard sets are copied, with
 their licences, into samples/real/ (--samples), which is how the committed samples
 were made. Every rig.yaml here is a *declared* rig: resolutions, rough nominal focal
@@ -56,6 +58,35 @@ def build_caliscope(dst: Path) -> Path:
     _fresh(dst)
     _link_images(dst, [(cam.name, f.stem, f) for cam in sorted(src.iterdir()) if cam.is_dir()
                        for f in sorted(cam.glob("*.jpg"))])
+    return _caliscope_files(dst, "caliscope_4cam_charuco_a")
+
+
+def build_caliscope_b(dst: Path) -> Path:
+    """caliscope_4cam_charuco_b: the same webcams and board, a second recording that comes
+    as one video per camera (57 frames each). Each frame is written as a PNG (lossless from
+    the decoded video) named by its sync index: video frame k is sync group 35 + k (the
+    set's README, checked against caliscope's own corner file)."""
+    import cv2
+
+    src = REAL / "caliscope_4cam_charuco_b" / "calibration" / "extrinsic"
+    _fresh(dst)
+    for video in sorted(src.glob("cam_*.mp4")):
+        out = dst / "images" / video.stem
+        out.mkdir(parents=True)
+        cap = cv2.VideoCapture(str(video))
+        k = 0
+        while True:
+            ok, img = cap.read()
+            if not ok:
+                break
+            cv2.imwrite(str(out / f"{35 + k:06d}.png"), img)
+            k += 1
+        cap.release()
+    return _caliscope_files(dst, "caliscope_4cam_charuco_b")
+
+
+def _caliscope_files(dst: Path, name: str) -> Path:
+    """rig.yaml and target.yaml of a caliscope set."""
     cams = "".join(f"""
   cam_{i}:
     model: pinhole
@@ -63,7 +94,7 @@ def build_caliscope(dst: Path) -> Path:
     intrinsics: {{focal: 800.0}}
 """ for i in range(4))
     _write(dst / "rig.yaml", f"""
-# caliscope's 4 USB webcams (caliscope_4cam_charuco_a). Poses unknown: calibrate finds them.
+# caliscope's 4 USB webcams ({name}). Poses unknown: calibrate finds them.
 # focal 800 px is a rough guess for these lenses, not the reference calibration.
 rig: caliscope-4cam
 body_frame: FLU
@@ -160,7 +191,8 @@ boards:
     return dst
 
 
-BUILDERS = {"caliscope": build_caliscope, "wideangle": build_wideangle, "trinocular": build_trinocular}
+BUILDERS = {"caliscope": build_caliscope, "caliscope_b": build_caliscope_b, "wideangle": build_wideangle,
+            "trinocular": build_trinocular}
 
 
 # ----------------------------------------------------------------------------- copied samples
