@@ -27,6 +27,7 @@ import numpy as np
 
 from . import geometry as geo
 from .rig import Imu
+from .spline import Motion  # the trajectory sample both the simulator and the spline give
 
 GRAVITY = 9.80665
 G_WORLD = np.array([0.0, 0.0, -GRAVITY])
@@ -35,28 +36,6 @@ BIAS_SAMPLE_HZ = 10.0  # truth.yaml samples the true biases at this rate (imu.md
 # ADIS16448 after factory calibration; the declared random walks take them on from there.
 GYRO_BIAS_SIGMA = 2e-3  # rad/s
 ACCEL_BIAS_SIGMA = 5e-2  # m/s^2
-
-
-@dataclass(frozen=True)
-class Motion:
-    """The body's motion at N times: R_world_body (N, 3, 3), p_world (N, 3) the body origin,
-    v_world (N, 3), a_world (N, 3) its velocity and acceleration in the world frame,
-    omega_body and alpha_body (N, 3) the angular velocity and acceleration in body axes."""
-
-    t: np.ndarray
-    R_world_body: np.ndarray
-    p_world: np.ndarray
-    v_world: np.ndarray
-    a_world: np.ndarray
-    omega_body: np.ndarray
-    alpha_body: np.ndarray
-
-    @property
-    def T_world_body(self) -> np.ndarray:
-        """(N, 4, 4)."""
-        T = np.zeros((len(self.t), 4, 4))
-        T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = self.R_world_body, self.p_world, 1.0
-        return T
 
 
 def _sines(t: np.ndarray, amp: np.ndarray, freq: np.ndarray, phase: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -59,17 +59,26 @@ class Spline:
 
 
 @dataclass(frozen=True, eq=False)
-class Sample:
-    """The trajectory at M instants: R_world_body (M, 3, 3), p_world (M, 3), its velocity
-    v_world and acceleration a_world (M, 3), angular velocity omega_body and angular
-    acceleration alpha_body (M, 3) in body axes."""
+class Motion:
+    """The body's motion at N times t (N,): R_world_body (N, 3, 3), p_world (N, 3) the body
+    origin, v_world and a_world (N, 3) its velocity and acceleration in the world frame,
+    omega_body and alpha_body (N, 3) the angular velocity and acceleration in body axes.
+    What a spline gives at any instant and what an IMU measures (rigcal.imu)."""
 
+    t: np.ndarray
     R_world_body: np.ndarray
     p_world: np.ndarray
     v_world: np.ndarray
     a_world: np.ndarray
     omega_body: np.ndarray
     alpha_body: np.ndarray
+
+    @property
+    def T_world_body(self) -> np.ndarray:
+        """(N, 4, 4)."""
+        T = np.zeros((len(self.t), 4, 4))
+        T[:, :3, :3], T[:, :3, 3], T[:, 3, 3] = self.R_world_body, self.p_world, 1.0
+        return T
 
 
 def segment(spline: Spline, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -92,7 +101,7 @@ def basis(u: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return b, db, ddb
 
 
-def evaluate(spline: Spline, t: np.ndarray) -> Sample:
+def evaluate(spline: Spline, t: np.ndarray) -> Motion:
     """The pose and its derivatives at times t (M,)."""
     i, u = segment(spline, t)
     b, db, ddb = basis(u, spline.dt)
@@ -115,7 +124,7 @@ def evaluate(spline: Spline, t: np.ndarray) -> Sample:
         alpha = np.einsum("mij,mj->mi", At, alpha) + ddb[:, j, None] * phi + np.cross(w_rot, dphi)
         omega = w_rot + dphi
         R = R @ A
-    return Sample(R, p, v, a, omega, alpha)
+    return Motion(np.asarray(t, dtype=float), R, p, v, a, omega, alpha)
 
 
 def knots_for(t_start: float, t_end: float, dt: float) -> tuple[float, int]:
