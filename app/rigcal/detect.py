@@ -54,6 +54,7 @@ from typing import Iterable, Sequence
 import cv2
 import numpy as np
 
+from . import april
 from .target import Board, Target
 from .workers import interrupts_deferred, worker_pool
 
@@ -676,6 +677,8 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
     unknown = np.full(len(ids), np.nan)
     if mode == "none" or len(ids) == 0:
         return uv, all_ok, unknown
+    if board.type == "aprilgrid":
+        return _refine_aprilgrid(gray, board, ids, uv, mode)
     half = symmetric_half_width(board)
     if mode == "subpix":
         ax, ay = corner_grid(ids, uv, board)[:2]
@@ -701,6 +704,49 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
         q, ok, sigma = refine_symmetric(stack, q - origin, ax, ay, bu, bv, half, bend_spread=spread)
         q = q + origin
     return q, ok, sigma
+
+
+def _refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarray,
+                      mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """refine_corners for an AprilGrid: the X-junction at each tag corner, inside the box
+    where it is point-symmetric (april.symmetric_box), along its own tag's homography axes
+    (april.corner_axes). No bends: the box is a fifth of a tag, too small for lens
+    curvature to matter.
+
+    OpenCV's tag corners can be several px off (a tag's outline merges with the blurred
+    tips of its corner squares), outside where the symmetric fit converges; so cornerSubPix
+    first brings them onto the junction, and a corner that still disagrees with its
+    neighbouring tags (april.neighbour_predictions, > april.AGREE_PX) is started again from
+    their prediction. A corner that disagrees after that is left out."""
+    n = len(ids)
+    ax, ay = april.corner_axes(ids, uv, board)
+    box = april.symmetric_box(board, ax, ay)
+    if mode == "subpix":
+        return refine_subpix(gray, uv, ax, ay, box), np.ones(n, bool), np.full(n, np.nan)
+    h, w = gray.shape
+    reach = 2.0 * box * float(np.nanmax(np.abs(np.concatenate([ax, ay])), initial=0.0)) + 4.0 + april.AGREE_PX * 4
+    if not np.isfinite(reach):
+        return uv, np.zeros(n, bool), np.full(n, np.nan)
+    x0, y0 = (max(0, int(np.floor(uv[:, k].min() - reach))) for k in (0, 1))
+    x1, y1 = min(w, int(np.ceil(uv[:, 0].max() + reach)) + 1), min(h, int(np.ceil(uv[:, 1].max() + reach)) + 1)
+    crop, origin = gray[y0:y1, x0:x1], np.array([x0, y0], float)
+    stack = image_gradients(crop)
+    zero = np.zeros(n)
+    q = uv - origin
+    ok, sigma = np.zeros(n, bool), np.full(n, np.nan)
+    for _ in range(SYMMETRIC_PASSES):
+        start = refine_subpix(crop, q, ax, ay, box)
+        q, ok, sigma = refine_symmetric(stack, start, ax, ay, zero, zero, box, arm=box)
+        pred = april.neighbour_predictions(ids, q, board, ok)
+        off = np.linalg.norm(pred - q, axis=1)
+        agree = ~(off > april.AGREE_PX)  # NaN (no prediction) agrees
+        ok &= agree
+        if agree.all():
+            break
+        q = np.where((~agree)[:, None], pred, q)
+        ax, ay = april.corner_axes(ids, q, board)
+    sigma = np.where(ok, sigma, np.nan)
+    return q + origin, ok, sigma
 
 
 def is_degenerate(ids: np.ndarray, uv: np.ndarray, board: Board) -> bool:
@@ -836,6 +882,9 @@ class BoardDetector:
             if b.type == "charuco":
                 by_dict.setdefault(b.dictionary, []).append(b)
         self.groups = [_CharucoGroup(d, bs) for d, bs in by_dict.items()]
+        grids = [b for b in target.boards if b.type == "aprilgrid"]
+        if grids:
+            self.groups.append(april.AprilGridGroup(grids))
         self.chessboards = [b for b in target.boards if b.type == "chessboard"]
 
     def raw(self, gray: np.ndarray) -> list[tuple[Board, np.ndarray, np.ndarray, bool]]:
