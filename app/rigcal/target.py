@@ -145,6 +145,11 @@ class Board:
             T[:3, 3] = [-self.gap, self.size_m[1] - self.gap, 0.0]
         return T
 
+    @property
+    def print_face(self) -> float:
+        """The sign of board z on the printed side: -1 for OpenCV's frame, +1 for Kalibr's."""
+        return float(-self.T_board_print[2, 2])
+
     @cached_property
     def corners(self) -> np.ndarray:
         """(N, 3) board-frame corner positions in metres; row index == corner id.
@@ -490,7 +495,7 @@ def _check_together(boards: tuple[Board, ...], err) -> None:
             hi = min(a.first_marker_id + a.n_markers, b.first_marker_id + b.n_markers) - 1
             if lo <= hi:
                 key = "first_tag_id" if a.type == "aprilgrid" else "first_marker_id"
-            raise err(f"boards[{i}].{key}",
+                raise err(f"boards[{i}].{key}",
                           f"marker ids {lo}..{hi} of board {a.name!r} overlap those of board {b.name!r} "
                           f"(ids {b.first_marker_id}..{b.first_marker_id + b.n_markers - 1}); ids must be disjoint")
 
