@@ -29,7 +29,10 @@ CV_TO_KALIBR = np.array([1, 0, 3, 2])
 # edges sit just inside it.
 BORDER_FRACTION = 0.2
 BOX_MARGIN_PX = 1.5
-AGREE_PX = 1.5  # a corner further than this from its neighbours' prediction is re-started, then dropped
+# The arm stops this far short of the corner square's far edge: that edge is not mirrored
+# (the tag's border goes on), and perspective and blur bring it nearer than the affine
+# cross assumes. Measured on rendered grids: 3 px left 0.013 px RMS on close boards, 5 px 0.008.
+ARM_MARGIN_PX = 5.0
 INVERTED_UNLESS = 4  # tags found as printed, below which the inverted image is searched too
 
 
@@ -155,6 +158,18 @@ def _quad_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     return np.concatenate([h, np.ones((T, 1))], 1).reshape(T, 3, 3)
 
 
+def symmetric_cross(board: Board, ax: np.ndarray, ay: np.ndarray) -> tuple[float, float]:
+    """(half-width, arm) in tag sizes of the point-symmetric cross around a tag corner, for
+    detect.refine_symmetric: along a tag edge the corner square mirrors the border for a
+    gap's length (the arm, less ARM_MARGIN_PX), across it only as far as the 2-bit border
+    reaches (the half-width; refine_symmetric takes its own blur margin off it)."""
+    half = min(BORDER_FRACTION, board.tag_spacing)
+    size_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    size_px = size_px[np.isfinite(size_px)]
+    margin = ARM_MARGIN_PX / float(np.median(size_px)) if len(size_px) else 0.0
+    return half, max(board.tag_spacing - margin, 0.5 * board.tag_spacing)
+
+
 def symmetric_box(board: Board, ax: np.ndarray, ay: np.ndarray) -> float:
     """Half-side, in tag sizes, of the point-symmetric box around a corner: the 2-bit border
     or the corner square, whichever is narrower, less BOX_MARGIN_PX of blur at the median
@@ -170,15 +185,14 @@ def symmetric_box(board: Board, ax: np.ndarray, ay: np.ndarray) -> float:
 def neighbour_predictions(ids: np.ndarray, uv: np.ndarray, board: Board, trusted: np.ndarray) -> np.ndarray:
     """(N, 2) each corner as the homography of the trusted corners of the tags around its own
     (within one tag each way, its own tag left out) predicts it; NaN with fewer than 8 such
-    corners. Over three tags lens distortion moves a corner by well under a pixel, while a
-    corner that started on the wrong junction (OpenCV's quad of a tag merged with its corner
-    squares' tips) is off by several."""
+    corners. A start for corners whose own tag's quad was too far off (OpenCV's quad of a
+    tag merged with its corner squares' tips): within a pixel or two even through a fisheye."""
     pred = np.full((len(ids), 2), np.nan)
     cols = board.squares[0]
     tag = ids // 4
     col, row = tag % cols, tag // cols
     xy = board.corners[ids, :2]
-    for t in np.unique(tag):  # one small fit per tag (<= a few hundred), not per pixel
+    for t in np.unique(tag[~trusted]):  # one small fit per tag (<= a few hundred), not per pixel
         near = trusted & (np.abs(col - t % cols) <= 1) & (np.abs(row - t // cols) <= 1) & (tag != t)
         if near.sum() < 8:
             continue
@@ -188,3 +202,56 @@ def neighbour_predictions(ids: np.ndarray, uv: np.ndarray, board: Board, trusted
         mine = tag == t
         pred[mine] = cv2.perspectiveTransform(xy[mine].reshape(-1, 1, 2), H).reshape(-1, 2)
     return pred
+
+
+# Kalibr's corner k seen from the corner: the direction (board x, y) of its own tag's inside
+TOWARDS_TAG = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+
+
+def looks_like_a_tag_corner(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,
+                            box: float) -> np.ndarray:
+    """(N,) bool: the image around each corner is the X-junction of a tag corner: the tag's
+    border (towards the tag) and the corner square (away from it) one colour, the two gaps
+    on either side the other, sampled half-way across the symmetric box. A corner the
+    refinement placed on another junction (a bit's corner, the border's inner corner)
+    fails: there a side quadrant is the border's black. Both polarities count, the one of
+    the view's majority (inverted prints)."""
+    t = TOWARDS_TAG[ids % 4] * (0.5 * box)  # (N, 2) board units (tag sizes)
+    offs = np.stack([t, -t, t * [1.0, -1.0], t * [-1.0, 1.0]], axis=1)  # in, out, side, side: (N, 4, 2)
+    pts = uv[:, None, :] + offs[..., :1] * ax[:, None, :] + offs[..., 1:] * ay[:, None, :]
+    pts = np.nan_to_num(pts, nan=-1e5).astype(np.float32)
+    v = cv2.remap(gray.astype(np.float32), pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)  # (N, 4)
+    gap = np.minimum(v[:, 2], v[:, 3]) - np.maximum(v[:, 0], v[:, 1])  # > 0: gaps white, diagonal black
+    inv = np.minimum(v[:, 0], v[:, 1]) - np.maximum(v[:, 2], v[:, 3])  # > 0: printed inverted
+    normal = np.nansum(gap > 0) >= np.nansum(inv > 0)
+    return (gap > 0) if normal else (inv > 0)
+
+
+def lattice_bends(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How the board-x and board-y lines through each corner bend (lens distortion): bend_u,
+    bend_v (N,) px per tag size^2 along each line's normal, as detect.local_grid gives them
+    for a uniform grid, here from the lattice of tag corners, whose spacing alternates
+    between a tag and a gap (second divided differences on uneven steps). NaN where a
+    neighbour along the line is missing."""
+    nx, ny = 2 * board.squares[0], 2 * board.squares[1]
+    k = ids % 4
+    tag = ids // 4
+    i = 2 * (tag % board.squares[0]) + np.isin(k, (1, 2))
+    j = 2 * (tag // board.squares[0]) + np.isin(k, (2, 3))
+    G = np.full((ny + 2, nx + 2, 2), np.nan)  # one ring of padding
+    G[j + 1, i + 1] = uv
+    s, g = 1.0, board.tag_spacing  # tag units
+
+    def bend(index: np.ndarray, di: int, dj: int) -> np.ndarray:
+        ahead = np.where(index % 2 == 0, s, g)  # the step to the next lattice point along the line
+        back = np.where(index % 2 == 0, g, s)
+        f0, fp, fm = G[j + 1, i + 1], G[j + 1 + dj, i + 1 + di], G[j + 1 - dj, i + 1 - di]
+        h1, h2 = back[:, None], ahead[:, None]
+        d1 = (h1 * h1 * fp - h2 * h2 * fm + (h2 * h2 - h1 * h1) * f0) / (h1 * h2 * (h1 + h2))
+        d2 = 2.0 * (h1 * fp - (h1 + h2) * f0 + h2 * fm) / (h1 * h2 * (h1 + h2))
+        n = np.column_stack([-d1[:, 1], d1[:, 0]])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        return 0.5 * np.einsum("nk,nk->n", d2, n)
+
+    return bend(i, 1, 0), bend(j, 0, 1)

@@ -708,45 +708,66 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
 
 def _refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarray,
                       mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """refine_corners for an AprilGrid: the X-junction at each tag corner, inside the box
-    where it is point-symmetric (april.symmetric_box), along its own tag's homography axes
-    (april.corner_axes). No bends: the box is a fifth of a tag, too small for lens
-    curvature to matter.
+    """refine_corners for an AprilGrid: each tag corner is an X-junction (tag border and
+    corner square one colour, the gaps the other), refined as the centre of point symmetry
+    like a ChArUco corner.
 
     OpenCV's tag corners can be several px off (a tag's outline merges with the blurred
     tips of its corner squares), outside where the symmetric fit converges; so cornerSubPix
-    first brings them onto the junction, and a corner that still disagrees with its
-    neighbouring tags (april.neighbour_predictions, > april.AGREE_PX) is started again from
-    their prediction. A corner that disagrees after that is left out."""
+    (window: april.symmetric_box) first brings them onto the junction, then refine_symmetric
+    fits it in that box, along its own tag's homography axes (april.corner_axes). A corner
+    that does not then look like a tag corner (april.looks_like_a_tag_corner: it found
+    another junction) is started again from where the neighbouring tags' corners put it
+    (april.neighbour_predictions), and left out if it still does not. A last pass fits
+    every corner in the full cross with the lattice's bends."""
     n = len(ids)
     ax, ay = april.corner_axes(ids, uv, board)
     box = april.symmetric_box(board, ax, ay)
     if mode == "subpix":
         return refine_subpix(gray, uv, ax, ay, box), np.ones(n, bool), np.full(n, np.nan)
     h, w = gray.shape
-    reach = 2.0 * box * float(np.nanmax(np.abs(np.concatenate([ax, ay])), initial=0.0)) + 4.0 + april.AGREE_PX * 4
+    reach = 2.0 * box * float(np.nanmax(np.abs(np.concatenate([ax, ay])), initial=0.0)) + 8.0
     if not np.isfinite(reach):
         return uv, np.zeros(n, bool), np.full(n, np.nan)
     x0, y0 = (max(0, int(np.floor(uv[:, k].min() - reach))) for k in (0, 1))
     x1, y1 = min(w, int(np.ceil(uv[:, 0].max() + reach)) + 1), min(h, int(np.ceil(uv[:, 1].max() + reach)) + 1)
     crop, origin = gray[y0:y1, x0:x1], np.array([x0, y0], float)
     stack = image_gradients(crop)
-    zero = np.zeros(n)
-    q = uv - origin
-    ok, sigma = np.zeros(n, bool), np.full(n, np.nan)
-    for _ in range(SYMMETRIC_PASSES):
-        start = refine_subpix(crop, q, ax, ay, box)
-        q, ok, sigma = refine_symmetric(stack, start, ax, ay, zero, zero, box, arm=box)
-        pred = april.neighbour_predictions(ids, q, board, ok)
-        off = np.linalg.norm(pred - q, axis=1)
-        agree = ~(off > april.AGREE_PX)  # NaN (no prediction) agrees
-        ok &= agree
-        if agree.all():
-            break
-        q = np.where((~agree)[:, None], pred, q)
-        ax, ay = april.corner_axes(ids, q, board)
+    q, ok, sigma = _aprilgrid_pass(crop, stack, uv - origin, ax, ay, box)
+    ok &= april.looks_like_a_tag_corner(crop, ids, q, ax, ay, box)
+    pred = april.neighbour_predictions(ids, q, board, ok)
+    redo = ~ok & np.isfinite(pred).all(axis=1)
+    if redo.any():
+        # started again from where the neighbouring tags' corners put them
+        r = np.flatnonzero(redo)
+        q2, ok2, sigma2 = _aprilgrid_pass(crop, stack, pred[r], ax[r], ay[r], box)
+        ok2 &= april.looks_like_a_tag_corner(crop, ids[r], q2, ax[r], ay[r], box)
+        q[r[ok2]], ok[r[ok2]], sigma[r[ok2]] = q2[ok2], True, sigma2[ok2]
+    # Once more, in the full cross (april.symmetric_cross), along the axes of the refined
+    # corners (OpenCV's quads are a pixel or two off) with the lens's bends from the lattice
+    # of refined corners, held fixed: fitting them inside so small a cross cost accuracy.
+    ax2, ay2 = april.corner_axes(ids, q, board)
+    fine = ok & np.isfinite(ax2).all(axis=1) & np.isfinite(ay2).all(axis=1)
+    if fine.any():
+        f = np.flatnonzero(fine)
+        bu, bv = (np.nan_to_num(b[f]) for b in april.lattice_bends(ids, q, board))
+        half, arm = april.symmetric_cross(board, ax2[f], ay2[f])
+        q3, ok3, sigma3 = refine_symmetric(stack, q[f], ax2[f], ay2[f], bu, bv, half, arm=arm)
+        q[f[ok3]], sigma[f[ok3]] = q3[ok3], sigma3[ok3]
     sigma = np.where(ok, sigma, np.nan)
     return q + origin, ok, sigma
+
+
+def _aprilgrid_pass(gray: np.ndarray, stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,
+                    box: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """cornerSubPix (a window of the symmetric box) then refine_symmetric: (N, 2), ok, sigma."""
+    # cornerSubPix refuses a start outside the image (a prediction past its edge)
+    inside = np.all((uv >= 0) & (uv <= np.array(gray.shape[::-1]) - 1), axis=1)
+    start = uv.copy()
+    start[inside] = refine_subpix(gray, uv[inside], ax[inside], ay[inside], box)
+    zero = np.zeros(len(uv))
+    q, ok, sigma = refine_symmetric(stack, start, ax, ay, zero, zero, box, arm=box)
+    return q, ok & inside, sigma
 
 
 def is_degenerate(ids: np.ndarray, uv: np.ndarray, board: Board) -> bool:
