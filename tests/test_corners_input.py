@@ -5,6 +5,7 @@ line naming file and row; the EuRoC imu_april corners calibrate camera-only."""
 from __future__ import annotations
 
 import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -13,7 +14,6 @@ import pytest
 import yaml
 from typer.testing import CliRunner
 
-import euroc_corners
 from rigcal import geometry as geo
 from rigcal.cli import app
 from rigcal.corners import read_corners
@@ -23,7 +23,10 @@ from rigcal.synthetic import board_view, random_body_pose, wall_boards
 from rigcal.target import load_target, parse_target
 
 ROOT = Path(__file__).resolve().parents[1]
-euroc = pytest.mark.skipif(not euroc_corners.EUROC.is_dir(), reason="../shared/data/real/euroc_imu_april is not here")
+sys.path.insert(0, str(ROOT / "samples" / "real"))
+import make_datasets  # noqa: E402  (samples/real/make_datasets.py)
+
+euroc = pytest.mark.skipif(not make_datasets.EUROC.is_dir(), reason="../shared/data/real/euroc_imu_april is not here")
 
 TARGET = "boards:\n" + "".join(
     f"  - {{name: g{k}, type: aprilgrid, tags: [5, 4], tag_size: 0.08, tag_spacing: 0.3, first_tag_id: {20 * k}}}\n"
@@ -152,7 +155,7 @@ EUROC_EVERY = 10  # 142 of the 1,416 frames with corners: 3 s; the full set is b
 @pytest.fixture(scope="module")
 def euroc_calibrated(tmp_path_factory):
     d = tmp_path_factory.mktemp("euroc")
-    ds = euroc_corners.build(d / "ds", every=EUROC_EVERY)
+    ds = make_datasets.build_euroc(d / "ds", every=EUROC_EVERY)
     t0 = time.perf_counter()
     res = CliRunner().invoke(app, ["calibrate", str(ds), "--out", str(d / "cal.yaml"), "--jobs", "1"])
     assert res.exit_code == 0, res.output
@@ -163,7 +166,7 @@ def euroc_calibrated(tmp_path_factory):
 def test_euroc_corners_baseline(euroc_calibrated):
     cal, _ = euroc_calibrated
     base_mm = 1000 * np.linalg.norm(_rel(cal, "cam0", "cam1")[:3, 3])
-    assert abs(base_mm - euroc_corners.BASELINE_MM) < 0.3, base_mm  # measured 109.98
+    assert abs(base_mm - make_datasets.EUROC_BASELINE_MM) < 0.3, base_mm  # measured 109.98
 
 
 @euroc
@@ -174,8 +177,8 @@ def test_euroc_corners_baseline(euroc_calibrated):
     "sequence (README, 'EuRoC imu_april corners')"))
 def test_euroc_corners_intrinsics_within_half_a_percent_of_eurocs(euroc_calibrated):
     cal, _ = euroc_calibrated
-    ref = euroc_corners.reference()
-    for cam in euroc_corners.CAMERAS:
+    ref = yaml.safe_load((make_datasets.EUROC / "reference.yaml").read_text())
+    for cam in make_datasets.EUROC_CAMERAS:
         m = cal.camera(cam).intrinsics
         got = np.array([m.fx, m.fy, m.cx, m.cy])
         want = np.array(ref[cam]["intrinsics"])
@@ -184,8 +187,8 @@ def test_euroc_corners_intrinsics_within_half_a_percent_of_eurocs(euroc_calibrat
 
 @euroc
 def test_euroc_corner_file_matches_kalibrs_layout():
-    target = load_target(euroc_corners.EUROC / "kalibr_target.yaml")
-    raw = euroc_corners.read_yac(euroc_corners.EUROC / "corners" / "cam0.csv.gz")[:5000]
+    target = load_target(make_datasets.EUROC / "kalibr_target.yaml")
+    raw = make_datasets.read_yac(make_datasets.EUROC / "corners" / "cam0.csv.gz")[:5000]
     ids = (4 * raw[:, 1] + raw[:, 2]).astype(int)
     np.testing.assert_allclose(target.boards[0].corners[ids], raw[:, 5:8], atol=1e-6)
-    assert yaml.safe_load((euroc_corners.EUROC / "kalibr_target.yaml").read_text())["target_type"] == "aprilgrid"
+    assert yaml.safe_load((make_datasets.EUROC / "kalibr_target.yaml").read_text())["target_type"] == "aprilgrid"

@@ -1163,7 +1163,9 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
     in_range = sum(int(np.isin(found[b.dictionary], b.marker_ids).sum()) for b in charuco)
     # markers of the boards in every image: the dictionary is right (scanning the others takes seconds)
     best = _best_other_dictionary(grays, wanted) if in_range < 3 * n else None
-    says = ("target.yaml says " + ", ".join(sorted(wanted))) if wanted else "target.yaml describes a chessboard"
+    grids = [b.name for b in target.boards if b.type == "aprilgrid"]
+    says = ("target.yaml says " + ", ".join(sorted(wanted) + [f"AprilGrid {n} (AprilTag 36h11)" for n in grids])
+            if wanted or grids else "target.yaml describes a chessboard")
     # A wrong dictionary still decodes a few stray markers in the real ones' bit patterns
     # (DICT_4X4_1000 read in DICT_5X5_1000 prints): judge it by how many more the other finds.
     if (best is not None and best[1] >= MIN_CLAIM_MARKERS
@@ -1189,6 +1191,8 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
     if hints:
         return "; ".join(hints)
     for b in target.boards:
+        if b.type == "aprilgrid":
+            continue  # its corner lattice is no chessboard
         nx, ny = b.inner_corners
         # the board as declared (a ChArUco printed without markers), or one off along either axis;
         # OpenCV needs at least 3 inner corners each way (it raises below that)
