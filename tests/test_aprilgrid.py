@@ -150,3 +150,31 @@ def test_real_euroc_frame_gives_all_144_corners_that_fit_euroc_intrinsics(cam):
     # the board faces the camera: Kalibr's z comes out of the print, towards the camera
     R = cv2.Rodrigues(r)[0]
     assert (R.T @ -t.ravel())[2] > 0
+
+
+@euroc
+@pytest.mark.parametrize("cam", [0, 1])
+def test_rendered_print_matches_the_real_kalibr_grid_bit_for_bit(cam):
+    """Every bit cell of the 36 tags, read off the real frame where PnP puts it, is the colour
+    rigcal prints (Board.image / april_tag_bits): same codes, same turn, same ids, same rows."""
+    from rigcal.target import april_tag_bits
+
+    target = load_target(EUROC / "kalibr_target.yaml")
+    b = target.boards[0]
+    gray = _euroc_frame(cam)
+    _, ids, uv, _, _ = BoardDetector(target).detect_with_sigma(gray)[0][0]
+    ref = yaml.safe_load((EUROC / "reference.yaml").read_text())[f"cam{cam}"]
+    fx, fy, cx, cy = ref["intrinsics"]
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    D = np.array(ref["distortion"], float)
+    _, r, t = cv2.solvePnP(b.corners[ids], uv, K, D)
+    # cell (v, u) of tag t, v counted down the print: board y falls as v grows
+    tag = np.arange(36)
+    u, v = np.meshgrid(np.arange(10), np.arange(10))
+    x = (tag % 6)[:, None, None] * b.square_length + (u[None] + 0.5) * b.tag_size / 10
+    y = (tag // 6)[:, None, None] * b.square_length + b.tag_size - (v[None] + 0.5) * b.tag_size / 10
+    p = np.stack([x, y, np.zeros_like(x)], -1).reshape(-1, 3)
+    px = cv2.projectPoints(p, r, t, K, D)[0].reshape(1, -1, 2).astype(np.float32)
+    val = cv2.remap(gray.astype(np.float32), px[..., 0], px[..., 1], cv2.INTER_LINEAR).ravel()
+    black = (val < 0.5 * (np.percentile(val, 5) + np.percentile(val, 95))).reshape(36, 10, 10)
+    np.testing.assert_array_equal(black, april_tag_bits(np.arange(36)))

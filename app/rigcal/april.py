@@ -9,9 +9,12 @@ degrees from OpenCV's marker image, so OpenCV's corners as decoded (top-left, to
 bottom-right, bottom-left of the code) are Kalibr's k = 1, 0, 3, 2.
 
 The corner squares make every tag corner an X-junction (tag border and corner square
-black, the two gaps white), point-symmetric out to min(0.2, tag_spacing) tag sizes (the
-2-bit border is 0.2 of the tag). detect.refine_corners refines them inside that box with
-the same point-symmetry estimator as ChArUco corners, along the axes `corner_axes` gives.
+black, the two gaps white), point-symmetric in a box of min(0.2, tag_spacing) tag sizes
+(the 2-bit border is 0.2 of the tag) and, along the tag's edges, for a gap's length
+(`symmetric_box`, `symmetric_cross`). detect.refine_corners refines them with the same
+point-symmetry estimator as ChArUco corners, along the axes `corner_axes` gives, checks
+them (`looks_like_a_tag_corner`), restarts the odd ones (`neighbour_predictions`) and
+bends the cross with the lens (`lattice_bends`).
 """
 
 from __future__ import annotations

@@ -2,7 +2,8 @@
 
 Conventions: pixel coordinates are OpenCV's (integer = pixel centre); a view's `ids`
 index its board's `Board.corners` (ChArUco: getChessboardCorners order; chessboard:
-row-major inner corners, x fastest, from the corner next to the black top-left square).
+row-major inner corners, x fastest, from the corner next to the black top-left square;
+AprilGrid: Kalibr's 4 * tag + k).
 
 Pipeline per image:
 
@@ -13,6 +14,9 @@ Pipeline per image:
    from its own markers with its own CharucoDetector (legacy layout respected). When
    (almost) no marker shows as printed, the inverted image is searched too (white
    markers on black), so inverted prints need no key in target.yaml.
+   AprilGrid (Kalibr's): 36h11 tags with a 2-bit border, found once for all grids
+   (april.AprilGridGroup), each tag's corners named by Kalibr's ids; refined as
+   X-junctions (_refine_aprilgrid), not by the ChArUco cross of step 3.
    Chessboard: findChessboardCorners, falling back to findChessboardCornersSB; the
    corner order is made right-handed and, for boards that are not 180-degree
    symmetric, turned so the black top-left square is first. Views of symmetric boards
