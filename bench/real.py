@@ -9,7 +9,10 @@
   caliscope_4cam_charuco_a pairwise camera-centre distances and relative rotations
   vs caliscope's own solution (target 2.5 cm / 2 deg; caliscope is itself only that
   consistent); boofcv_trinocular_ecocheck baselines in squares vs a pairwise OpenCV
-  run (no published reference: a self-consistency check).
+  run (no published reference: a self-consistency check); euroc_imu_april (corners
+  only, corners/<camera>.csv from yac's detections; all 1,416 frames with corners)
+  camera-only: baseline vs the 110.07 mm EuRoC's T_BS imply (target 0.3 mm), intrinsics
+  vs EuRoC's published ones (target 0.5 %).
 
 Detections are cached per dataset (bench/out/cache/real-*), keyed like the simulated ones.
 
@@ -269,8 +272,39 @@ def caliscope_b(log=say) -> dict | None:
     return caliscope(log, "caliscope_b")
 
 
+
+def euroc(log=say) -> dict | None:
+    """EuRoC imu_april corners, camera-only, every frame: what `rigcal calibrate` does with
+    its corners/ files (no images, so no detection and no guided pass)."""
+    import yaml
+
+    from rigcal.corners import read_corners
+    from rigcal.target import load_target
+
+    d = linked("euroc", log)
+    if d is None:
+        return None
+    rig = rigcal.load_rig(d / "rig.yaml")
+    target = load_target(d / "target.yaml")
+    with Timer() as tr:
+        views = [ViewIn(cam, f, b, ids, uv) for cam in rig.names
+                 for f, b, ids, uv in read_corners(d / "corners" / f"{cam}.csv", target)]
+    with Timer() as t:
+        cal = calibrate_views(views, rig, {b.name: b.corners for b in target.boards},
+                              faces={b.name: b.print_face for b in target.boards})
+    ref = yaml.safe_load((SHARED / "euroc_imu_april" / "reference.yaml").read_text())
+    intr = {}
+    for c in cal.rig.cameras:
+        m = c.intrinsics
+        intr[c.name] = {"rigcal": [m.fx, m.fy, m.cx, m.cy], "euroc": ref[c.name]["intrinsics"],
+                        "model": cal.stats[c.name].distortion_model}
+    return {"set": "euroc", "frames": len({v.frame for v in views}), "read_s": tr.wall, "seconds": t.wall,
+            "baseline_mm": 1000 * _baseline(cal.rig, "cam0", "cam1"), "reference_mm": 110.07, "intrinsics": intr,
+            **_cal_row(cal)}
+
+
 SETS = {"bumblebee2": bumblebee2, "opencv_stereo": opencv_stereo, "wideangle": wideangle, "caliscope": caliscope,
-        "caliscope_b": caliscope_b, "trinocular": trinocular}
+        "caliscope_b": caliscope_b, "trinocular": trinocular, "euroc": euroc}
 
 
 def run(names: list[str] | None = None, log=say) -> dict:
@@ -306,6 +340,15 @@ def tables(res: dict) -> str:
             rows.append(["trinocular", f"auto, {k}", "baseline squares", f"{b['squares']:.4f}",
                          f"{b['opencv_pairwise']:.3f}",
                          f"{100 * (b['squares'] / b['opencv_pairwise'] - 1):+.2f} %", tri["rms_px"], tri["seconds"]])
+    eu = res.get("euroc")
+    if eu:
+        rows.append(["euroc", f"corners/, {eu['frames']} frames, auto ({'/'.join(sorted(set(eu['models'].values())))})",
+                     "baseline mm", f"{eu['baseline_mm']:.3f}", f"{eu['reference_mm']:.2f}",
+                     f"{eu['baseline_mm'] - eu['reference_mm']:+.3f} mm", eu["rms_px"], eu["seconds"]])
+        for cam, c in eu["intrinsics"].items():
+            for k, (a, b) in zip(("fx", "fy", "cx", "cy"), zip(c["rigcal"], c["euroc"])):
+                rows.append(["euroc", f"{cam} ({c['model']})", k, f"{a:.2f}", f"{b:.3f}", f"{100 * (a / b - 1):+.2f} %",
+                             eu["rms_px"], eu["seconds"]])
     parts = [md_table(["set", "run", "quantity", "rigcal", "reference", "difference", "reproj RMS px", "calib s"],
                       rows, "Real images: calibrated vs published reference")]
     for key in CALISCOPE_SETS:

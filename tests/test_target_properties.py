@@ -41,6 +41,17 @@ VALID_TEXTS = [
 """,
     "boards:\n  - {type: chessboard, inner_corners: [9, 6], square_length: 0.025}\n",
     "boards:\n- name: ecocheck\n  type: chessboard\n  inner_corners: [13, 9]\n  square_length: 0.03\n",
+    # Kalibr's AprilGrid (dataset.md) beside a ChArUco board, and a Kalibr target file as it is
+    """boards:
+  - name: grid
+    type: aprilgrid
+    tags: [6, 6]
+    tag_size: 0.088
+    tag_spacing: 0.3
+    first_tag_id: 0
+  - {name: wall, type: charuco, dictionary: DICT_5X5_1000, squares: [5, 4], square_length: 0.05, marker_length: 0.035}
+""",
+    "target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 6\ntagSize: 0.088\ntagSpacing: 0.3\n",
 ]
 VALID_DOCS = [yaml.safe_load(t) for t in VALID_TEXTS]
 
@@ -51,7 +62,8 @@ FAST_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)  # test inputs only
 
 KEYWORDS = ["boards", "name", "type", "charuco", "chessboard", "dictionary", "squares", "square_length",
             "marker_length", "first_marker_id", "legacy_pattern", "inner_corners", "DICT_5X5_1000", "DICT_4X4_50",
-            "DICT_APRILTAG_36h11", "front_wall", "true", "false"]
+            "DICT_APRILTAG_36h11", "front_wall", "true", "false", "aprilgrid", "tags", "tag_size", "tag_spacing",
+            "first_tag_id", "target_type", "tagCols", "tagRows", "tagSize", "tagSpacing", "checkerboard"]
 scalars = st.one_of(
     st.none(), st.booleans(),
     st.integers(min_value=-(10**30), max_value=10**30), st.integers(min_value=10**300, max_value=10**400),

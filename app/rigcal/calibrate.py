@@ -74,6 +74,25 @@ def _diagnosis(paths: list[Path], target) -> str:
     return f": {hint}" if hint else ""
 
 
+def _corner_views(images, target, console) -> tuple[list[ViewIn], object]:
+    """Views of the cameras given as corners/<camera>.csv, and the dataset's images without
+    those cameras' (the corners are used instead, and calibrate says so)."""
+    from types import MappingProxyType
+
+    from .corners import read_corners
+
+    views = []
+    for cam, path in images.corners.items():
+        got = read_corners(path, target)
+        views += [ViewIn(cam, frame, board, ids, uv, False, None) for frame, board, ids, uv in got]
+        both = f"; its {len(images.frames[cam])} images in images/{cam}/ are not used" if images.frames[cam] else ""
+        console.print(f"{cam}: {len(got)} board views from {path} (corners detected elsewhere){both}")
+    if not images.corners:
+        return views, images
+    frames = {c: (MappingProxyType({}) if c in images.corners else f) for c, f in images.frames.items()}
+    return views, replace(images, frames=MappingProxyType(frames))
+
+
 def _same_file(a: Path, b: Path) -> bool:
     try:
         return Path(a).resolve() == Path(b).resolve()
@@ -110,13 +129,14 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     images = list_dataset(dataset, rig)
     check_shared_stems(images)
     motion_notes = _motion_notes(dataset, rig, images)
-    det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True, scheduler=scheduler)
     console = _err()
+    given, images = _corner_views(images, target, console)
+    det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True, scheduler=scheduler)
     for path, reason in det.unreadable:
         console.print(f"warning: {path}: skipped ({reason})")
     rig = _apply_image_sizes(rig, det, allow_resize)
     views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous, v.sigma)
-             for v in det.views]
+             for v in det.views] + given
     for cam in rig.names:
         n_img = det.n_images.get(cam, 0)
         seen = {v.frame for v in views if v.camera == cam}
@@ -141,11 +161,15 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
               for b in target.boards if len(target.boards) > 1 and b.name not in found]
     corners = {b.name: b.corners for b in target.boards}
     console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
-    from .guided import rerefiner
+    from .guided import guided_cameras, rerefiner
 
     rerefine = rerefiner(images, rig, target, jobs=jobs or os.cpu_count() or 1, mode=guided, scheduler=scheduler)
+    for cam in guided_cameras(rig, guided):
+        if cam in images.corners:
+            console.print(f"note: {cam}: the guided pass needs images; its corners from {images.corners[cam]} stand")
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
-                          reference=reference, rerefine=rerefine, intrinsics=intrinsics)
+                          reference=reference, rerefine=rerefine, intrinsics=intrinsics,
+                          faces={b.name: b.print_face for b in target.boards})
     from .checks import stereo_checks
 
     pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")

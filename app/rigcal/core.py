@@ -138,6 +138,11 @@ def _views_obj_img(views: list[ViewIn], corners: dict) -> tuple[list, list]:
     return [corners[v.board][v.ids] for v in views], [v.uv for v in views]
 
 
+def _faces(views: list[ViewIn], faces: dict | None) -> list[float] | None:
+    """Per view the sign of board z on the printed side (initialise.camera_faces_print)."""
+    return None if faces is None else [float(faces.get(v.board, -1.0)) for v in views]
+
+
 def select_rational(fit5: MonoFit, fit8: MonoFit | None, n_params_views: int) -> tuple[int, list[str]]:
     """5 or 8 coefficients as the start of the joint solve (see RATIONAL_LEVEL).
 
@@ -188,7 +193,7 @@ class MonoInit:
 
 
 def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, distortion: str,
-                fix_intrinsics: bool) -> MonoInit:
+                fix_intrinsics: bool, faces: dict | None = None) -> MonoInit:
     """Initial intrinsics and per-view poses for one camera, from its own views.
 
     With `auto` a pinhole camera starts from radtan5 (or rational8 when it wins clearly);
@@ -199,7 +204,7 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
     if fix_intrinsics:
         values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
     elif declared.model == "fisheye":
-        values, rms = _init_fisheye(obj, img, declared)
+        values, rms = _init_fisheye(obj, img, declared, _faces(views, faces))
         mono = lambda: (values, "fisheye (own views)")  # noqa: E731
     else:
         sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
@@ -228,10 +233,11 @@ def init_camera(views: list[ViewIn], corners: dict, declared: CameraModel, disto
             if keep:
                 return own.values, f"radtan5 (own views; {line})"
             return fit_pinhole(o_c, i_c, declared, 4).values, f"radtan4 (own views; {line})"
-    return MonoInit(values, pnp_views(obj, img, values, declared.model), notes, rms, mono)
+    return MonoInit(values, pnp_views(obj, img, values, declared.model, _faces(views, faces)), notes, rms, mono)
 
 
-def fixed_intrinsics_misfit(views: list[ViewIn], corners: dict, declared: CameraModel, mi: MonoInit) -> str | None:
+def fixed_intrinsics_misfit(views: list[ViewIn], corners: dict, declared: CameraModel, mi: MonoInit,
+                            faces: dict | None = None) -> str | None:
     """With --fix-intrinsics: words when the declared intrinsics fit this camera's own views
     (PnP per view) more than RIGIDITY_RATIO times worse than intrinsics fitted to them, else
     None. Own views only, so neither the rig's rigidity nor its synchronisation enters: the
@@ -245,7 +251,7 @@ def fixed_intrinsics_misfit(views: list[ViewIn], corners: dict, declared: Camera
     obj, img = _views_obj_img(views, corners)
     try:
         if declared.model == "fisheye":
-            free = _init_fisheye(obj, img, declared)[1]
+            free = _init_fisheye(obj, img, declared, _faces(views, faces))[1]
         else:
             sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
             free = _clean_fit([obj[i] for i in sel], [img[i] for i in sel], declared,
@@ -291,22 +297,25 @@ def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tupl
         return fit, obj, img, obj, img
 
 
-def _init_fisheye(obj: list, img: list, declared: CameraModel) -> tuple[np.ndarray, float]:
+def _init_fisheye(obj: list, img: list, declared: CameraModel, faces: list[float] | None = None
+                  ) -> tuple[np.ndarray, float]:
     """One-camera bundle adjustment from the declared intrinsics and per-view PnP:
     (intrinsics values, RMS reprojection px)."""
     values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
-    res = one_camera_solve(obj, img, Intrinsics("fisheye", values), MAX_INIT_VIEWS)
+    res = one_camera_solve(obj, img, Intrinsics("fisheye", values), MAX_INIT_VIEWS, faces)
     if res is None:
         raise CalibrationError("fisheye: fewer than 2 views could be posed from the declared intrinsics")
     return res.state.intrinsics[0].values, float(np.sqrt(np.mean(np.sum(res.residuals**2, axis=1))))
 
 
-def one_camera_solve(obj: list, img: list, intr: Intrinsics, limit: int | None = None) -> SolveResult | None:
+def one_camera_solve(obj: list, img: list, intr: Intrinsics, limit: int | None = None,
+                     faces: list[float] | None = None) -> SolveResult | None:
     """Bundle adjustment of one camera on its own views (each view a frame), started from
-    `intr` (its structure kept) and per-view PnP; at most `limit` views (_select_views)
-    when given. None when fewer than 2 views can be posed."""
+    `intr` (its structure kept) and per-view PnP (faces: per view the sign of board z on the
+    printed side, _faces); at most `limit` views (_select_views) when given. None when fewer
+    than 2 views can be posed."""
     keep, Ts = [], []
-    for k, r in enumerate(pnp_views(obj, img, intr.values, intr.model)):
+    for k, r in enumerate(pnp_views(obj, img, intr.values, intr.model, faces)):
         if r is not None:
             keep.append(k)
             Ts.append(r[0])
@@ -435,13 +444,14 @@ class OwnViews:
     cov_free: np.ndarray | None
 
 
-def own_views_intrinsics(views: list[ViewIn], corners: dict, start: Intrinsics, centre, mode: str) -> OwnViews:
+def own_views_intrinsics(views: list[ViewIn], corners: dict, start: Intrinsics, centre, mode: str,
+                         faces: dict | None = None) -> OwnViews:
     """One camera's intrinsics from its own views alone (a rig whose frames are not rigid):
     one_camera_solve over every view from `start`, the structure imposed (--intrinsics NAME)
     or chosen (auto, select_structure) and the solve redone with it."""
     obj, img = _views_obj_img(views, corners)
     start = forced_structure(start, mode, centre)
-    res = one_camera_solve(obj, img, start)
+    res = one_camera_solve(obj, img, start, faces=_faces(views, faces))
     if res is None:
         return OwnViews(start, ["own views: fewer than 2 views could be posed; intrinsics kept as fitted"], None, None)
     full = _intrinsics_cov(res)
@@ -536,7 +546,7 @@ def _guided_solve(res: SolveResult, obs: Observations, uv_g: np.ndarray, refined
 def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndarray],
                     distortion: str = "auto", fix_intrinsics: bool = False, reference: str = "aligned",
                     progress=None, weight_corners: bool = False, rerefine: Callable | None = None,
-                    intrinsics: str = "auto") -> Calibration:
+                    intrinsics: str = "auto", faces: dict[str, float] | None = None) -> Calibration:
     """The whole calibration from detected views. corners: board name -> (N, 3) object points.
 
     intrinsics: auto (fx = fy and the principal point held at its declared value unless the
@@ -549,7 +559,10 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
 
     rerefine: `f(obs, state, cam_names, frames, boards) -> (uv, refined, sigma)` re-measures the corners once the rig
     is solved (guided.guided_uv: the cross placed by the calibrated model); the rig is then
-    solved again on them. None: the detector's corners are final."""
+    solved again on them. None: the detector's corners are final.
+
+    faces: board name -> the sign of board z on its printed side (-1, OpenCV's boards, when
+    absent; +1 for Kalibr's AprilGrid frame: Board.print_face)."""
     t0 = time.perf_counter()
     timings = {}
     notes: list[str] = []
@@ -588,13 +601,13 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
     refused = np.zeros(len(cam_names), int)  # corners of views refused at PnP
     for c, n in enumerate(cam_names):
         declared = rig.camera(n).intrinsics
-        mi = init_camera(by_cam[n], corners, declared, distortion, fix_intrinsics)
+        mi = init_camera(by_cam[n], corners, declared, distortion, fix_intrinsics, faces)
         inits.append(mi)
         intr.append(mi.values)
         models.append(declared.model)
         selection[n] = list(mi.log)
         if fix_intrinsics:
-            misfit = fixed_intrinsics_misfit(by_cam[n], corners, declared, mi)
+            misfit = fixed_intrinsics_misfit(by_cam[n], corners, declared, mi, faces)
             if misfit is not None:
                 notes.append(f"{n}: {misfit}")
         for v, T in zip(by_cam[n], mi.T_cam_board):
@@ -647,7 +660,7 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
             v, line = mi.mono()
             own[c] = own_views_intrinsics(by_cam[cam_names[c]], corners,
                                           Intrinsics(st.intrinsics[c].model, np.array(v, float)), centres[c],
-                                          intrinsics)
+                                          intrinsics, faces)
             st.intrinsics[c] = own[c].intrinsics
             if own[c].cov_free is not None:
                 free_sigma[c] = intrinsic_sigmas(own[c].cov_free)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import difflib
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Iterable, Mapping
@@ -32,6 +32,8 @@ class DatasetImages:
     root: Path
     cameras: tuple[str, ...]
     frames: Mapping[str, Mapping[str, Path]]
+    # camera -> corners/<camera>.csv (corners detected elsewhere; calibrate uses them, not the images)
+    corners: Mapping[str, Path] = field(default_factory=lambda: MappingProxyType({}))
 
     @property
     def all_frames(self) -> tuple[str, ...]:
@@ -68,14 +70,31 @@ def list_dataset(dataset_dir: str | Path, rig) -> DatasetImages:
     images = root / "images"
     if not root.is_dir():
         raise DatasetError(f"{root}: not a folder (expected a dataset with rig.yaml, target.yaml, images/<camera>/)")
-    if not images.is_dir():
+    corners = _corner_files(root / "corners", cameras)
+    if not images.is_dir() and not (corners and not images.exists()):
         what = "not a folder" if images.exists() else "missing"
         raise DatasetError(f"{images}: {what} (expected one folder of images per camera: "
-                           f"{', '.join(f'images/{c}/' for c in cameras)})")
-    folders = sorted(p.name for p in _listdir(images) if p.is_dir() and not p.name.startswith("."))
-    _check_folders(images, folders, cameras)
-    frames = {cam: MappingProxyType(_camera_frames(images / cam)) for cam in cameras}
-    return DatasetImages(root=root, cameras=cameras, frames=MappingProxyType(frames))
+                           f"{', '.join(f'images/{c}/' for c in cameras)}, or corners/<camera>.csv)")
+    folders = (sorted(p.name for p in _listdir(images) if p.is_dir() and not p.name.startswith("."))
+               if images.is_dir() else [])
+    # a camera with a corners file needs no image folder
+    _check_folders(images, folders, tuple(c for c in cameras if c not in corners or c in folders),
+                   declared=cameras)
+    frames = {cam: MappingProxyType(_camera_frames(images / cam) if cam in folders else {}) for cam in cameras}
+    return DatasetImages(root=root, cameras=cameras, frames=MappingProxyType(frames),
+                         corners=MappingProxyType(corners))
+
+
+def _corner_files(folder: Path, cameras: tuple[str, ...]) -> dict[str, Path]:
+    """camera -> corners/<camera>.csv; a csv for a camera the rig does not declare is an error."""
+    if not folder.is_dir():
+        return {}
+    found = {p.stem: p for p in _listdir(folder) if p.suffix.lower() == ".csv" and not p.name.startswith(".")}
+    extra = sorted(set(found) - set(cameras))
+    if extra:
+        raise DatasetError(f"{folder}: {extra[0]}.csv is not a camera of the rig (the rig declares "
+                           f"{', '.join(cameras)})")
+    return {c: found[c] for c in cameras if c in found}
 
 
 def check_shared_stems(dataset: DatasetImages) -> None:
@@ -83,7 +102,9 @@ def check_shared_stems(dataset: DatasetImages) -> None:
     never be placed in the rig (not even through the rig's motion, which needs its frames
     posed by the others): almost always files named per camera (left01.jpg, right01.jpg)
     where the stem must name the instant. A layout check for calibrate, not for listing."""
-    images, frames = dataset.root / "images", dataset.frames
+    images = dataset.root / "images"
+    # cameras given as corners/ files are matched on their csv frames, not here
+    frames = {c: f for c, f in dataset.frames.items() if c not in dataset.corners}
     if len(frames) < 2:
         return
     stems = {c: set(f) for c, f in frames.items()}
@@ -108,9 +129,12 @@ def _listdir(folder: Path) -> list[Path]:
         raise DatasetError(f"{folder}: cannot list ({e.strerror or e})") from None
 
 
-def _check_folders(images: Path, folders: Iterable[str], cameras: tuple[str, ...]) -> None:
+def _check_folders(images: Path, folders: Iterable[str], cameras: tuple[str, ...],
+                   declared: tuple[str, ...] | None = None) -> None:
+    """cameras: those that need a folder; declared: every camera of the rig (default: cameras)."""
     folders = list(folders)
-    extra = [f for f in folders if f not in cameras]
+    declared = cameras if declared is None else declared
+    extra = [f for f in folders if f not in declared]
     missing = [c for c in cameras if c not in folders]
     if not extra and not missing:
         return
@@ -127,7 +151,7 @@ def _check_folders(images: Path, folders: Iterable[str], cameras: tuple[str, ...
         close = difflib.get_close_matches(f, missing or cameras, n=1, cutoff=0.6)
         if close:
             hints.append(f"images/{f}/ -> images/{close[0]}/?")
-    msg = "; ".join(parts) + f" (the rig declares {', '.join(cameras)})"
+    msg = "; ".join(parts) + f" (the rig declares {', '.join(declared)})"
     if hints:
         msg += "; did you mean " + ", ".join(hints)
     raise DatasetError(f"{images}: {msg}")

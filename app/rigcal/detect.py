@@ -2,7 +2,8 @@
 
 Conventions: pixel coordinates are OpenCV's (integer = pixel centre); a view's `ids`
 index its board's `Board.corners` (ChArUco: getChessboardCorners order; chessboard:
-row-major inner corners, x fastest, from the corner next to the black top-left square).
+row-major inner corners, x fastest, from the corner next to the black top-left square;
+AprilGrid: Kalibr's 4 * tag + k).
 
 Pipeline per image:
 
@@ -13,6 +14,9 @@ Pipeline per image:
    from its own markers with its own CharucoDetector (legacy layout respected). When
    (almost) no marker shows as printed, the inverted image is searched too (white
    markers on black), so inverted prints need no key in target.yaml.
+   AprilGrid (Kalibr's): 36h11 tags with a 2-bit border, found once for all grids
+   (april.AprilGridGroup), each tag's corners named by Kalibr's ids; refined as
+   X-junctions (_refine_aprilgrid), not by the ChArUco cross of step 3.
    Chessboard: findChessboardCorners, falling back to findChessboardCornersSB; the
    corner order is made right-handed and, for boards that are not 180-degree
    symmetric, turned so the black top-left square is first. Views of symmetric boards
@@ -54,6 +58,7 @@ from typing import Iterable, Sequence
 import cv2
 import numpy as np
 
+from . import april
 from .target import Board, Target
 from .workers import interrupts_deferred, pool
 
@@ -676,6 +681,8 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
     unknown = np.full(len(ids), np.nan)
     if mode == "none" or len(ids) == 0:
         return uv, all_ok, unknown
+    if board.type == "aprilgrid":
+        return _refine_aprilgrid(gray, board, ids, uv, mode)
     half = symmetric_half_width(board)
     if mode == "subpix":
         ax, ay = corner_grid(ids, uv, board)[:2]
@@ -701,6 +708,70 @@ def refine_corners(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarr
         q, ok, sigma = refine_symmetric(stack, q - origin, ax, ay, bu, bv, half, bend_spread=spread)
         q = q + origin
     return q, ok, sigma
+
+
+def _refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarray,
+                      mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """refine_corners for an AprilGrid: each tag corner is an X-junction (tag border and
+    corner square one colour, the gaps the other), refined as the centre of point symmetry
+    like a ChArUco corner.
+
+    OpenCV's tag corners can be several px off (a tag's outline merges with the blurred
+    tips of its corner squares), outside where the symmetric fit converges; so cornerSubPix
+    (window: april.symmetric_box) first brings them onto the junction, then refine_symmetric
+    fits it in that box, along its own tag's homography axes (april.corner_axes). A corner
+    that does not then look like a tag corner (april.looks_like_a_tag_corner: it found
+    another junction) is started again from where the neighbouring tags' corners put it
+    (april.neighbour_predictions), and left out if it still does not. A last pass fits
+    every corner in the full cross with the lattice's bends."""
+    n = len(ids)
+    ax, ay = april.corner_axes(ids, uv, board)
+    box = april.symmetric_box(board, ax, ay)
+    if mode == "subpix":
+        return refine_subpix(gray, uv, ax, ay, box), np.ones(n, bool), np.full(n, np.nan)
+    h, w = gray.shape
+    reach = 2.0 * box * float(np.nanmax(np.abs(np.concatenate([ax, ay])), initial=0.0)) + 8.0
+    if not np.isfinite(reach):
+        return uv, np.zeros(n, bool), np.full(n, np.nan)
+    x0, y0 = (max(0, int(np.floor(uv[:, k].min() - reach))) for k in (0, 1))
+    x1, y1 = min(w, int(np.ceil(uv[:, 0].max() + reach)) + 1), min(h, int(np.ceil(uv[:, 1].max() + reach)) + 1)
+    crop, origin = gray[y0:y1, x0:x1], np.array([x0, y0], float)
+    stack = image_gradients(crop)
+    q, ok, sigma = _aprilgrid_pass(crop, stack, uv - origin, ax, ay, box)
+    ok &= april.looks_like_a_tag_corner(crop, ids, q, ax, ay, box)
+    pred = april.neighbour_predictions(ids, q, board, ok)
+    redo = ~ok & np.isfinite(pred).all(axis=1)
+    if redo.any():
+        # started again from where the neighbouring tags' corners put them
+        r = np.flatnonzero(redo)
+        q2, ok2, sigma2 = _aprilgrid_pass(crop, stack, pred[r], ax[r], ay[r], box)
+        ok2 &= april.looks_like_a_tag_corner(crop, ids[r], q2, ax[r], ay[r], box)
+        q[r[ok2]], ok[r[ok2]], sigma[r[ok2]] = q2[ok2], True, sigma2[ok2]
+    # Once more, in the full cross (april.symmetric_cross), along the axes of the refined
+    # corners (OpenCV's quads are a pixel or two off) with the lens's bends from the lattice
+    # of refined corners, held fixed: fitting them inside so small a cross cost accuracy.
+    ax2, ay2 = april.corner_axes(ids, q, board)
+    fine = ok & np.isfinite(ax2).all(axis=1) & np.isfinite(ay2).all(axis=1)
+    if fine.any():
+        f = np.flatnonzero(fine)
+        bu, bv = (np.nan_to_num(b[f]) for b in april.lattice_bends(ids, q, board))
+        half, arm = april.symmetric_cross(board, ax2[f], ay2[f])
+        q3, ok3, sigma3 = refine_symmetric(stack, q[f], ax2[f], ay2[f], bu, bv, half, arm=arm)
+        q[f[ok3]], sigma[f[ok3]] = q3[ok3], sigma3[ok3]
+    sigma = np.where(ok, sigma, np.nan)
+    return q + origin, ok, sigma
+
+
+def _aprilgrid_pass(gray: np.ndarray, stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,
+                    box: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """cornerSubPix (a window of the symmetric box) then refine_symmetric: (N, 2), ok, sigma."""
+    # cornerSubPix refuses a start outside the image (a prediction past its edge)
+    inside = np.all((uv >= 0) & (uv <= np.array(gray.shape[::-1]) - 1), axis=1)
+    start = uv.copy()
+    start[inside] = refine_subpix(gray, uv[inside], ax[inside], ay[inside], box)
+    zero = np.zeros(len(uv))
+    q, ok, sigma = refine_symmetric(stack, start, ax, ay, zero, zero, box, arm=box)
+    return q, ok & inside, sigma
 
 
 def is_degenerate(ids: np.ndarray, uv: np.ndarray, board: Board) -> bool:
@@ -836,6 +907,9 @@ class BoardDetector:
             if b.type == "charuco":
                 by_dict.setdefault(b.dictionary, []).append(b)
         self.groups = [_CharucoGroup(d, bs) for d, bs in by_dict.items()]
+        grids = [b for b in target.boards if b.type == "aprilgrid"]
+        if grids:
+            self.groups.append(april.AprilGridGroup(grids))
         self.chessboards = [b for b in target.boards if b.type == "chessboard"]
 
     def raw(self, gray: np.ndarray) -> list[tuple[Board, np.ndarray, np.ndarray, bool]]:
@@ -1098,7 +1172,9 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
     in_range = sum(int(np.isin(found[b.dictionary], b.marker_ids).sum()) for b in charuco)
     # markers of the boards in every image: the dictionary is right (scanning the others takes seconds)
     best = _best_other_dictionary(grays, wanted) if in_range < 3 * n else None
-    says = ("target.yaml says " + ", ".join(sorted(wanted))) if wanted else "target.yaml describes a chessboard"
+    grids = [b.name for b in target.boards if b.type == "aprilgrid"]
+    says = ("target.yaml says " + ", ".join(sorted(wanted) + [f"AprilGrid {n} (AprilTag 36h11)" for n in grids])
+            if wanted or grids else "target.yaml describes a chessboard")
     # A wrong dictionary still decodes a few stray markers in the real ones' bit patterns
     # (DICT_4X4_1000 read in DICT_5X5_1000 prints): judge it by how many more the other finds.
     if (best is not None and best[1] >= MIN_CLAIM_MARKERS
@@ -1124,6 +1200,8 @@ def diagnose_no_detection(paths: Iterable[str | Path], target: Target, max_image
     if hints:
         return "; ".join(hints)
     for b in target.boards:
+        if b.type == "aprilgrid":
+            continue  # its corner lattice is no chessboard
         nx, ny = b.inner_corners
         # the board as declared (a ChArUco printed without markers), or one off along either axis;
         # OpenCV needs at least 3 inner corners each way (it raises below that)

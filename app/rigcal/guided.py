@@ -268,7 +268,8 @@ def rerefiner(images, rig, target, jobs: int = 1, mode: str = "auto", scheduler:
     """core.calibrate_views' `rerefine` hook for a dataset (dataset.DatasetImages), or None
     when `mode` (guided_cameras) selects no camera; on the Dask cluster at `scheduler` if given."""
     chosen = set(guided_cameras(rig, mode))
-    if not chosen:
+    if not chosen or any(b.type == "aprilgrid" for b in target.boards):
+        # the guided cross is a ChArUco/chessboard one; AprilGrid corners keep the detector's
         return None
     by_name = {b.name: b for b in target.boards}
 

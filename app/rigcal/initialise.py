@@ -144,10 +144,11 @@ def fit_pinhole(obj: list[np.ndarray], img: list[np.ndarray], model: CameraModel
 
 
 def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str,
-        rays: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
+        rays: np.ndarray | None = None, face: float = -1.0) -> tuple[np.ndarray, float] | None:
     """T_cam_board for one view with known intrinsics: rays -> normalised points -> IPPE + LM.
     Works for fisheye too because it solves on exact unprojected rays. rays: the (N, 3)
-    unprojection of uv when the caller has it (see pnp_views)."""
+    unprojection of uv when the caller has it (see pnp_views). face: the sign of board z on
+    the printed side (-1 OpenCV's boards, +1 Kalibr's AprilGrid; camera_faces_print)."""
     if rays is None:
         rays = _camera_model(model_values, model).unproject(uv)
     front = rays[:, 2] > 0.2  # within ~78 degrees of the axis, where x/z stays well conditioned
@@ -173,7 +174,7 @@ def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str,
         # the corners seen must be in front; the board's origin need not be (a fisheye sees
         # boards that reach past its side, with the origin behind it)
         in_front = bool(np.all(geo.transform(T, o)[:, 2] > 0))
-        if in_front and camera_faces_print(T) and (best is None or err < best[1]):
+        if in_front and camera_faces_print(T, face) and (best is None or err < best[1]):
             best = (T, err)
     if best is None:
         return None
@@ -181,21 +182,23 @@ def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str,
 
 
 def pnp_views(obj: list[np.ndarray], img: list[np.ndarray], model_values: np.ndarray,
-              model: str) -> list[tuple[np.ndarray, float] | None]:
+              model: str, faces: list[float] | None = None) -> list[tuple[np.ndarray, float] | None]:
     """pnp() for every view of one camera, with one unprojection of all their corners
     (per-view unprojection was half the initialisation's time)."""
     if not img:
         return []
     rays = _camera_model(model_values, model).unproject(np.concatenate([np.reshape(i, (-1, 2)) for i in img]))
     cuts = np.cumsum([len(o) for o in obj])[:-1]
-    return [pnp(o, i, model_values, model, r) for o, i, r in zip(obj, img, np.split(rays, cuts))]
+    faces = faces if faces is not None else [-1.0] * len(obj)
+    return [pnp(o, i, model_values, model, r, f) for o, i, r, f in zip(obj, img, np.split(rays, cuts), faces)]
 
 
-def camera_faces_print(T_cam_board: np.ndarray) -> bool:
-    """True when the camera is on the printed side of the board (board z points into the
-    print, so the camera centre has z < 0 in board coordinates). A mirrored board (wrong
-    ids, a print seen through glass) fits PnP exactly but from behind: this rejects it."""
-    return float(geo.inv_T(T_cam_board)[2, 3]) < 0.0
+def camera_faces_print(T_cam_board: np.ndarray, face: float = -1.0) -> bool:
+    """True when the camera is on the printed side of the board: for OpenCV's boards (face
+    -1) board z points into the print, so the camera centre has z < 0 in board coordinates;
+    Kalibr's AprilGrid frame (face +1) has z out of the print. A mirrored board (wrong ids,
+    a print seen through glass) fits PnP exactly but from behind: this rejects it."""
+    return float(geo.inv_T(T_cam_board)[2, 3]) * face > 0.0
 
 
 def corner_residuals(obj: list[np.ndarray], img: list[np.ndarray], values: np.ndarray, model: str,

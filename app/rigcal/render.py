@@ -361,6 +361,8 @@ def render_boards(model: CameraModel, rays: SampleRays, T_cam_boards: list[np.nd
     already averaged over each pixel's ss x ss samples. rays: sample_rays(ray_map(model, ss));
     grey[i] = (black, white) grey levels of board i. Where boards overlap, the nearest wins."""
     H, W = model.height, model.width
+    # everything below works in each board's print frame (the texture's)
+    T_cam_boards = [T @ tex.board.T_board_print for T, tex in zip(T_cam_boards, textures)]
     boxes = [board_bbox(model, T, tex.board, tex.paper_m) for T, tex in zip(T_cam_boards, textures)]
     shown = [i for i, b in enumerate(boxes) if b is not None]
     out_val = np.zeros((H, W), np.float32)

@@ -44,7 +44,7 @@ from .camera import CameraModel
 from .errors import InputError, OutputError, RigFileError, TargetFileError
 from .io import atomic_dir
 from .rig import Camera, Rig, load_rig, rig_file, rig_to_dict
-from .target import Board, Target, dump_target, load_target
+from .target import Board, Target, board_label, dump_target, load_target
 from .validate import read_text
 from .workers import interrupts_deferred, worker_pool
 
@@ -251,8 +251,9 @@ def visibility_batch(cam: Camera, T_body_boards: np.ndarray, boards: Sequence[Bo
     uv, valid = m.project(p.reshape(-1, 3))
     in_img = (valid & m.in_image(uv, margin_px)).reshape(K, N)
     uv = uv.reshape(K, N, 2)
-    normal = R[..., 2]  # board z in the camera frame, into the printed face
-    front = (normal * t).sum(axis=-1) > 0  # the camera is on the printed side
+    normal = R[..., 2]  # board z in the camera frame
+    face = np.array([b.print_face for b in boards])[which]  # the sign of board z on the printed side
+    front = (normal * t).sum(axis=-1) * face < 0  # the camera is on the printed side
     dist = np.linalg.norm(p, axis=2)
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_view = np.abs((p * normal).sum(axis=-1)) / dist
@@ -351,8 +352,9 @@ def _board_candidate(rng: np.random.Generator, rig: Rig, board: Board) -> np.nda
     R_cam_board = R_facing @ geo.R_from_rotvec(np.array([tilt_axis[0], tilt_axis[1], 0.0]) * tilt) \
         @ geo.R_from_rotvec(np.array([0.0, 0.0, roll]))
     centre = d * ray
-    T_cam_board = geo.make_T(R_cam_board, centre - R_cam_board @ np.array([w / 2, h / 2, 0.0]))
-    return cam.T_body_cam @ T_cam_board
+    T_cam_print = geo.make_T(R_cam_board, centre - R_cam_board @ np.array([w / 2, h / 2, 0.0]))
+    # placed as printed; the board's own frame may differ (Kalibr's AprilGrid)
+    return cam.T_body_cam @ T_cam_print @ geo.inv_T(board.T_board_print)
 
 
 def _surface_pose(surface: str, board: Board, rng: np.random.Generator) -> np.ndarray:
@@ -373,7 +375,8 @@ def _surface_pose(surface: str, board: Board, rng: np.random.Generator) -> np.nd
         centre = centre + np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), 0.0])
     else:
         centre = centre + np.cross(z, up) * rng.uniform(-0.2, 0.2) + up * rng.uniform(-0.2, 0.2)
-    return geo.make_T(R, centre - R @ np.array([w / 2, h / 2, 0.0]))
+    T_world_print = geo.make_T(R, centre - R @ np.array([w / 2, h / 2, 0.0]))
+    return T_world_print @ geo.inv_T(board.T_board_print)
 
 
 def plan_room_scene(rig: Rig, target: Target, n_frames: int, rng: np.random.Generator,
@@ -731,8 +734,7 @@ def summary(res: SimResult) -> str:
     lines = [f"wrote {res.out_dir}: {res.scene} scene, {len(res.frames)} frames, {n_img} images, "
              f"{len(res.target.boards)} board(s), {res.seconds:.1f} s"]
     for b in res.target.boards:
-        lines.append(f"  board {b.name}: {b.squares[0]}x{b.squares[1]} squares of {b.square_length * 1000:g} mm, "
-                     f"{b.dictionary or 'chessboard'}")
+        lines.append(f"  {board_label(b)}")
     for c in res.truth.cameras:
         d = res.declared.camera(c.name)
         cov = res.coverage[c.name]

@@ -33,7 +33,7 @@ from .io import atomic_write_bytes, atomic_write_text
 from .rig import load_yaml
 from .validate import _kind, _positive, _unknown, read_text
 
-TYPES = ("charuco", "chessboard")
+TYPES = ("charuco", "chessboard", "aprilgrid")
 TOP_KEYS = ("boards",)
 # A printed square longer than this is a length in millimetres or centimetres: taken as
 # metres it would scale every calibrated position by 100-1000x without another sign.
@@ -41,6 +41,14 @@ MAX_SQUARE_M = 2.0
 CHARUCO_KEYS = ("name", "type", "dictionary", "squares", "square_length", "marker_length", "first_marker_id",
                 "legacy_pattern")
 CHESSBOARD_KEYS = ("name", "type", "inner_corners", "square_length")
+APRILGRID_KEYS = ("name", "type", "tags", "tag_size", "tag_spacing", "first_tag_id")
+# Kalibr's AprilGrid: AprilTag 36h11 (587 codes) drawn with a 2-bit black border.
+APRIL_DICTIONARY = "DICT_APRILTAG_36h11"
+APRIL_BORDER_BITS = 2
+KALIBR_GRID_NAME = "grid"  # the board name a Kalibr aprilgrid file gets (corners/ files name it)
+# Kalibr target files (target_type: ...), read as they are.
+KALIBR_APRILGRID_KEYS = ("target_type", "tagCols", "tagRows", "tagSize", "tagSpacing")
+KALIBR_CHECKER_KEYS = ("target_type", "targetCols", "targetRows", "rowSpacingMeters", "colSpacingMeters")
 NAME_RE = re.compile(r"^[A-Za-z0-9_.-]+$")
 DICTIONARIES = tuple(sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_")))
 MAX_PRINT_PX = 30000  # per side; a bigger raster is a mistake (dpi or size), not a print
@@ -49,19 +57,47 @@ MAX_PRINT_PX = 30000  # per side; a bigger raster is a mistake (dpi or size), no
 @dataclass(frozen=True)
 class Board:
     """One planar target. `squares` counts squares along board x and y (a chessboard's
-    inner corners are squares - 1)."""
+    inner corners are squares - 1).
+
+    An AprilGrid (Kalibr's target) is held in the same fields: `squares` = tags [cols,
+    rows], `marker_length` = tag_size, `square_length` = the tag pitch tag_size * (1 +
+    tag_spacing), `first_marker_id` = first_tag_id, `dictionary` = DICT_APRILTAG_36h11.
+    Its board frame is Kalibr's, not the print's (see `T_board_print`)."""
 
     name: str
-    type: str  # "charuco" | "chessboard"
+    type: str  # "charuco" | "chessboard" | "aprilgrid"
     square_length: float  # metres
     squares: tuple[int, int]
     dictionary: str | None = None
     marker_length: float | None = None
     first_marker_id: int = 0
     legacy_pattern: bool = False
+    tag_spacing: float = 0.0  # aprilgrid only: gap between tags / tag size
+
+    @classmethod
+    def aprilgrid(cls, name: str, tags: tuple[int, int], tag_size: float, tag_spacing: float,
+                  first_tag_id: int = 0) -> "Board":
+        """Kalibr's AprilGrid of tags [cols, rows] (see the class docstring)."""
+        return cls(name=name, type="aprilgrid", square_length=tag_size * (1.0 + tag_spacing),
+                   squares=(int(tags[0]), int(tags[1])), dictionary=APRIL_DICTIONARY,
+                   marker_length=float(tag_size), first_marker_id=int(first_tag_id),
+                   tag_spacing=float(tag_spacing))
+
+    @property
+    def tag_size(self) -> float:
+        """AprilGrid: the outer edge of a tag's black border, metres."""
+        return float(self.marker_length)
+
+    @property
+    def gap(self) -> float:
+        """AprilGrid: the white gap between tags (= the corner squares' side), metres."""
+        return self.tag_spacing * self.tag_size
 
     @property
     def inner_corners(self) -> tuple[int, int]:
+        """Chessboard/ChArUco: the inner corner grid. AprilGrid: its 2 cols x 2 rows corner lattice."""
+        if self.type == "aprilgrid":
+            return (2 * self.squares[0], 2 * self.squares[1])
         return (self.squares[0] - 1, self.squares[1] - 1)
 
     @property
@@ -71,6 +107,8 @@ class Board:
 
     @property
     def n_markers(self) -> int:
+        if self.type == "aprilgrid":
+            return self.squares[0] * self.squares[1]
         # ChArUco puts a marker in every white square: half of them, rounded down.
         return (self.squares[0] * self.squares[1]) // 2 if self.type == "charuco" else 0
 
@@ -86,15 +124,42 @@ class Board:
 
     @property
     def size_m(self) -> tuple[float, float]:
-        """Outer width and height of the pattern in metres."""
+        """Outer width and height of the pattern in metres (AprilGrid: including the outer
+        corner squares)."""
+        if self.type == "aprilgrid":
+            return tuple(n * self.square_length + self.gap for n in self.squares)
         return (self.squares[0] * self.square_length, self.squares[1] * self.square_length)
+
+    @property
+    def T_board_print(self) -> np.ndarray:
+        """(4, 4) the print frame in the board frame: p_board = T_board_print @ p_print.
+
+        The print frame is OpenCV's (origin at the pattern's top-left outer corner, x right,
+        y down the print, z into the face); textures, `image` and the renderer use it. It is
+        the board frame itself except for an AprilGrid, whose board frame is Kalibr's
+        (origin at tag 0's bottom-left corner, x right, y up, z out of the face): a turn of
+        180 degrees about x and a shift."""
+        T = np.eye(4)
+        if self.type == "aprilgrid":
+            T[:3, :3] = np.diag([1.0, -1.0, -1.0])
+            T[:3, 3] = [-self.gap, self.size_m[1] - self.gap, 0.0]
+        return T
+
+    @property
+    def print_face(self) -> float:
+        """The sign of board z on the printed side: -1 for OpenCV's frame, +1 for Kalibr's."""
+        return float(-self.T_board_print[2, 2])
 
     @cached_property
     def corners(self) -> np.ndarray:
         """(N, 3) board-frame corner positions in metres; row index == corner id.
 
         Row-major over the inner corners, x fastest, starting next to the top-left
-        outer corner: exactly OpenCV's getChessboardCorners() for ChArUco."""
+        outer corner: exactly OpenCV's getChessboardCorners() for ChArUco.
+        AprilGrid (Kalibr): id 4 t + k is corner k (bottom-left, bottom-right, top-right,
+        top-left) of the t-th tag, tag t at column t % cols, row t // cols from the bottom."""
+        if self.type == "aprilgrid":
+            return _aprilgrid_corners(self.squares[0], self.squares[1], self.tag_size, self.square_length)
         nx, ny = self.inner_corners
         k = np.arange(nx * ny)
         s = self.square_length
@@ -106,7 +171,7 @@ class Board:
     def cv_board(self) -> "cv2.aruco.CharucoBoard":
         """OpenCV's board with this board's ids and layout (built on call: not picklable)."""
         if self.type != "charuco":
-            raise ValueError(f"board {self.name} is a chessboard; it has no ChArUco board")
+            raise ValueError(f"board {self.name} is a {self.type}; it has no ChArUco board")
         d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         b = cv2.aruco.CharucoBoard(self.squares, self.square_length, self.marker_length, d,
                                    self.marker_ids.astype(np.int32))
@@ -190,7 +255,51 @@ def pixel_weights(n_px: int, breaks_px: np.ndarray, blur_px: float = 0.0) -> np.
     return edge[:, :-1] - edge[:, 1:]
 
 
+def _aprilgrid_corners(cols: int, rows: int, tag_size: float, pitch: float) -> np.ndarray:
+    """(4 cols rows, 3) Kalibr's corner positions (see Board.corners)."""
+    t = np.arange(cols * rows)
+    k = np.arange(4)
+    x = (t[:, None] % cols) * pitch + np.array([0.0, 1.0, 1.0, 0.0])[k] * tag_size
+    y = (t[:, None] // cols) * pitch + np.array([0.0, 0.0, 1.0, 1.0])[k] * tag_size
+    return np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+
+
+def april_tag_bits(ids: np.ndarray) -> np.ndarray:
+    """(M, 10, 10) bool, True black: 36h11 tags with a 2-bit border, as printed, rows down
+    the print. Kalibr draws each code turned by 180 degrees from OpenCV's marker image."""
+    d = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, APRIL_DICTIONARY))
+    cells = d.markerSize + 2 * APRIL_BORDER_BITS
+    img = np.stack([cv2.aruco.generateImageMarker(d, int(i), cells, borderBits=APRIL_BORDER_BITS) for i in ids])
+    return img[:, ::-1, ::-1] < 128
+
+
+def _aprilgrid_design(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """_board_design for an AprilGrid, in print coordinates: a gap, then per tag its 10
+    cells and a gap; black corner squares in every gap crossing."""
+    cols, rows = board.squares
+    s, g, pitch = board.tag_size, board.gap, board.square_length
+    cells = np.linspace(0.0, s, 11)
+    xs = np.unique(np.concatenate([[0.0], (g + np.arange(cols)[:, None] * pitch + np.concatenate([cells, [s + g]])).ravel()]))
+    ys = np.unique(np.concatenate([[0.0], (g + np.arange(rows)[:, None] * pitch + np.concatenate([cells, [s + g]])).ravel()]))
+    cx, cy = np.meshgrid(0.5 * (xs[1:] + xs[:-1]), 0.5 * (ys[1:] + ys[:-1]))
+    # position inside the repeating pitch: [0, g) gap, [g, g + s) tag
+    ix, iy = np.floor(cx / pitch).astype(int), np.floor(cy / pitch).astype(int)
+    ox, oy = cx - ix * pitch, cy - iy * pitch
+    in_x, in_y = (ox >= g) & (ix < cols), (oy >= g) & (iy < rows)
+    black = (~in_x & ~in_y).astype(float)  # gap crossings: the corner squares
+    tag = in_x & in_y
+    row_from_bottom = rows - 1 - iy[tag]  # print rows go down, Kalibr's rows go up
+    tag_index = row_from_bottom * cols + ix[tag]
+    bits = april_tag_bits(board.first_marker_id + np.arange(cols * rows))
+    u = np.minimum(((ox[tag] - g) / s * 10).astype(int), 9)
+    v = np.minimum(((oy[tag] - g) / s * 10).astype(int), 9)
+    black[tag] = bits[tag_index, v, u]
+    return xs, ys, black
+
+
 def _board_design(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    if board.type == "aprilgrid":
+        return _aprilgrid_design(board)
     s = board.square_length
     nx, ny = board.squares
     square_breaks_x = np.arange(nx + 1) * s
@@ -251,6 +360,8 @@ def target_from_dict(doc: Any, label: str = "<target>") -> Target:
 
     if not isinstance(doc, dict):
         raise err("", f"expected a mapping with `boards`, got {_kind(doc)}")
+    if "target_type" in doc:
+        return Target(boards=(_kalibr_board(doc, err),))
     _unknown(doc, TOP_KEYS, "", err)
     if "boards" not in doc:
         raise err("boards", "missing (expected a list of boards)")
@@ -270,12 +381,14 @@ def _board_from_dict(d: Any, key: str, err) -> Board:
     typ = d["type"]
     if typ not in TYPES:
         raise err(f"{key}.type", f"expected one of {', '.join(TYPES)}, got {_kind(typ)}")
-    _unknown(d, CHARUCO_KEYS if typ == "charuco" else CHESSBOARD_KEYS, key, err)
-    if "name" not in d and typ == "charuco":
+    _unknown(d, {"charuco": CHARUCO_KEYS, "chessboard": CHESSBOARD_KEYS, "aprilgrid": APRILGRID_KEYS}[typ], key, err)
+    if "name" not in d and typ != "chessboard":
         raise err(f"{key}.name", "missing (expected a board name)")
     name = d.get("name", "chessboard")
     if not isinstance(name, str) or not NAME_RE.match(name):
         raise err(f"{key}.name", f"expected a name of letters, digits, '_', '.', '-', got {_kind(name)}")
+    if typ == "aprilgrid":
+        return _aprilgrid_from_dict(d, name, key, err)
     square = _positive(_required(d, "square_length", key, err, "a length in metres"), f"{key}.square_length", err)
     if square > MAX_SQUARE_M:
         raise err(f"{key}.square_length", f"expected metres (at most {MAX_SQUARE_M:g}), got {square:g}; in "
@@ -309,6 +422,62 @@ def _board_from_dict(d: Any, key: str, err) -> Board:
     return board
 
 
+def _aprilgrid_from_dict(d: dict, name: str, key: str, err) -> Board:
+    tags = _int_pair(_required(d, "tags", key, err, "[cols, rows] tags"), f"{key}.tags", 1, err)
+    size = _metres(_required(d, "tag_size", key, err, "a length in metres"), f"{key}.tag_size", err)
+    spacing = _positive(_required(d, "tag_spacing", key, err, "the gap between tags / tag_size, e.g. 0.3"),
+                        f"{key}.tag_spacing", err)
+    if spacing > 1.0:
+        raise err(f"{key}.tag_spacing", f"expected the gap as a fraction of tag_size (0 < spacing <= 1), got {spacing:g}")
+    first = d.get("first_tag_id", 0)
+    if isinstance(first, bool) or not isinstance(first, int) or first < 0:
+        raise err(f"{key}.first_tag_id", f"expected a non-negative integer, got {_kind(first)}")
+    board = Board.aprilgrid(name, tags, size, spacing, first)
+    n_codes = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, APRIL_DICTIONARY)).bytesList.shape[0]
+    if first + board.n_markers > n_codes:
+        raise err(key, f"needs tag ids {first}..{first + board.n_markers - 1} ({tags[0]}x{tags[1]} tags) "
+                       f"but AprilTag 36h11 holds ids 0..{n_codes - 1}")
+    return board
+
+
+def _kalibr_board(doc: dict, err) -> Board:
+    """A Kalibr target file as it is: target_type aprilgrid or checkerboard."""
+    typ = doc["target_type"]
+
+    def need(k: str, what: str) -> Any:
+        if k not in doc:
+            raise err(k, f"missing (expected {what})")
+        return doc[k]
+
+    if typ == "aprilgrid":
+        _unknown(doc, KALIBR_APRILGRID_KEYS, "", err)
+        d = {"name": KALIBR_GRID_NAME, "type": "aprilgrid",
+             "tags": [need("tagCols", "the number of tag columns"),
+                      need("tagRows", "the number of tag rows")],
+             "tag_size": need("tagSize", "the tag size in metres"),
+             "tag_spacing": need("tagSpacing", "the gap between tags / tagSize")}
+        return _board_from_dict(d, "Kalibr aprilgrid", err)
+    if typ == "checkerboard":
+        _unknown(doc, KALIBR_CHECKER_KEYS, "", err)
+        row = _metres(need("rowSpacingMeters", "the square size in metres"), "rowSpacingMeters", err)
+        col = _metres(doc.get("colSpacingMeters", row), "colSpacingMeters", err)
+        if abs(col - row) > 1e-9 * max(col, row):
+            raise err("colSpacingMeters", f"expected square squares (rowSpacingMeters {row:g}), got {col:g}")
+        d = {"type": "chessboard",
+             "inner_corners": [need("targetCols", "inner corners along x"),
+                               need("targetRows", "inner corners along y")],
+             "square_length": row}
+        return _board_from_dict(d, "Kalibr checkerboard", err)
+    raise err("target_type", f"expected aprilgrid or checkerboard (Kalibr target types rigcal reads), got {_kind(typ)}")
+
+
+def _metres(v: Any, key: str, err) -> float:
+    x = _positive(v, key, err)
+    if x > MAX_SQUARE_M:
+        raise err(key, f"expected metres (at most {MAX_SQUARE_M:g}), got {x:g}; in millimetres that is {x / 1000:g} m")
+    return x
+
+
 def _check_together(boards: tuple[Board, ...], err) -> None:
     names = [b.name for b in boards]
     for i, n in enumerate(names):
@@ -320,10 +489,13 @@ def _check_together(boards: tuple[Board, ...], err) -> None:
     for i, a in enumerate(boards):
         for j in range(i):
             b = boards[j]
+            if "aprilgrid" in (a.type, b.type) and a.dictionary != b.dictionary:
+                continue  # different dictionaries are detected apart: their ids cannot clash
             lo = max(a.first_marker_id, b.first_marker_id)
             hi = min(a.first_marker_id + a.n_markers, b.first_marker_id + b.n_markers) - 1
             if lo <= hi:
-                raise err(f"boards[{i}].first_marker_id",
+                key = "first_tag_id" if a.type == "aprilgrid" else "first_marker_id"
+                raise err(f"boards[{i}].{key}",
                           f"marker ids {lo}..{hi} of board {a.name!r} overlap those of board {b.name!r} "
                           f"(ids {b.first_marker_id}..{b.first_marker_id + b.n_markers - 1}); ids must be disjoint")
 
@@ -360,6 +532,9 @@ def target_to_dict(target: Target) -> dict:
         if b.type == "chessboard":
             boards.append({"name": b.name, "type": "chessboard", "inner_corners": list(b.inner_corners),
                            "square_length": float(b.square_length)})
+        elif b.type == "aprilgrid":
+            boards.append({"name": b.name, "type": "aprilgrid", "tags": list(b.squares), "tag_size": b.tag_size,
+                           "tag_spacing": float(b.tag_spacing), "first_tag_id": int(b.first_marker_id)})
         else:
             boards.append({"name": b.name, "type": "charuco", "dictionary": b.dictionary,
                            "squares": list(b.squares), "square_length": float(b.square_length),
@@ -384,6 +559,9 @@ def board_label(board: Board) -> str:
     if board.type == "chessboard":
         nx, ny = board.inner_corners
         what = f"chessboard {nx}x{ny} inner corners, squares {board.square_length * 1000:g} mm"
+    elif board.type == "aprilgrid":
+        what = (f"AprilGrid {board.squares[0]}x{board.squares[1]} tags {board.tag_size * 1000:g} mm, spacing "
+                f"{board.tag_spacing:g}, 36h11 ids {board.first_marker_id}-{board.first_marker_id + board.n_markers - 1}")
     else:
         what = (f"ChArUco {board.squares[0]}x{board.squares[1]} squares {board.square_length * 1000:g} mm, "
                 f"markers {board.marker_length * 1000:g} mm, {board.dictionary} ids "

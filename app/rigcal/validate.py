@@ -29,7 +29,8 @@ def _unknown(d: dict, allowed: Sequence[str], key: str, err) -> None:
     for k in d:
         if k not in allowed:
             hint = _closest(str(k), allowed)
-            name = _short(str(k), 60)
+            # a key with a line break (or other control characters) is shown quoted: the error is one line
+            name = _short(str(k) if str(k).isprintable() else repr(str(k)), 60)
             at = f"{key}.{name}" if key else name
             raise err(at, "unknown key" + (f" (did you mean `{hint}`?)" if hint else "")
                       + f"; expected one of {', '.join(allowed)}")

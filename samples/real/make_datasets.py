@@ -1,7 +1,7 @@
 """Real calibration photos from ../shared/data/real in rigcal's dataset layout.
 
     python samples/real/make_datasets.py OUTDIR [NAME ...]      # NAME: caliscope caliscope_b wideangle trinocular
-                                                                 # (default all)
+                                                                 # euroc (default all)
     python samples/real/make_datasets.py --samples               # rebuild samples/real/bumblebee2, opencv_stereo
 
 The big sets (caliscope, wideangle, trinocular) become folders under OUTDIR whose
@@ -9,7 +9,8 @@ images are symbolic links into the shared copy (nothing is duplicated; caliscope
 frames are decoded from its videos into PNG files); rig.yaml and
 target.yaml are written beside them. The two small chessboard sets are copied, with
 their licences, into samples/real/ (--samples), which is how the committed samples
-were made. Every rig.yaml here is a *declared* rig: resolutions, rough nominal focal
+were made. The EuRoC imu_april set (euroc) has no images: its corners become
+corners/<camera>.csv. Every rig.yaml here is a *declared* rig: resolutions, rough nominal focal
 lengths and, where the geometry is known, nominal poses - never the reference
 calibration, which the READMEs quote for comparison.
 """
@@ -191,8 +192,78 @@ boards:
     return dst
 
 
+# ----------------------------------------------------------------------------- EuRoC corners
+
+EUROC = REAL / "euroc_imu_april"
+EUROC_CAMERAS = ("cam0", "cam1")
+EUROC_BASELINE_MM = 110.07  # implied by EuRoC's published T_BS (reference.yaml)
+EUROC_RIG = """
+# EuRoC's MT9V034 stereo pair (752x480) as declared before calibration: rough focal
+# length and distortion, nominal 110 mm baseline; EuRoC's own values are in
+# ../shared/data/real/euroc_imu_april/reference.yaml, for comparison only.
+rig: euroc-stereo
+body_frame: FLU
+cameras:
+  cam0:
+    model: pinhole
+    resolution: [752, 480]
+    intrinsics: {fx: 440.0, fy: 440.0, cx: 376.0, cy: 240.0}
+    distortion: [-0.25, 0.05, 0.0, 0.0]
+    position: [0.0, 0.055, 0.0]
+    look: forward
+  cam1:
+    model: pinhole
+    resolution: [752, 480]
+    intrinsics: {fx: 440.0, fy: 440.0, cx: 376.0, cy: 240.0}
+    distortion: [-0.25, 0.05, 0.0, 0.0]
+    position: [0.0, -0.055, 0.0]
+    look: forward
+stereo_pairs:
+  - [cam0, cam1]
+"""
+
+
+def read_yac(path: Path):
+    """(N, 8) float rows of a yac corner file: t_ns, tag_id, corner, x_px, y_px, p_x_m, p_y_m, p_z_m."""
+    import gzip
+
+    import numpy as np
+
+    with gzip.open(path, "rt") as f:
+        return np.loadtxt(f, delimiter=",", skiprows=1, dtype=np.float64)
+
+
+def build_euroc(dst: Path, every: int = 1) -> Path:
+    """The EuRoC imu_april corners as a corners-only dataset (every `every`-th frame):
+    corners/<camera>.csv in dataset.md's format (corner_id = 4 tag_id + corner, Kalibr's
+    ids; yac's p_* columns are checked against rigcal's Board.corners on the way), Kalibr's
+    own target file as target.yaml, and a declared rig."""
+    import gzip
+
+    import numpy as np
+
+    from rigcal.target import load_target
+
+    board = load_target(EUROC / "kalibr_target.yaml").boards[0]
+    _fresh(dst)
+    _write(dst / "rig.yaml", EUROC_RIG)
+    _write(dst / "target.yaml", (EUROC / "kalibr_target.yaml").read_text())
+    for cam in EUROC_CAMERAS:
+        with gzip.open(EUROC / "corners" / f"{cam}.csv.gz", "rt") as f:
+            raw = np.loadtxt(f, delimiter=",", skiprows=1, dtype=str)  # keeps the ns stamps exact
+        num = raw[:, 1:].astype(np.float64)
+        ids = (4 * num[:, 0] + num[:, 1]).astype(np.int64)
+        if not np.allclose(num[:, 4:7], board.corners[ids], atol=1e-5):
+            raise ValueError(f"{cam}: yac's corner positions differ from Kalibr's layout")
+        keep = np.isin(raw[:, 0], np.unique(raw[:, 0])[::every])
+        lines = [f"{t},{board.name},{i},{x:.6f},{y:.6f}"
+                 for t, i, x, y in zip(raw[keep, 0], ids[keep], num[keep, 2], num[keep, 3])]
+        _write(dst / "corners" / f"{cam}.csv", "#frame,board,corner_id,x_px,y_px\n" + "\n".join(lines) + "\n")
+    return dst
+
+
 BUILDERS = {"caliscope": build_caliscope, "caliscope_b": build_caliscope_b, "wideangle": build_wideangle,
-            "trinocular": build_trinocular}
+            "trinocular": build_trinocular, "euroc": build_euroc}
 
 
 # ----------------------------------------------------------------------------- copied samples

@@ -1,0 +1,260 @@
+"""AprilGrid (Kalibr's target) detection: tags -> corner ids and first pixel estimates.
+
+Kalibr's grid is AprilTag 36h11 with a 2-bit black border. OpenCV's ArucoDetector with
+DICT_APRILTAG_36h11 and `markerBorderBits = 2` decodes its tags (AprilTag 3 does not:
+the corner squares break its quad detection). Each tag's four corners become corner ids
+`4 * (tag - first_tag_id) + k` with k = bottom-left, bottom-right, top-right, top-left
+in Kalibr's board frame (target.Board.corners). Kalibr draws every code turned by 180
+degrees from OpenCV's marker image, so OpenCV's corners as decoded (top-left, top-right,
+bottom-right, bottom-left of the code) are Kalibr's k = 1, 0, 3, 2.
+
+The corner squares make every tag corner an X-junction (tag border and corner square
+black, the two gaps white), point-symmetric in a box of min(0.2, tag_spacing) tag sizes
+(the 2-bit border is 0.2 of the tag) and, along the tag's edges, for a gap's length
+(`symmetric_box`, `symmetric_cross`). detect.refine_corners refines them with the same
+point-symmetry estimator as ChArUco corners, along the axes `corner_axes` gives, checks
+them (`looks_like_a_tag_corner`), restarts the odd ones (`neighbour_predictions`) and
+bends the cross with the lens (`lattice_bends`).
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from .target import APRIL_BORDER_BITS, APRIL_DICTIONARY, Board
+
+# OpenCV's corner j of a decoded tag is Kalibr's corner CV_TO_KALIBR[j].
+CV_TO_KALIBR = np.array([1, 0, 3, 2])
+# How much of the 2-bit border (0.2 tag) the symmetric box may use: the bits' blurred
+# edges sit just inside it.
+BORDER_FRACTION = 0.2
+BOX_MARGIN_PX = 1.5
+# The arm stops this far short of the corner square's far edge: that edge is not mirrored
+# (the tag's border goes on), and perspective and blur bring it nearer than the affine
+# cross assumes. Measured on rendered grids: 3 px left 0.013 px RMS on close boards, 5 px 0.008.
+ARM_MARGIN_PX = 5.0
+INVERTED_UNLESS = 4  # tags found as printed, below which the inverted image is searched too
+
+
+# Adaptive-threshold offsets of the detection passes: OpenCV's default first; a tag it
+# misses (its border merges with the corner squares' blurred tips) is looked for again
+# with a stricter threshold. On the real EuRoC frames the two passes together find all 36
+# tags where either alone finds 29-36.
+THRESH_CONSTANTS = (7.0, 10.0)
+
+
+def detector_parameters(thresh_constant: float = THRESH_CONSTANTS[0]) -> "cv2.aruco.DetectorParameters":
+    """ArUco parameters for Kalibr's tags: the 2-bit border; every bit error the code
+    distance allows is corrected (the dictionary is cut to the target's ids, so a wrong
+    decode would need more than 5 of 36 bits wrong *and* land on one of them)."""
+    p = cv2.aruco.DetectorParameters()
+    p.markerBorderBits = APRIL_BORDER_BITS
+    p.errorCorrectionRate = 1.0
+    p.adaptiveThreshConstant = float(thresh_constant)
+    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE  # rigcal refines (detect.refine_corners)
+    return p
+
+
+class AprilGridGroup:
+    """The AprilGrid boards of a target: tags are found once for all of them."""
+
+    def __init__(self, boards: Sequence[Board]):
+        full = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, APRIL_DICTIONARY))
+        self.boards = list(boards)
+        # A dictionary cut to the boards' own ids: faster, and a stray tag of another id is ignored.
+        self.ids = np.unique(np.concatenate([b.marker_ids for b in self.boards])).astype(np.int64)
+        sub = cv2.aruco.Dictionary(np.ascontiguousarray(full.bytesList[self.ids]), full.markerSize,
+                                   full.maxCorrectionBits)
+        self.passes = [cv2.aruco.ArucoDetector(sub, detector_parameters(c)) for c in THRESH_CONSTANTS]
+
+    def tags(self, gray: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Tag ids (M,) in the full dictionary and their corners (M, 4, 2) in OpenCV's order.
+        Later passes run only while some tag is missing, and add only tags not yet found."""
+        ids, quads = np.zeros(0, np.int64), np.zeros((0, 4, 2))
+        for aruco in self.passes:
+            corners, idx, _ = aruco.detectMarkers(gray)
+            if idx is not None and len(idx):
+                new_ids = self.ids[np.asarray(idx).reshape(-1)]
+                new = ~np.isin(new_ids, ids)
+                ids = np.concatenate([ids, new_ids[new]])
+                quads = np.concatenate([quads, np.asarray(corners, np.float64).reshape(-1, 4, 2)[new]])
+            if len(np.unique(ids)) == len(self.ids):
+                break
+        return ids, quads
+
+    def detect(self, gray: np.ndarray) -> list[tuple[Board, np.ndarray, np.ndarray]]:
+        """(board, corner ids (N,), uv (N, 2)) per board seen, unrefined, ids ascending."""
+        ids, corners = self.tags(gray)
+        if len(ids) < INVERTED_UNLESS:
+            # maybe printed inverted (white tags on black): search the inverted image too
+            inv_ids, inv_corners = self.tags(cv2.bitwise_not(gray))
+            if len(inv_ids) > len(ids):
+                ids, corners = inv_ids, inv_corners
+        out = []
+        for b in self.boards:
+            keep = (ids >= b.first_marker_id) & (ids < b.first_marker_id + b.n_markers)
+            if not keep.any():
+                continue
+            cid, uv = tag_corners_to_ids(ids[keep] - b.first_marker_id, corners[keep])
+            out.append((b, cid, uv))
+        return out
+
+
+def tag_corners_to_ids(tag_index: np.ndarray, corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Kalibr corner ids (4M,) ascending and their pixels (4M, 2) from tags (index from the
+    board's first id, (M,)) and OpenCV's corners (M, 4, 2). A tag decoded twice (two
+    detections of one id) is dropped: which one is right cannot be told here."""
+    uniq, counts = np.unique(tag_index, return_counts=True)
+    once = np.isin(tag_index, uniq[counts == 1])
+    tag_index, corners = tag_index[once], corners[once]
+    cid = (4 * tag_index[:, None] + CV_TO_KALIBR[None, :]).ravel()
+    uv = corners.reshape(-1, 2)
+    order = np.argsort(cid, kind="stable")
+    return cid[order].astype(np.int64), uv[order]
+
+
+def corner_axes(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """ax, ay (N, 2): the image of one tag size along board x and y at each corner, from the
+    homography of its own tag's four corners (NaN where the tag has fewer than four). The
+    signs do not matter to the point-symmetry fit."""
+    ax = np.full((len(ids), 2), np.nan)
+    ay = np.full((len(ids), 2), np.nan)
+    tags, first, counts = np.unique(ids // 4, return_index=True, return_counts=True)
+    full = tags[counts == 4]
+    if not len(full):
+        return ax, ay
+    start = first[counts == 4]
+    quad = uv[start[:, None] + np.arange(4)[None, :]]  # (T, 4, 2) in k order (ids ascending within a tag)
+    unit = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])  # k's place in tag sizes
+    H = _quad_homographies(unit, quad)  # (T, 3, 3) tag units -> px
+    # Jacobian of the homography at each corner
+    xy1 = np.concatenate([unit, np.ones((4, 1))], 1)  # (4, 3)
+    w = np.einsum("tj,kj->tk", H[:, 2], xy1)  # (T, 4)
+    p = quad
+    jx = (H[:, None, :2, 0] - p * H[:, None, 2, 0, None]) / w[..., None]
+    jy = (H[:, None, :2, 1] - p * H[:, None, 2, 1, None]) / w[..., None]
+    rows = (start[:, None] + np.arange(4)[None, :]).ravel()
+    ax[rows] = jx.reshape(-1, 2)
+    ay[rows] = jy.reshape(-1, 2)
+    return ax, ay
+
+
+def _quad_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) homographies mapping the 4 points src (4, 2) onto each dst (T, 4, 2), by a
+    batched 8x8 solve (h33 = 1)."""
+    T = dst.shape[0]
+    A = np.zeros((T, 8, 8))
+    b = dst.reshape(T, 8)
+    x, y = src[:, 0], src[:, 1]
+    for k in range(4):  # four point pairs, two rows each (fixed size: not a loop over data)
+        u, v = dst[:, k, 0], dst[:, k, 1]
+        A[:, 2 * k, :3] = [x[k], y[k], 1.0]
+        A[:, 2 * k, 6] = -u * x[k]
+        A[:, 2 * k, 7] = -u * y[k]
+        A[:, 2 * k + 1, 3:6] = [x[k], y[k], 1.0]
+        A[:, 2 * k + 1, 6] = -v * x[k]
+        A[:, 2 * k + 1, 7] = -v * y[k]
+    h = np.linalg.solve(A, b[..., None])[..., 0]
+    return np.concatenate([h, np.ones((T, 1))], 1).reshape(T, 3, 3)
+
+
+def symmetric_cross(board: Board, ax: np.ndarray, ay: np.ndarray) -> tuple[float, float]:
+    """(half-width, arm) in tag sizes of the point-symmetric cross around a tag corner, for
+    detect.refine_symmetric: along a tag edge the corner square mirrors the border for a
+    gap's length (the arm, less ARM_MARGIN_PX), across it only as far as the 2-bit border
+    reaches (the half-width; refine_symmetric takes its own blur margin off it)."""
+    half = min(BORDER_FRACTION, board.tag_spacing)
+    size_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    size_px = size_px[np.isfinite(size_px)]
+    margin = ARM_MARGIN_PX / float(np.median(size_px)) if len(size_px) else 0.0
+    return half, max(board.tag_spacing - margin, 0.5 * board.tag_spacing)
+
+
+def symmetric_box(board: Board, ax: np.ndarray, ay: np.ndarray) -> float:
+    """Half-side, in tag sizes, of the point-symmetric box around a corner: the 2-bit border
+    or the corner square, whichever is narrower, less BOX_MARGIN_PX of blur at the median
+    tag's scale (never below half of it)."""
+    reach = min(BORDER_FRACTION, board.tag_spacing)
+    size_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    size_px = size_px[np.isfinite(size_px)]
+    if not len(size_px):
+        return reach
+    return float(max(reach - BOX_MARGIN_PX / float(np.median(size_px)), 0.5 * reach))
+
+
+def neighbour_predictions(ids: np.ndarray, uv: np.ndarray, board: Board, trusted: np.ndarray) -> np.ndarray:
+    """(N, 2) each corner as the homography of the trusted corners of the tags around its own
+    (within one tag each way, its own tag left out) predicts it; NaN with fewer than 8 such
+    corners. A start for corners whose own tag's quad was too far off (OpenCV's quad of a
+    tag merged with its corner squares' tips): within a pixel or two even through a fisheye."""
+    pred = np.full((len(ids), 2), np.nan)
+    cols = board.squares[0]
+    tag = ids // 4
+    col, row = tag % cols, tag // cols
+    xy = board.corners[ids, :2]
+    for t in np.unique(tag[~trusted]):  # one small fit per tag (<= a few hundred), not per pixel
+        near = trusted & (np.abs(col - t % cols) <= 1) & (np.abs(row - t // cols) <= 1) & (tag != t)
+        if near.sum() < 8:
+            continue
+        H, _ = cv2.findHomography(xy[near], uv[near], 0)
+        if H is None:
+            continue
+        mine = tag == t
+        pred[mine] = cv2.perspectiveTransform(xy[mine].reshape(-1, 1, 2), H).reshape(-1, 2)
+    return pred
+
+
+# Kalibr's corner k seen from the corner: the direction (board x, y) of its own tag's inside
+TOWARDS_TAG = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
+
+
+def looks_like_a_tag_corner(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,
+                            box: float) -> np.ndarray:
+    """(N,) bool: the image around each corner is the X-junction of a tag corner: the tag's
+    border (towards the tag) and the corner square (away from it) one colour, the two gaps
+    on either side the other, sampled half-way across the symmetric box. A corner the
+    refinement placed on another junction (a bit's corner, the border's inner corner)
+    fails: there a side quadrant is the border's black. Both polarities count, the one of
+    the view's majority (inverted prints)."""
+    t = TOWARDS_TAG[ids % 4] * (0.5 * box)  # (N, 2) board units (tag sizes)
+    offs = np.stack([t, -t, t * [1.0, -1.0], t * [-1.0, 1.0]], axis=1)  # in, out, side, side: (N, 4, 2)
+    pts = uv[:, None, :] + offs[..., :1] * ax[:, None, :] + offs[..., 1:] * ay[:, None, :]
+    pts = np.nan_to_num(pts, nan=-1e5).astype(np.float32)
+    v = cv2.remap(gray.astype(np.float32), pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)  # (N, 4)
+    gap = np.minimum(v[:, 2], v[:, 3]) - np.maximum(v[:, 0], v[:, 1])  # > 0: gaps white, diagonal black
+    inv = np.minimum(v[:, 0], v[:, 1]) - np.maximum(v[:, 2], v[:, 3])  # > 0: printed inverted
+    normal = np.nansum(gap > 0) >= np.nansum(inv > 0)
+    return (gap > 0) if normal else (inv > 0)
+
+
+def lattice_bends(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How the board-x and board-y lines through each corner bend (lens distortion): bend_u,
+    bend_v (N,) px per tag size^2 along each line's normal, as detect.local_grid gives them
+    for a uniform grid, here from the lattice of tag corners, whose spacing alternates
+    between a tag and a gap (second divided differences on uneven steps). NaN where a
+    neighbour along the line is missing."""
+    nx, ny = 2 * board.squares[0], 2 * board.squares[1]
+    k = ids % 4
+    tag = ids // 4
+    i = 2 * (tag % board.squares[0]) + np.isin(k, (1, 2))
+    j = 2 * (tag // board.squares[0]) + np.isin(k, (2, 3))
+    G = np.full((ny + 2, nx + 2, 2), np.nan)  # one ring of padding
+    G[j + 1, i + 1] = uv
+    s, g = 1.0, board.tag_spacing  # tag units
+
+    def bend(index: np.ndarray, di: int, dj: int) -> np.ndarray:
+        ahead = np.where(index % 2 == 0, s, g)  # the step to the next lattice point along the line
+        back = np.where(index % 2 == 0, g, s)
+        f0, fp, fm = G[j + 1, i + 1], G[j + 1 + dj, i + 1 + di], G[j + 1 - dj, i + 1 - di]
+        h1, h2 = back[:, None], ahead[:, None]
+        d1 = (h1 * h1 * fp - h2 * h2 * fm + (h2 * h2 - h1 * h1) * f0) / (h1 * h2 * (h1 + h2))
+        d2 = 2.0 * (h1 * fp - (h1 + h2) * f0 + h2 * fm) / (h1 * h2 * (h1 + h2))
+        n = np.column_stack([-d1[:, 1], d1[:, 0]])
+        n /= np.linalg.norm(n, axis=1, keepdims=True)
+        return 0.5 * np.einsum("nk,nk->n", d2, n)
+
+    return bend(i, 1, 0), bend(j, 0, 1)
