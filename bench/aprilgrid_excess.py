@@ -12,8 +12,10 @@ then the affine cross with the lattice's bends: "detector") and the long-arm pas
 pose placing the pairs ("exact geometry": symmetric cross alone, then with the long arms)
 for the information limit of each pattern. Split by tag size (px), by k and by whether the
 corner was restarted from its neighbours. Then the real EuRoC frames: PnP with EuRoC's
-intrinsics, and how far the long arms move each corner towards its own tag's inside
-(the signature of a print whose edges are not where its junctions put them).
+intrinsics, the residual of a smooth map of the board fitted to the corners (truth-free
+roughness), and how far the long arms move each corner towards its own tag's inside (the
+signature of a print whose edges are not where its junctions put them; the long arms
+estimate that offset per view, april.FIT_EDGE_SHIFT).
 """
 
 from __future__ import annotations
@@ -180,6 +182,9 @@ def euroc() -> list[dict]:
             r, t = cv2.solvePnPRefineLM(obj, q[ok], K, D, r, t)
             e = np.linalg.norm(cv2.projectPoints(obj, r, t, K, D)[0].reshape(-1, 2) - q[ok], axis=1)
             row[f"{name} corners"], row[f"{name} PnP px"] = int(ok.sum()), _rms(e)
+            # truth-free roughness: what a smooth map of the board (homography + quartic) leaves
+            m = april.view_map(ids[ok], q[ok], board)
+            row[f"{name} map residual px"] = _rms(np.linalg.norm(m(obj[:, :2]) - q[ok], axis=1)) if m else float("nan")
             got[name] = (q, ok)
         (qd, okd), (ql, okl) = got["detector"], got["long arms"]
         both = okd & okl

@@ -48,10 +48,11 @@ ARM_MARGIN_PX = 5.0
 PAIR_MARGIN_PX = 1.5
 # The view's map from the board to the image: a homography (perspective, exactly) plus a
 # polynomial of this degree in board coordinates (the lens). Degree 3 missed the fisheye's
-# bends (0.017 px RMS), 5 followed the corners' noise (0.017), 4 gave 0.0095 (noise 2).
+# bends (0.017 px RMS), 5 followed the corners' noise (0.017), 4 gave 0.0095 (noise 2; fisheye
+# room, before the edge offset was fitted).
 MAP_DEGREE = 4
 # Tags smaller than this (px) take the long arms (detect._aprilgrid_mapped): OFF (0). On
-# renders they halve the small tags' error (fisheye room, ~22 px tags: 0.0215 -> 0.0095 px
+# renders they halve the small tags' error (fisheye room, ~22 px tags: 0.0215 -> 0.0098 px
 # RMS, ChArUco 0.0115), but on the real EuRoC print (28-34 px tags) they move every corner
 # 0.05 px per axis towards its own tag's inside and PnP with EuRoC's intrinsics gets worse
 # (0.157 -> 0.192 px): the tag edges are not where the junction's symmetry puts them (ink
@@ -59,6 +60,13 @@ MAP_DEGREE = 4
 # not average out. On larger rendered tags (45-150 px) they were worse than the box too
 # (0.0087 -> 0.0117 px noise-free). README, AprilGrid targets; bench/aprilgrid_excess.py.
 LONG_ARMS_BELOW_PX = 0.0
+# The long arms fit, per view, how far the printed edges lie from the junctions (towards
+# each own tag; ink spread is the print's): the edges alone place the corners, the median
+# offset from the box's corners moves the antisymmetric pairs. On EuRoC it takes the mean
+# move from +0.05 to -0.01 px (PnP 0.192 -> 0.168 / 0.159 px), but the corners stay rougher
+# than the box's (a smooth map of the board leaves 0.068 / 0.070 px against 0.032 / 0.034):
+# the real edges are worse than their junctions over a whole tag. Renders: unchanged.
+FIT_EDGE_SHIFT = True
 MAP_MIN_CORNERS = 40  # fewer refined corners in a view: no map, the affine cross instead
 MAP_MAX_RMS_PX = 0.3  # a map fitting the corners worse than this is not trusted
 INVERTED_UNLESS = 4  # tags found as printed, below which the inverted image is searched too

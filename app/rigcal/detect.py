@@ -853,7 +853,8 @@ def _aprilgrid_mapped(stack: np.ndarray, ids: np.ndarray, uv: np.ndarray, board:
     near the junction and of point antisymmetry along the tag edges beyond it
     (april.junction_pattern), each pair's samples at the map's images of P + d and P - d
     (a tag edge is 1 tag long against the corner square's 0.3: the lattice's own bends are
-    too rough for it). Returns refine_pairs' (N, 2), ok, sigma."""
+    too rough for it), the edges' offset from the junctions fitted per view
+    (april.FIT_EDGE_SHIFT). Returns refine_pairs' (N, 2), ok, sigma."""
     m = april.view_map(ids, uv, board)
     if m is None:
         return None
@@ -868,11 +869,34 @@ def _aprilgrid_mapped(stack: np.ndarray, ids: np.ndarray, uv: np.ndarray, board:
     delta = max(STEP_PX / float(np.median(size)), 1.0 / MAX_PAIRS_PER_TAG_EDGE)
     cross = _cross_offsets(min(april.BORDER_FRACTION, board.tag_spacing), 1.0, delta)
     w, anti = april.junction_pattern(ids, board, cross, size)
-    off = cross * board.tag_size
-    n, k = len(ids), len(cross)
-    ends = m(np.concatenate([(xy[:, None, :] + off).reshape(-1, 2), (xy[:, None, :] - off).reshape(-1, 2)]))
-    Dp, Dm = ends.reshape(2, n, k, 2) - c0[None, :, None]
     sign = np.where(anti, -1.0, 1.0).astype(np.float32)
+    inward = april.TOWARDS_TAG[ids % 4]  # (N, 2) board directions of each corner's own tag
+    along_u = np.abs(cross[:, 0]) >= np.abs(cross[:, 1])
+    n, k = len(ids), len(cross)
+
+    def pairs(shift: float) -> tuple[np.ndarray, np.ndarray]:
+        # the antisymmetric pairs centred on the edge lines moved `shift` (metres) towards the tag
+        c = np.zeros((n, k, 2))
+        c[..., 1] = np.where(anti & along_u, shift * inward[:, None, 1], 0.0)
+        c[..., 0] = np.where(anti & ~along_u, shift * inward[:, None, 0], 0.0)
+        off = cross * board.tag_size
+        ends = m(np.concatenate([(xy[:, None, :] + c + off).reshape(-1, 2), (xy[:, None, :] + c - off).reshape(-1, 2)]))
+        Dp, Dm = ends.reshape(2, n, k, 2) - c0[None, :, None]
+        return Dp, Dm
+
+    shift = 0.0
+    if april.FIT_EDGE_SHIFT:
+        # where the edges alone put the corners (both arms long), against the junctions
+        both_arms = np.all([(anti & along_u).any(1), (anti & ~along_u).any(1)], axis=0)
+        if both_arms.sum() >= 8:
+            b = np.flatnonzero(both_arms)
+            Dp, Dm = pairs(0.0)
+            qe, oke, _ = refine_pairs(stack, uv[b], cross, Dp[b], Dm[b], anti[b].astype(np.float32), sign[b])
+            J = np.stack([ax[b], ay[b]], -1)[oke]
+            st = np.linalg.solve(J, (qe - uv[b])[oke][..., None])[..., 0]  # tag sizes, board axes
+            if len(st) >= 8:
+                shift = float(np.median(st * inward[b][oke])) * board.tag_size
+    Dp, Dm = pairs(shift)
     return refine_pairs(stack, uv, cross, Dp, Dm, w.astype(np.float32), sign)
 
 
