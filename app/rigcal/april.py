@@ -24,6 +24,7 @@ tag's edge against the collinear edge of the tag across the corner square
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import cv2
@@ -264,13 +265,16 @@ def looks_like_a_tag_corner(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, a
     return (gap > 0) if normal else (inv > 0)
 
 
+@dataclass(frozen=True, eq=False)
 class ViewMap:
     """A smooth map from a board (metres, board frame) to one image: the homography of the
     view's corners plus a polynomial of degree MAP_DEGREE (in tag sizes about the corners'
     centre) fitted to what the homography leaves (lens distortion). Built by view_map."""
 
-    def __init__(self, H: np.ndarray, coef: np.ndarray, centre: np.ndarray, scale: float):
-        self.H, self.coef, self.centre, self.scale = H, coef, centre, scale
+    H: np.ndarray  # (3, 3) board metres -> px
+    coef: np.ndarray  # (terms, 2) the polynomial's coefficients, px
+    centre: np.ndarray  # (2,) metres
+    scale: float  # metres per polynomial unit (the tag size)
 
     @staticmethod
     def _terms(xy: np.ndarray) -> np.ndarray:
