@@ -14,6 +14,8 @@ Sections (each also runs alone: python -m bench.<name>):
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
+  aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
+               tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
@@ -27,12 +29,12 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import (accuracy, indie, indie_noise, ingest, montecarlo, noise_limit, peer_opencv, real, scale,
-               simulate_imu, solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, indie, indie_noise, ingest, montecarlo, noise_limit, peer_opencv, real,
+               scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise",
-            "simulate_imu", "solvers", "ingest")
+            "simulate_imu", "solvers", "ingest", "aprilgrid")
 
 
 def main(argv=None) -> None:
@@ -133,6 +135,12 @@ def main(argv=None) -> None:
             write_json("ingest", {**r, "machine": info})
             return ingest.tables(r)
         section("ingest", ing)
+    if "aprilgrid" in todo:
+        def april():
+            r = aprilgrid_excess.run(frames=1 if a.quick else 3)
+            write_json("aprilgrid_excess", {**r, "machine": info})
+            return aprilgrid_excess.tables(r)
+        section("aprilgrid", april)
     total = time.perf_counter() - t0
     head = (f"# rigcal benchmarks\n\n{info['date']}; {info['cpus']} CPUs; load average at start "
             f"{info['load_avg_1_5_15']}; {info['platform']}; Python {info['python']}, OpenCV {info['opencv']}, "

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 
+from rigcal import april
 from rigcal import geometry as geo
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset
@@ -49,9 +50,12 @@ def _rms(e: np.ndarray) -> float:
 
 
 FISHEYE_ROOM = pytest.mark.xfail(strict=True, reason=(
-    "not met: through the fisheye, room scene (tags of ~30 px), the AprilGrid corners measured 0.023 px RMS "
-    "against ChArUco's 0.012 (noise-free: 0.0125 against 0.0049); the tag corner's symmetric cross is 0.2-0.3 "
-    "of a tag, a ChArUco corner's 0.6 of a square, and a model misfit adds to it (README, AprilGrid targets)"))
+    "not met on two counts (README, AprilGrid targets; bench/aprilgrid_excess.py). Views: 4 of 6 against "
+    "ChArUco's 6 (frame 2's tags are 13-16 px: OpenCV decodes 4-8 of 36 and the corner-square box, +-1.5 px, "
+    "refines none). Accuracy: 0.021 px RMS against 0.0115 (noise-free 0.011 against 0.0048): at ~22 px tags the "
+    "point-symmetric box is +-3 px, and even placed by the true lens a symmetric fit gives 0.015; the long arms "
+    "(tag edges, antisymmetric) give 0.0098 but are off: on the real EuRoC print they pull every corner 0.05 px "
+    "towards its tag, and with that offset fitted still leave the corners twice as rough (0.07 against 0.03 px)"))
 
 
 @pytest.mark.parametrize("rig_name, scene", [
@@ -70,6 +74,23 @@ def test_rendered_aprilgrid_corners_are_at_least_as_accurate_as_charuco(rig_name
     assert n_april >= n_charuco - 1 and len(e_april) > 50
     # no corner on the wrong junction, and the detector's ids are Kalibr's (a wrong id is a tag away)
     assert e_april.max() < 0.3, e_april.max()
+    assert _rms(e_april) <= _rms(e_charuco), (_rms(e_april), _rms(e_charuco))
+
+
+def test_long_arms_bring_the_fisheye_room_within_charucos_accuracy(tmp_path, monkeypatch):
+    """The long-arm pass (off by default: april.LONG_ARMS_BELOW_PX; README) turned on for
+    every tag: through the fisheye in the room scene (tags ~22 px) the AprilGrid corners are
+    then at least as accurate as ChArUco's (measured 0.0098 against 0.0115 px RMS; today's
+    detector 0.021). The view count is a separate shortfall (the xfail above)."""
+    monkeypatch.setattr(april, "LONG_ARMS_BELOW_PX", np.inf)
+    rig = load_rig(ROOT / "rigs" / "fisheye-stereo.yaml")
+    got = {}
+    for name, text in (("aprilgrid", GRID), ("charuco", CHARUCO)):
+        ds = tmp_path / name
+        simulate_dataset(rig, ds, scene="room", frames=FRAMES, seed=1, target=parse_target(text), jobs=1)
+        got[name] = _errors(ds)
+    (e_april, _), (e_charuco, _) = got["aprilgrid"], got["charuco"]
+    assert len(e_april) > 200 and e_april.max() < 0.3, (len(e_april), e_april.max())
     assert _rms(e_april) <= _rms(e_charuco), (_rms(e_april), _rms(e_charuco))
 
 

@@ -14,7 +14,7 @@ from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "solver_libraries", "ingest",
-           "__main__")
+           "aprilgrid_excess", "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -161,3 +161,16 @@ def test_ingest_bench_runs_at_small_size():
     assert [x["kind"] for x in r["rows"]] == ["ros1", "mcap"]
     assert all(x["ok"] and x["images"] == 20 for x in r["rows"]), r["rows"]
     assert "ros1" in ingest.tables(r)
+
+
+def test_aprilgrid_excess_runs_on_one_small_render():
+    """bench.aprilgrid_excess end to end on one fisheye-room frame (no EuRoC): every method
+    measures the same corners, and the tables render."""
+    from bench import aprilgrid_excess
+
+    r = aprilgrid_excess.run(frames=1, cases=(("fisheye-stereo", "room"),), noises=(2.0,), with_euroc=False)
+    (row,) = r["rendered"]
+    assert row["n"] > 20
+    for k in ("box", "detector", "long arms", "exact symmetric", "exact long arms", "charuco"):
+        assert 0.0 < row[k] < 0.2, (k, row[k])
+    assert "long arms" in aprilgrid_excess.tables(r)

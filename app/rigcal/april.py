@@ -15,10 +15,16 @@ black, the two gaps white), point-symmetric in a box of min(0.2, tag_spacing) ta
 point-symmetry estimator as ChArUco corners, along the axes `corner_axes` gives, checks
 them (`looks_like_a_tag_corner`), restarts the odd ones (`neighbour_predictions`) and
 bends the cross with the lens (`lattice_bends`).
+
+Beyond the corner square a tag corner's arms go on as point-ANTIsymmetric pairs: the own
+tag's edge against the collinear edge of the tag across the corner square
+(`junction_pattern`, `collinear_neighbours`), placed by a per-view map of the board
+(`view_map`). That "long-arm" pass is off by default (LONG_ARMS_BELOW_PX, README).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Sequence
 
 import cv2
@@ -36,6 +42,34 @@ BOX_MARGIN_PX = 1.5
 # (the tag's border goes on), and perspective and blur bring it nearer than the affine
 # cross assumes. Measured on rendered grids: 3 px left 0.013 px RMS on close boards, 5 px 0.008.
 ARM_MARGIN_PX = 5.0
+# The last pass's pairs keep this far off every blurred edge that is not mirrored: the
+# bits inside the border (across the arms), the corner square's far edge and the next
+# corner (along them). Measured on the fisheye room (tags ~22 px): 1.0 px let the blur in
+# (0.0145 px RMS noise-free), 1.5 and 2.0 px gave 0.0039 and 0.0035 with the true lens.
+PAIR_MARGIN_PX = 1.5
+# The view's map from the board to the image: a homography (perspective, exactly) plus a
+# polynomial of this degree in board coordinates (the lens). Degree 3 missed the fisheye's
+# bends (0.017 px RMS), 5 followed the corners' noise (0.017), 4 gave 0.0095 (noise 2; fisheye
+# room, before the edge offset was fitted).
+MAP_DEGREE = 4
+# Tags smaller than this (px) take the long arms (detect._aprilgrid_mapped): OFF (0). On
+# renders they halve the small tags' error (fisheye room, ~22 px tags: 0.0215 -> 0.0098 px
+# RMS, ChArUco 0.0115), but on the real EuRoC print (28-34 px tags) they move every corner
+# 0.05 px per axis towards its own tag's inside and PnP with EuRoC's intrinsics gets worse
+# (0.157 -> 0.192 px): the tag edges are not where the junction's symmetry puts them (ink
+# spread or loss moves an edge, not a point-symmetric junction's centre), and that bias does
+# not average out. On larger rendered tags (45-150 px) they were worse than the box too
+# (0.0087 -> 0.0117 px noise-free). README, AprilGrid targets; bench/aprilgrid_excess.py.
+LONG_ARMS_BELOW_PX = 0.0
+# The long arms fit, per view, how far the printed edges lie from the junctions (towards
+# each own tag; ink spread is the print's): the edges alone place the corners, the median
+# offset from the box's corners moves the antisymmetric pairs. On EuRoC it takes the mean
+# move from +0.05 to -0.01 px (PnP 0.192 -> 0.168 / 0.159 px), but the corners stay rougher
+# than the box's (a smooth map of the board leaves 0.068 / 0.070 px against 0.032 / 0.034):
+# the real edges are worse than their junctions over a whole tag. Renders: unchanged.
+FIT_EDGE_SHIFT = True
+MAP_MIN_CORNERS = 40  # fewer refined corners in a view: no map, the affine cross instead
+MAP_MAX_RMS_PX = 0.3  # a map fitting the corners worse than this is not trusted
 INVERTED_UNLESS = 4  # tags found as printed, below which the inverted image is searched too
 
 
@@ -229,6 +263,84 @@ def looks_like_a_tag_corner(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, a
     inv = np.minimum(v[:, 0], v[:, 1]) - np.maximum(v[:, 2], v[:, 3])  # > 0: printed inverted
     normal = np.nansum(gap > 0) >= np.nansum(inv > 0)
     return (gap > 0) if normal else (inv > 0)
+
+
+@dataclass(frozen=True, eq=False)
+class ViewMap:
+    """A smooth map from a board (metres, board frame) to one image: the homography of the
+    view's corners plus a polynomial of degree MAP_DEGREE (in tag sizes about the corners'
+    centre) fitted to what the homography leaves (lens distortion). Built by view_map."""
+
+    H: np.ndarray  # (3, 3) board metres -> px
+    coef: np.ndarray  # (terms, 2) the polynomial's coefficients, px
+    centre: np.ndarray  # (2,) metres
+    scale: float  # metres per polynomial unit (the tag size)
+
+    @staticmethod
+    def _terms(xy: np.ndarray) -> np.ndarray:
+        powers = [(i, j) for i in range(MAP_DEGREE + 1) for j in range(MAP_DEGREE + 1 - i)]
+        return np.stack([xy[:, 0] ** i * xy[:, 1] ** j for i, j in powers], axis=1)
+
+    def __call__(self, xy: np.ndarray) -> np.ndarray:
+        """(M, 2) pixels of board points xy (M, 2) metres."""
+        h = cv2.perspectiveTransform(np.ascontiguousarray(xy, np.float64).reshape(-1, 1, 2), self.H).reshape(-1, 2)
+        return h + self._terms((xy - self.centre) / self.scale) @ self.coef
+
+
+def view_map(ids: np.ndarray, uv: np.ndarray, board: Board) -> ViewMap | None:
+    """The ViewMap of a view's refined corners (ids (N,), uv (N, 2)); None with fewer than
+    MAP_MIN_CORNERS, terms the corners cannot hold (all on few lines) or a fit worse than
+    MAP_MAX_RMS_PX (a corner on the wrong junction, or a lens no quartic follows)."""
+    if len(ids) < MAP_MIN_CORNERS:
+        return None
+    xy = board.corners[ids, :2]
+    H, _ = cv2.findHomography(xy, uv, 0)
+    if H is None:
+        return None
+    centre, scale = xy.mean(axis=0), board.tag_size
+    A = ViewMap._terms((xy - centre) / scale)
+    res = uv - cv2.perspectiveTransform(xy.reshape(-1, 1, 2), H).reshape(-1, 2)
+    coef, _, rank, _ = np.linalg.lstsq(A, res, rcond=None)
+    if rank < A.shape[1]:
+        return None
+    m = ViewMap(H, coef, centre, scale)
+    if np.sqrt(np.mean(np.sum((m(xy) - uv) ** 2, axis=1))) > MAP_MAX_RMS_PX:
+        return None
+    return m
+
+
+def junction_pattern(ids: np.ndarray, board: Board, cross: np.ndarray, size_px: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Which pairs (+-d, cross (P, 2) in tag sizes) of a tag corner's surroundings a
+    symmetry fit may use: (w (N, P) bool, anti (N, P) bool, True where the pair is
+    point-antisymmetric).
+
+    Across the corner the pattern is point-symmetric out to the corner square's far edge
+    (tag_spacing; across the arms, the 2-bit border). Beyond it, along each board axis, the
+    own tag's edge goes on for the rest of the tag and, opposite, the edge of the tag
+    across the corner square (collinear with it: the gap between them runs along it):
+    black against white, point-antisymmetric, out to the next corner (1 tag). Where that
+    neighbour does not exist (the grid's edge) the arm stops at the corner square. Every
+    blurred end keeps PAIR_MARGIN_PX (at each corner's own scale size_px (N,))."""
+    half, g = min(BORDER_FRACTION, board.tag_spacing), board.tag_spacing
+    U, V = np.abs(cross[None, :, 0]), np.abs(cross[None, :, 1])
+    along, across = np.maximum(U, V), np.minimum(U, V)
+    mk = (PAIR_MARGIN_PX / size_px)[:, None]
+    in_cross = across <= half - mk
+    along_u, along_v = collinear_neighbours(ids, board)
+    has = np.where(U >= V, along_u[:, None], along_v[:, None])
+    anti = in_cross & has & (along >= g + mk) & (along <= 1.0 - mk)
+    return (in_cross & (along <= g - mk)) | anti, anti
+
+
+def collinear_neighbours(ids: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """along_u, along_v (N,) bool: whether the tag across the corner square from each
+    corner's own tag along board x (y) exists (junction_pattern)."""
+    cols, rows = board.squares
+    tag = ids // 4
+    away = -TOWARDS_TAG[ids % 4]
+    col, row = tag % cols + away[:, 0], tag // cols + away[:, 1]
+    return (col >= 0) & (col < cols), (row >= 0) & (row < rows)
 
 
 def lattice_bends(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -84,6 +84,7 @@ MIN_MARGIN_PX = 1.0
 CROSS_KEEP_PX = 1.0
 STEP_PX = 0.8
 MAX_SAMPLES_PER_ARM = 24
+MAX_PAIRS_PER_TAG_EDGE = 40  # AprilGrid's last pass: samples along an arm of one tag at most
 # A chessboard's cross half-width in squares: keeps clear of dot codes printed inside
 # white squares (BoofCV ECoCheck) while using most of a plain chessboard's edges.
 CHESS_HALF = 0.2
@@ -463,17 +464,24 @@ def image_gradients(gray: np.ndarray) -> np.ndarray:
 
 
 def symmetry_terms(stack: np.ndarray, xp: np.ndarray, yp: np.ndarray, xm: np.ndarray, ym: np.ndarray,
-                   shading: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, ...]:
+                   shading: np.ndarray, u: np.ndarray, v: np.ndarray, sign: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, ...]:
     """One Gauss-Newton evaluation of a point-symmetry fit, wherever its sample pairs were put:
     (xp, yp) and (xm, ym) (A, P) float32 pixels of the two halves of each pair, shading (A, 2)
     the gradient s, u, v (1, P) float32 the pairs' offsets in squares. Returns r (A, P) =
     I(+) - I(-) - (I(+) + I(-)) s.d, the Jacobian columns for the corner's x, y and s_u, s_v,
-    and inside (A, P): both halves in the image (pairs outside are given no weight)."""
+    and inside (A, P): both halves in the image (pairs outside are given no weight).
+
+    sign (A, P) float32, +1 or -1 per pair, when given: -1 marks a point-antisymmetric pair
+    (black against white: I(+) + I(-) is the sum of the two grey levels), whose r is
+    I(+) + I(-) - (I(+) - I(-)) s.d; the caller fits that sum (refine_pairs)."""
     h, wid = stack.shape[:2]
     inside = ((np.minimum(xp, xm) >= 0) & (np.maximum(xp, xm) <= wid - 1)
               & (np.minimum(yp, ym) >= 0) & (np.maximum(yp, ym) <= h - 1))
     sp = cv2.remap(stack, xp, yp, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     sm = cv2.remap(stack, xm, ym, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    if sign is not None:
+        sm = sm * sign[..., None]
     both = sp[..., 0] + sm[..., 0]
     shade = (shading[:, 0, None] * u + shading[:, 1, None] * v).astype(np.float32)
     r = sp[..., 0] - sm[..., 0] - both * shade
@@ -656,6 +664,58 @@ def refine_symmetric(stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.n
     return out, ok, sigma
 
 
+def refine_pairs(stack: np.ndarray, uv: np.ndarray, cross: np.ndarray, Dp: np.ndarray, Dm: np.ndarray,
+                 w: np.ndarray, sign: np.ndarray | None = None, iters: int = 25, tol: float = 2e-3,
+                 max_move: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Corners q minimising sum_d w (I(q + Dp(d)) - sign I(q + Dm(d)) - level - shading)^2,
+    Gauss-Newton, where each pair's two samples were placed by a map of the pattern around
+    the corner (Dp, Dm (N, P, 2): pixel offsets of the images of P + d and P - d from P's).
+
+    cross (P, 2): the offsets d in squares (the shading term's coordinates: refine_symmetric's
+    I(q + d) ~ (1 + s.d) S(d)); w (N, P) float32 weights. sign (N, P) float32, when given,
+    -1 on point-antisymmetric pairs (symmetry_terms), whose level sum is one more unknown per
+    corner. Returns (N, 2) corners, (N,) bool refined (False: the start is kept: under 8
+    pairs, no convergence, under half of them inside the image, or a move beyond max_move px)
+    and (N,) each refined corner's 1-sigma (px per axis; residual variance x (J^T W J)^-1)."""
+    n = len(uv)
+    out, ok, sigma = uv.astype(np.float64).copy(), np.zeros(n, bool), np.full(n, np.nan)
+    good = w.sum(1) >= 8
+    if not good.any():
+        return out, ok, sigma
+    idx = np.flatnonzero(good)
+    Dp, Dm, w = Dp[idx], Dm[idx], w[idx]
+    sign = None if sign is None else sign[idx]
+    u, v = cross[None, :, 0].astype(np.float32), cross[None, :, 1].astype(np.float32)
+    p = np.zeros((len(idx), 4 if sign is None else 5))  # q_x, q_y, shading s_u, s_v[, level sum]
+    p[:, :2] = uv[idx]
+    fit = FitProgress(len(idx))
+    for it in range(iters):
+        act = fit.act
+        pa = p[act]
+        xp, yp = (pa[:, 0, None] + Dp[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dp[act, :, 1]).astype(np.float32)
+        xm, ym = (pa[:, 0, None] + Dm[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dm[act, :, 1]).astype(np.float32)
+        r, cols, inside = symmetry_terms(stack, xp, yp, xm, ym, pa[:, 2:4], u, v,
+                                         None if sign is None else sign[act])
+        fit.full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
+        wa = w[act] * inside
+        if sign is not None:
+            anti = (sign[act] < 0).astype(np.float32)
+            if it == 0:  # the level sum is linear: start it at its mean over the antisymmetric pairs
+                wa_anti = wa * anti
+                p[act, 4] = (wa_anti * r).sum(1) / np.maximum(wa_anti.sum(1), 1.0)
+            r = r - anti * p[act, 4, None].astype(np.float32)
+            cols.append(-anti)
+        H, g = normal_equations(cols, r, wa)
+        step, bad = newton_steps(H, g)
+        step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)
+        p[act] += step
+        if not fit.retire(step, bad, H, wa, r, tol):
+            break
+    q = p[:, :2]
+    fit.store(out, ok, sigma, idx, q, np.linalg.norm(q - uv[idx], axis=1) < max_move)
+    return out, ok, sigma
+
+
 def refine_subpix(gray: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray, half: float) -> np.ndarray:
     """cv2.cornerSubPix with a half-window of `half` squares (>= 2 px) per corner, tight criteria."""
     sq = np.minimum(np.linalg.norm(ax, axis=1), np.linalg.norm(ay, axis=1))
@@ -737,21 +797,24 @@ def _refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.nd
     x1, y1 = min(w, int(np.ceil(uv[:, 0].max() + reach)) + 1), min(h, int(np.ceil(uv[:, 1].max() + reach)) + 1)
     crop, origin = gray[y0:y1, x0:x1], np.array([x0, y0], float)
     stack = image_gradients(crop)
-    q, ok, sigma = _aprilgrid_pass(crop, stack, uv - origin, ax, ay, box)
-    ok &= april.looks_like_a_tag_corner(crop, ids, q, ax, ay, box)
-    pred = april.neighbour_predictions(ids, q, board, ok)
-    redo = ~ok & np.isfinite(pred).all(axis=1)
-    if redo.any():
-        # started again from where the neighbouring tags' corners put them
-        r = np.flatnonzero(redo)
-        q2, ok2, sigma2 = _aprilgrid_pass(crop, stack, pred[r], ax[r], ay[r], box)
-        ok2 &= april.looks_like_a_tag_corner(crop, ids[r], q2, ax[r], ay[r], box)
-        q[r[ok2]], ok[r[ok2]], sigma[r[ok2]] = q2[ok2], True, sigma2[ok2]
-    # Once more, in the full cross (april.symmetric_cross), along the axes of the refined
-    # corners (OpenCV's quads are a pixel or two off) with the lens's bends from the lattice
-    # of refined corners, held fixed: fitting them inside so small a cross cost accuracy.
+    q, ok, sigma, _ = aprilgrid_box_passes(crop, stack, board, ids, uv - origin, ax, ay, box)
+    # Once more. Small tags (april.LONG_ARMS_BELOW_PX) with the tag edges out to the next
+    # corner, along the view's map of the board (_aprilgrid_mapped) ...
     ax2, ay2 = april.corner_axes(ids, q, board)
     fine = ok & np.isfinite(ax2).all(axis=1) & np.isfinite(ay2).all(axis=1)
+    size = np.sqrt(np.abs(ax2[:, 0] * ay2[:, 1] - ax2[:, 1] * ay2[:, 0]))
+    small = fine & (np.nan_to_num(size, nan=np.inf) < april.LONG_ARMS_BELOW_PX)
+    if small.any():
+        mapped = _aprilgrid_mapped(stack, ids[ok], q[ok], board, small[ok])
+        if mapped is not None:
+            f = np.flatnonzero(small)
+            q3, ok3, sigma3 = mapped
+            q[f[ok3]], sigma[f[ok3]] = q3[ok3], sigma3[ok3]
+            fine &= ~small
+    # ... the others (and every corner of a view too sparse for a map) in the full cross
+    # (april.symmetric_cross), along the axes of the refined corners (OpenCV's quads are a
+    # pixel or two off) with the lens's bends from the lattice of refined corners, held
+    # fixed: fitting them inside so small a cross cost accuracy.
     if fine.any():
         f = np.flatnonzero(fine)
         bu, bv = (np.nan_to_num(b[f]) for b in april.lattice_bends(ids, q, board))
@@ -760,6 +823,81 @@ def _refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.nd
         q[f[ok3]], sigma[f[ok3]] = q3[ok3], sigma3[ok3]
     sigma = np.where(ok, sigma, np.nan)
     return q + origin, ok, sigma
+
+
+def aprilgrid_box_passes(gray: np.ndarray, stack: np.ndarray, board: Board, ids: np.ndarray, uv: np.ndarray,
+                         ax: np.ndarray, ay: np.ndarray, box: float
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """_refine_aprilgrid's passes in the corner square's box (stack = image_gradients(gray);
+    ax, ay = april.corner_axes, box = april.symmetric_box): (N, 2) corners, ok (refined and
+    looking like a tag corner), sigma, and restarted ((N,) bool: placed only from where the
+    neighbouring tags' corners put it)."""
+    q, ok, sigma = _aprilgrid_pass(gray, stack, uv, ax, ay, box)
+    ok &= april.looks_like_a_tag_corner(gray, ids, q, ax, ay, box)
+    pred = april.neighbour_predictions(ids, q, board, ok)
+    redo = ~ok & np.isfinite(pred).all(axis=1)
+    restarted = np.zeros(len(ids), bool)
+    if redo.any():
+        # started again from where the neighbouring tags' corners put them
+        r = np.flatnonzero(redo)
+        q2, ok2, sigma2 = _aprilgrid_pass(gray, stack, pred[r], ax[r], ay[r], box)
+        ok2 &= april.looks_like_a_tag_corner(gray, ids[r], q2, ax[r], ay[r], box)
+        q[r[ok2]], ok[r[ok2]], sigma[r[ok2]], restarted[r[ok2]] = q2[ok2], True, sigma2[ok2], True
+    return q, ok, sigma, restarted
+
+
+def _aprilgrid_mapped(stack: np.ndarray, ids: np.ndarray, uv: np.ndarray, board: Board, sel: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The last AprilGrid pass for the corners sel ((N,) bool) of a view whose refined
+    corners (ids, uv) give it a map (april.view_map; None where not): each refined as the centre of point symmetry
+    near the junction and of point antisymmetry along the tag edges beyond it
+    (april.junction_pattern), each pair's samples at the map's images of P + d and P - d
+    (a tag edge is 1 tag long against the corner square's 0.3: the lattice's own bends are
+    too rough for it), the edges' offset from the junctions fitted per view
+    (april.FIT_EDGE_SHIFT). Returns refine_pairs' (N, 2), ok, sigma."""
+    m = april.view_map(ids, uv, board)
+    if m is None:
+        return None
+    ids, uv = ids[sel], uv[sel]
+    xy = board.corners[ids, :2]
+    c0 = m(xy)
+    h = 1e-3 * board.tag_size
+    ax, ay = ((m(xy + step) - c0) / 1e-3 for step in ([h, 0.0], [0.0, h]))
+    size = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    if not np.isfinite(size).all() or size.min() <= 4.0:
+        return None
+    delta = max(STEP_PX / float(np.median(size)), 1.0 / MAX_PAIRS_PER_TAG_EDGE)
+    cross = _cross_offsets(min(april.BORDER_FRACTION, board.tag_spacing), 1.0, delta)
+    w, anti = april.junction_pattern(ids, board, cross, size)
+    sign = np.where(anti, -1.0, 1.0).astype(np.float32)
+    inward = april.TOWARDS_TAG[ids % 4]  # (N, 2) board directions of each corner's own tag
+    along_u = np.abs(cross[:, 0]) >= np.abs(cross[:, 1])
+    n, k = len(ids), len(cross)
+
+    def pairs(shift: float) -> tuple[np.ndarray, np.ndarray]:
+        # the antisymmetric pairs centred on the edge lines moved `shift` (metres) towards the tag
+        c = np.zeros((n, k, 2))
+        c[..., 1] = np.where(anti & along_u, shift * inward[:, None, 1], 0.0)
+        c[..., 0] = np.where(anti & ~along_u, shift * inward[:, None, 0], 0.0)
+        off = cross * board.tag_size
+        ends = m(np.concatenate([(xy[:, None, :] + c + off).reshape(-1, 2), (xy[:, None, :] + c - off).reshape(-1, 2)]))
+        Dp, Dm = ends.reshape(2, n, k, 2) - c0[None, :, None]
+        return Dp, Dm
+
+    shift = 0.0
+    if april.FIT_EDGE_SHIFT:
+        # where the edges alone put the corners (both arms long), against the junctions
+        both_arms = np.all([(anti & along_u).any(1), (anti & ~along_u).any(1)], axis=0)
+        if both_arms.sum() >= 8:
+            b = np.flatnonzero(both_arms)
+            Dp, Dm = pairs(0.0)
+            qe, oke, _ = refine_pairs(stack, uv[b], cross, Dp[b], Dm[b], anti[b].astype(np.float32), sign[b])
+            J = np.stack([ax[b], ay[b]], -1)[oke]
+            st = np.linalg.solve(J, (qe - uv[b])[oke][..., None])[..., 0]  # tag sizes, board axes
+            if len(st) >= 8:
+                shift = float(np.median(st * inward[b][oke])) * board.tag_size
+    Dp, Dm = pairs(shift)
+    return refine_pairs(stack, uv, cross, Dp, Dm, w.astype(np.float32), sign)
 
 
 def _aprilgrid_pass(gray: np.ndarray, stack: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,

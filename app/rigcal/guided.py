@@ -33,8 +33,7 @@ import numpy as np
 
 from .camera import CameraModel
 from .detect import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
-                     FitProgress, _cross_offsets, image_gradients, newton_steps, normal_equations, read_gray,
-                     symmetric_half_width, symmetry_terms)
+                     _cross_offsets, image_gradients, read_gray, refine_pairs, symmetric_half_width)
 from .workers import interrupts_deferred, pool
 
 # A corner the guided fit moves further than this from the detector's is left as the
@@ -110,41 +109,15 @@ def cross_samples(model: CameraModel, bc: BoardCorners, arm: float = ARM_SQUARES
 def refine_guided(stack: np.ndarray, uv: np.ndarray, cross: np.ndarray, Dp: np.ndarray, Dm: np.ndarray,
                   w: np.ndarray, iters: int = 25, tol: float = 2e-3, max_move: float = MAX_MOVE_PX
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Corners q minimising sum_d w (I(q + Dp(d)) - I(q + Dm(d)) - shading)^2, Gauss-Newton.
+    """Corners q minimising sum_d w (I(q + Dp(d)) - I(q + Dm(d)) - shading)^2, Gauss-Newton
+    (detect.refine_pairs, every pair point-symmetric).
 
     stack: detect.image_gradients of the image; uv (N, 2) the starts; cross, Dp, Dm, w from
     cross_samples. The shading term is detect.refine_symmetric's: I(q + d) ~ (1 + s.d) S(d).
     Returns (N, 2) corners, (N,) bool refined (False: the start is kept: too few samples,
     no convergence, under half the cross inside the image, or a move beyond max_move) and
     (N,) each refined corner's 1-sigma (px per axis; residual variance x (J^T W J)^-1)."""
-    n = len(uv)
-    out, ok, sigma = uv.astype(np.float64).copy(), np.zeros(n, bool), np.full(n, np.nan)
-    good = w.sum(1) >= 8
-    if not good.any():
-        return out, ok, sigma
-    idx = np.flatnonzero(good)
-    Dp, Dm, w = Dp[idx], Dm[idx], w[idx]
-    u, v = cross[None, :, 0].astype(np.float32), cross[None, :, 1].astype(np.float32)
-    p = np.zeros((len(idx), 4))
-    p[:, :2] = uv[idx]
-    fit = FitProgress(len(idx))
-    for _ in range(iters):
-        act = fit.act
-        pa = p[act]
-        xp, yp = (pa[:, 0, None] + Dp[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dp[act, :, 1]).astype(np.float32)
-        xm, ym = (pa[:, 0, None] + Dm[act, :, 0]).astype(np.float32), (pa[:, 1, None] + Dm[act, :, 1]).astype(np.float32)
-        r, cols, inside = symmetry_terms(stack, xp, yp, xm, ym, pa[:, 2:4], u, v)
-        fit.full[act] = (w[act] * inside).sum(1) >= 0.5 * w[act].sum(1)
-        wa = w[act] * inside
-        H, g = normal_equations(cols, r, wa)
-        step, bad = newton_steps(H, g)
-        step[:, :2] = np.clip(step[:, :2], -0.5, 0.5)
-        p[act] += step
-        if not fit.retire(step, bad, H, wa, r, tol):
-            break
-    q = p[:, :2]
-    fit.store(out, ok, sigma, idx, q, np.linalg.norm(q - uv[idx], axis=1) < max_move)
-    return out, ok, sigma
+    return refine_pairs(stack, uv, cross, Dp, Dm, w, iters=iters, tol=tol, max_move=max_move)
 
 
 def refine_image(gray: np.ndarray, task: ImageTask) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
