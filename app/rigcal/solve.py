@@ -279,6 +279,7 @@ class Problem:
         self._sparsity = None
         self._csr_structure = None  # (order, indices, indptr) of the Jacobian, see jacobian()
         self._order = None  # see _sorted()
+        self._bases = [it.basis() for it in state.intrinsics]
 
     # -- parameter vector <-> state
 
@@ -331,22 +332,23 @@ class Problem:
         return vals
 
     def _pose_sets(self, x: np.ndarray) -> tuple:
-        """(R, t, delta) of the cameras, frames and boards at x (see _poses)."""
-        return (self._poses(x, self.ref.T_cam_body, self.layout.cam),
-                self._poses(x, self.ref.T_body_world, self.layout.frame),
-                self._poses(x, self.ref.T_world_board, self.layout.board))
+        """(R, t, delta, J_l(delta)) of the cameras, frames and boards at x (see _poses);
+        the left Jacobians once per x, not once per chunk."""
+        return tuple((*P, _left_jacobian(P[2])) for P in (self._poses(x, self.ref.T_cam_body, self.layout.cam),
+                                                          self._poses(x, self.ref.T_body_world, self.layout.frame),
+                                                          self._poses(x, self.ref.T_world_board, self.layout.board)))
 
     @staticmethod
     def _chain(o: Observations, poses: tuple) -> dict:
         """The pose chain of observations `o` (any subset of the problem's) at `poses`."""
-        (Rc, tc, dc), (Rf, tf, df), (Rb, tb, db) = poses
+        (Rc, tc, dc, Jc), (Rf, tf, df, Jf), (Rb, tb, db, Jb) = poses
         w_rot = np.einsum("mij,mj->mi", Rb[o.board], o.p_board)  # R_world_board p_board
         q1 = w_rot + tb[o.board]  # world point
         f_rot = np.einsum("mij,mj->mi", Rf[o.frame], q1)
         q2 = f_rot + tf[o.frame]  # body point
         c_rot = np.einsum("mij,mj->mi", Rc[o.cam], q2)
         p = c_rot + tc[o.cam]  # camera point
-        return dict(Rc=Rc, Rf=Rf, dc=dc, df=df, db=db, w_rot=w_rot, f_rot=f_rot, c_rot=c_rot, p=p)
+        return dict(Rc=Rc, Rf=Rf, Jc=Jc, Jf=Jf, Jb=Jb, w_rot=w_rot, f_rot=f_rot, c_rot=c_rot, p=p)
 
     def _project(self, p: np.ndarray, vals: list[np.ndarray]) -> np.ndarray:
         """Camera points (M, 3) of the observations -> pixels (M, 2)."""
@@ -357,25 +359,32 @@ class Problem:
         uv = self._project(ch["p"], self._intrinsic_arrays(x))
         return (uv - self.obs.uv).ravel()
 
-    def _blocks(self, o: Observations, poses: tuple, vals: list) -> tuple:
-        """Jacobian blocks of the observations `o` at `poses` / `vals`: per camera d uv /
+    def _blocks(self, o: Observations, poses: tuple, vals: list, cam: int | None = None) -> tuple:
+        """Jacobian blocks of the observations `o` at `poses` / `vals`: camera -> d uv /
         d estimated intrinsics (M_c, 2, n_c) (rows of that camera's observations in `o`
         order), and d uv / d [rotation, translation] (M, 2, 6) of the camera, frame and
-        board poses (gauge poses included: callers skip them)."""
+        board poses (gauge poses included: callers skip them). cam: every observation is
+        of this camera (skips the per-camera split)."""
         ch = self._chain(o, poses)
-        J_p, J_intr = projection_jacobians(ch["p"], o.cam, vals, [it.model for it in self.ref.intrinsics])
+        models = [it.model for it in self.ref.intrinsics]
+        if cam is None:
+            J_p, J_list = projection_jacobians(ch["p"], o.cam, vals, models)
+            J_intr = dict(enumerate(J_list))
+        else:
+            J_p, Ji = _projection_jacobians_one(ch["p"], vals[cam], models[cam])
+            J_intr = {cam: Ji}
         # d uv / d params = d uv / d values @ E: a tied focal's column is fx's + fy's
-        J_intr = [Ji @ it.basis() for Ji, it in zip(J_intr, self.ref.intrinsics)]
+        J_intr = {c: Ji @ self._bases[c] for c, Ji in J_intr.items()}
         # camera extrinsics: p = exp(dc) Rc0 q2 + tc
-        D_rot_c = -geo.skew(ch["c_rot"]) @ _left_jacobian(ch["dc"])[o.cam]
+        D_rot_c = -geo.skew(ch["c_rot"]) @ ch["Jc"][o.cam]
         cam = np.concatenate([J_p @ D_rot_c, J_p], axis=2)
         # frames: q2 = exp(df) Rf0 q1 + tf, p = Rc q2 + ...
         Rc_o = ch["Rc"][o.cam]
-        D_rot_f = Rc_o @ (-geo.skew(ch["f_rot"])) @ _left_jacobian(ch["df"])[o.frame]
+        D_rot_f = Rc_o @ (-geo.skew(ch["f_rot"])) @ ch["Jf"][o.frame]
         frame = np.concatenate([J_p @ D_rot_f, J_p @ Rc_o], axis=2)
         # boards: q1 = exp(db) Rb0 P + tb
         RcRf = Rc_o @ ch["Rf"][o.frame]
-        D_rot_b = RcRf @ (-geo.skew(ch["w_rot"])) @ _left_jacobian(ch["db"])[o.board]
+        D_rot_b = RcRf @ (-geo.skew(ch["w_rot"])) @ ch["Jb"][o.board]
         board = np.concatenate([J_p @ D_rot_b, J_p @ RcRf], axis=2)
         return J_intr, cam, frame, board
 
@@ -457,7 +466,7 @@ class Problem:
         (m, 2) row sqrt-weights, rw (m, 2) weighted residuals."""
         L = self.layout
         c, b = int(o.cam[0]), int(o.board[0])
-        J_intr, cam, frame, board = self._blocks(o, poses, vals)
+        J_intr, cam, frame, board = self._blocks(o, poses, vals, cam=c)
         parts, cols = [], []
         for D, s in ((J_intr[c], L.intr[c]), (cam, L.cam[c]), (board, L.board[b])):
             if s is not None:
@@ -517,34 +526,38 @@ def projection_jacobians(p: np.ndarray, cam: np.ndarray, vals: list[np.ndarray],
     J_intr = []
     for c, (v, model) in enumerate(zip(vals, models)):
         m = cam == c
-        pc = p[m]
         if not m.any():
             J_intr.append(np.zeros((0, 2, len(v))))
             continue
-        h = 1e-6 * np.maximum(np.linalg.norm(pc, axis=1), 1e-3)
-        Jp = np.empty((len(pc), 2, 3))
-        for k in range(3):
-            dp = np.zeros_like(pc)
-            dp[:, k] = h
-            Jp[:, :, k] = (_project_one(pc + dp, v, model) - _project_one(pc - dp, v, model)) / (2 * h[:, None])
-        J_p[m] = Jp
-        Ji = np.empty((len(pc), 2, len(v)))
-        base = _project_one(pc, v, model)
-        # fx, fy, cx, cy enter linearly: exact derivatives.
-        Ji[:, 0, 0] = (base[:, 0] - v[2]) / v[0]
-        Ji[:, 1, 0] = 0.0
-        Ji[:, 0, 1] = 0.0
-        Ji[:, 1, 1] = (base[:, 1] - v[3]) / v[1]
-        Ji[:, :, 2] = [1.0, 0.0]
-        Ji[:, :, 3] = [0.0, 1.0]
-        for k in range(4, len(v)):
-            hk = 1e-6
-            vp, vm = v.copy(), v.copy()
-            vp[k] += hk
-            vm[k] -= hk
-            Ji[:, :, k] = (_project_one(pc, vp, model) - _project_one(pc, vm, model)) / (2 * hk)
+        J_p[m], Ji = _projection_jacobians_one(p[m], v, model)
         J_intr.append(Ji)
     return J_p, J_intr
+
+
+def _projection_jacobians_one(pc: np.ndarray, v: np.ndarray, model: str) -> tuple[np.ndarray, np.ndarray]:
+    """projection_jacobians for points pc (M, 3) all of one camera (values v, model)."""
+    h = 1e-6 * np.maximum(np.linalg.norm(pc, axis=1), 1e-3)
+    Jp = np.empty((len(pc), 2, 3))
+    for k in range(3):
+        dp = np.zeros_like(pc)
+        dp[:, k] = h
+        Jp[:, :, k] = (_project_one(pc + dp, v, model) - _project_one(pc - dp, v, model)) / (2 * h[:, None])
+    Ji = np.empty((len(pc), 2, len(v)))
+    base = _project_one(pc, v, model)
+    # fx, fy, cx, cy enter linearly: exact derivatives.
+    Ji[:, 0, 0] = (base[:, 0] - v[2]) / v[0]
+    Ji[:, 1, 0] = 0.0
+    Ji[:, 0, 1] = 0.0
+    Ji[:, 1, 1] = (base[:, 1] - v[3]) / v[1]
+    Ji[:, :, 2] = [1.0, 0.0]
+    Ji[:, :, 3] = [0.0, 1.0]
+    for k in range(4, len(v)):
+        hk = 1e-6
+        vp, vm = v.copy(), v.copy()
+        vp[k] += hk
+        vm[k] -= hk
+        Ji[:, :, k] = (_project_one(pc, vp, model) - _project_one(pc, vm, model)) / (2 * hk)
+    return Jp, Ji
 
 
 # ----------------------------------------------------------------------------- solving
