@@ -23,8 +23,6 @@ calibration's alone; its own "time:" line gives the solve seconds.
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import re
 import resource
@@ -43,7 +41,7 @@ from rigcal.synthetic import board_view, with_noise
 from rigcal.core import ViewIn
 from rigcal.target import parse_target
 
-from .common import CACHE, OUT, ROOT, Timer, md_table, perturbed_truth, rig_errors, say, write_json
+from .common import CACHE, OUT, Timer, md_table, perturbed_truth, rig_errors, run_sizes, say, sizes_main
 
 FRAMES = (100, 300, 1000)
 N_CAMERAS = 60
@@ -175,7 +173,7 @@ def one(frames: int) -> dict:
     peak_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     e = rig_errors(rigcal.load_rig(out), truth)
     return {"frames": frames, "ok": True, "cameras": N_CAMERAS, "corners": corners, "intrinsics_s": intr,
-            "solver_s": solve, "total_s": total, "wall_s": t.wall, "peak_rss_mb": peak_mb,
+            "solver_s": solve, "total_s": total, "wall_s": t.wall, "cpu_s": t.cpu, "peak_rss_mb": peak_mb,
             "bytes_per_corner": peak_mb * 2**20 / corners, "load_avg": [load0, os.getloadavg()],
             "max_pair_trans_err_mm": max(p["trans_mm"] for p in e["pairs"].values()),
             "max_pair_rot_err_deg": max(p["rot_deg"] for p in e["pairs"].values()),
@@ -183,13 +181,7 @@ def one(frames: int) -> dict:
 
 
 def run(frames=FRAMES, log=say) -> list[dict]:
-    out = []
-    for n in frames:
-        log(f"dome: {N_CAMERAS} cameras x {n} frames ...")
-        p = subprocess.run([sys.executable, "-m", "bench.dome", "--one", str(n)], cwd=ROOT, capture_output=True,
-                           text=True, check=True)
-        out.append(json.loads(p.stdout.strip().splitlines()[-1]))
-    return out
+    return run_sizes("bench.dome", frames, log, f"dome: {N_CAMERAS} cameras")
 
 
 def tables(res: list[dict]) -> str:
@@ -197,13 +189,14 @@ def tables(res: list[dict]) -> str:
     ok = [r for r in res if r.get("ok")]
     for r in res:
         if not r.get("ok"):
-            rows.append([r["frames"], "failed: " + r.get("error", "?")] + [""] * 9)
+            rows.append([r["frames"], "failed: " + r.get("error", "?")] + [""] * 10)
             continue
-        rows.append([r["frames"], r["corners"], r["intrinsics_s"], r["solver_s"], r["total_s"],
+        rows.append([r["frames"], r["corners"], r["intrinsics_s"], r["solver_s"], r["total_s"], r.get("cpu_s"),
                      r["solver_s"] / ok[0]["solver_s"] / (r["corners"] / ok[0]["corners"]), r["peak_rss_mb"],
                      r["bytes_per_corner"], r["max_pair_trans_err_mm"], r["max_pair_rot_err_deg"],
                      " / ".join(f"{x:.1f}" for x in r["load_avg"][0])])
-    return md_table(["frames", "corners", "init s", "solver s", "calibrate total s", "solver s per corner vs first",
+    return md_table(["frames", "corners", "init s", "solver s", "calibrate total s", "calibrate CPU s",
+                     "solver s per corner vs first",
                      "peak RSS MB", "peak bytes per corner", "max pair trans err mm", "max pair rot err deg",
                      "load avg 1/5/15"], rows,
                     f"Dome: {N_CAMERAS} cameras, 5 boards on a moved box, synthetic corners (0.1 px) as corners/ "
@@ -211,16 +204,7 @@ def tables(res: list[dict]) -> str:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, nargs="+", default=list(FRAMES))
-    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
-    a = ap.parse_args(argv)
-    if a.one:
-        print(json.dumps(one(a.one)))
-        return
-    res = run(a.frames)
-    say(tables(res))
-    write_json("dome", {"results": res})
+    sizes_main(argv, __doc__, FRAMES, one, run, tables, "dome")
 
 
 if __name__ == "__main__":
