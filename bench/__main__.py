@@ -8,6 +8,8 @@ Sections (each also runs alone: python -m bench.<name>):
   noise        error / Cramér-Rao bound over 10 seeds per scenario, with diagnostics
   montecarlo   share of true errors inside the reported 2 sigma (synthetic + rendered)
   scale        solver time and memory, 6 cameras x 100 .. 1000 frames
+  dome         `rigcal calibrate` on a 60-camera dome's corners/ files, 100 / 300 / 1000 frames: time, memory
+  long_recording  `rigcal calibrate` end to end on 4 cameras x 1,500 rendered frames (render cached)
   real         real photographs vs published references
   indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
@@ -29,19 +31,19 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import (accuracy, aprilgrid_excess, indie, indie_noise, ingest, montecarlo, noise_limit, peer_opencv, real,
-               scale, simulate_imu, solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, dome, indie, indie_noise, ingest, long_recording, montecarlo,
+               noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
-SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise",
-            "simulate_imu", "solvers", "ingest", "aprilgrid")
+SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "dome", "long_recording", "real", "indie",
+            "indie_noise", "simulate_imu", "solvers", "ingest", "aprilgrid")
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--only", nargs="+", choices=SECTIONS, help="run only these sections")
     ap.add_argument("--quick", action="store_true",
-                    help="fewer seeds and sizes (noise limit 3 seeds, Monte Carlo 10, scale up to 200 frames)")
+                    help="fewer seeds and sizes (noise limit 3 seeds, Monte Carlo 10, scale up to 200 frames, dome 100, long recording 300)")
     a = ap.parse_args(argv)
     todo = a.only or SECTIONS
     t0 = time.perf_counter()
@@ -99,6 +101,18 @@ def main(argv=None) -> None:
             write_json("scale", {"results": r, "machine": info})
             return scale.tables(r)
         section("scale", sc)
+    if "dome" in todo:
+        def dm():
+            r = dome.run((100,) if a.quick else dome.FRAMES)
+            write_json("dome", {"results": r, "machine": info})
+            return dome.tables(r)
+        section("dome", dm)
+    if "long_recording" in todo:
+        def lr():
+            r = long_recording.run(300 if a.quick else long_recording.FRAMES)
+            write_json("long_recording", {**r, "machine": info})
+            return long_recording.tables(r)
+        section("long_recording", lr)
     if "real" in todo:
         def rl():
             r = real.run()

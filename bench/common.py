@@ -445,3 +445,37 @@ def run_pool(fn, tasks: list, workers: int = JOBS) -> list:
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
         futures = [pool.submit(fn, *t) for t in tasks]
         return [f.result() for f in futures]
+
+
+# ----------------------------------------------------------------------------- sizes in their own processes
+
+
+def run_sizes(module: str, sizes, log, label: str) -> list[dict]:
+    """`python -m <module> --one N` for each N in sizes, each in its own process (so its
+    peak resident memory is that size's alone); the JSON each prints last."""
+    import subprocess
+
+    out = []
+    for n in sizes:
+        log(f"{label} x {n} frames ...")
+        p = subprocess.run([sys.executable, "-m", module, "--one", str(n)], cwd=ROOT, capture_output=True,
+                           text=True, check=True)
+        out.append(json.loads(p.stdout.strip().splitlines()[-1]))
+    return out
+
+
+def sizes_main(argv, doc: str, frames, one, run, tables, name: str) -> None:
+    """The command line of a benchmark over sizes: --frames N ... (all, a table and
+    bench/out/<name>.json) or --one N (one size, its JSON on stdout)."""
+    import argparse
+
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, nargs="+", default=list(frames))
+    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    if a.one:
+        print(json.dumps(one(a.one)))
+        return
+    res = run(a.frames)
+    say(tables(res))
+    write_json(name, {"results": res})

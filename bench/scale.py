@@ -1,5 +1,8 @@
 """Scale: solver time and memory for 6 cameras and many frames (issue 8; target 6 x 500 < 30 s).
 
+Peak memory per corner (issue 21: <= 1 kB) is the process's peak RSS over the corners; the
+table also gives it above the RSS before calibrating (interpreter, libraries, the views).
+
 Detections are synthetic (exact projections of four wall boards around rigs/surround-6
 plus 0.1 px Gaussian noise, rigcal.synthetic.room_scene): rendering 3000 images would
 measure the renderer, not the solver. Each size runs in its own process so the peak
@@ -11,18 +14,14 @@ resident memory (ru_maxrss) belongs to that calibration alone.
 
 from __future__ import annotations
 
-import argparse
-import json
 import resource
-import subprocess
-import sys
 
 import numpy as np
 
 import rigcal
 from rigcal.synthetic import room_scene, with_noise
 
-from .common import ROOT, RIGS, Timer, calibrate, md_table, perturbed_truth, rig_errors, say, write_json
+from .common import RIGS, Timer, calibrate, md_table, perturbed_truth, rig_errors, run_sizes, say, sizes_main
 
 FRAMES = (100, 200, 500, 1000)
 SIGMA_PX = 0.1
@@ -47,13 +46,7 @@ def one(frames: int) -> dict:
 
 
 def run(frames=FRAMES, log=say) -> list[dict]:
-    out = []
-    for n in frames:
-        log(f"scale: 6 cameras x {n} frames ...")
-        p = subprocess.run([sys.executable, "-m", "bench.scale", "--one", str(n)], cwd=ROOT, capture_output=True,
-                           text=True, check=True)
-        out.append(json.loads(p.stdout.strip().splitlines()[-1]))
-    return out
+    return run_sizes("bench.scale", frames, log, f"scale: 6 cameras")
 
 
 def tables(res: list[dict]) -> str:
@@ -63,25 +56,19 @@ def tables(res: list[dict]) -> str:
         rows.append([r["frames"], r["views"], r["corners"], r["solver_s"], r["intrinsics_s"] + r["graph_s"],
                      r["calibration_s"], r["calibration_cpu_s"],
                      r["solver_s"] / base["solver_s"] / (r["frames"] / base["frames"]), r["peak_rss_mb"],
+                     r["peak_rss_mb"] * 2**20 / r["corners"], (r["peak_rss_mb"] - r["rss_before_mb"]) * 2**20 / r["corners"],
                      r["max_pair_trans_err_mm"], r["max_pair_rot_err_deg"],
                      f"{sum(m == 'radial2' for m in r['models'])}/{len(r['models'])}"])
     return md_table(["frames", "views", "corners", "solver s", "init s", "calibration s", "calibration CPU s",
-                     "solver s per frame vs first", "peak RSS MB", "max pair trans err mm", "max pair rot err deg",
+                     "solver s per frame vs first", "peak RSS MB", "peak bytes per corner",
+                     "bytes per corner above the data's", "max pair trans err mm", "max pair rot err deg",
                      "cameras fitted radial2 (truth has p1, p2)"], rows,
-                    "Scale: 6 cameras (surround-6), synthetic detections (0.1 px noise); target 500 frames < 30 s")
+                    "Scale: 6 cameras (surround-6), synthetic detections (0.1 px noise); targets 500 frames < 30 s, "
+                    "peak memory <= 1 kB per corner")
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--frames", type=int, nargs="+", default=list(FRAMES))
-    ap.add_argument("--one", type=int, help=argparse.SUPPRESS)
-    a = ap.parse_args(argv)
-    if a.one:
-        print(json.dumps(one(a.one)))
-        return
-    res = run(a.frames)
-    say(tables(res))
-    write_json("scale", {"results": res})
+    sizes_main(argv, __doc__, FRAMES, one, run, tables, "scale")
 
 
 if __name__ == "__main__":

@@ -5,6 +5,7 @@ are never asserted: tolerances are physical and loose."""
 from __future__ import annotations
 
 import importlib
+import re
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "solver_libraries", "ingest",
-           "aprilgrid_excess", "__main__")
+           "aprilgrid_excess", "dome", "long_recording", "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -174,3 +175,43 @@ def test_aprilgrid_excess_runs_on_one_small_render():
     for k in ("box", "detector", "long arms", "exact symmetric", "exact long arms", "charuco"):
         assert 0.0 < row[k] < 0.2, (k, row[k])
     assert "long arms" in aprilgrid_excess.tables(r)
+
+
+def test_dome_dataset_is_a_dataset_calibrate_reads(tmp_path):
+    """bench.dome at a tiny size (12 cameras, 6 frames): the boards face out of the box and
+    a camera behind a print sees nothing, the corners files read back as views inside the
+    images, and `rigcal calibrate` on the folder recovers the true rig."""
+    from typer.testing import CliRunner
+
+    from bench import common, dome
+    from rigcal import geometry as geo
+    from rigcal.cli import app
+    from rigcal.corners import read_corners
+    from rigcal.target import load_target
+
+    for T in dome.box_boards(np.zeros((1, 3))).values():
+        assert T[:3, 2] @ T[:3, 3] < 0  # z into the print points back into the box
+        assert not dome.printed_side(T)  # a camera at the box's centre (T_cam_board = T_box_board) is behind it
+        assert dome.printed_side(geo.inv_T(geo.make_T(np.eye(3), [0.0, 0.0, -2.0])))  # 2 m out on the print's side
+    d, truth = dome.make_dataset(6, n_cameras=12, root=tmp_path, log=lambda s: None)
+    target = load_target(d / "target.yaml")
+    assert len(list((d / "corners").glob("*.csv"))) == 12
+    n_views = 0
+    for cam in truth.cameras:
+        for frame, board, ids, uv in read_corners(d / "corners" / f"{cam.name}.csv", target):
+            n_views += 1
+            assert len(ids) >= dome.MIN_CORNERS and np.all(np.diff(ids) > 0)
+            assert np.all((uv >= 0) & (uv < [cam.intrinsics.width, cam.intrinsics.height]))
+    assert n_views > 12 * 6  # most cameras see more than one face per frame
+    out = tmp_path / "cal.yaml"
+    r = CliRunner().invoke(app, ["calibrate", str(d), "--out", str(out), "--jobs", "1"])
+    assert r.exit_code == 0, r.output
+    # the corners are exact projections + 0.1 px noise: a convention slip (board frame, ids,
+    # pixel origin) would leave residuals of pixels
+    rms = float(re.search(r"reprojection RMS ([\d.]+) px", r.output).group(1))
+    assert 0.05 < rms < 0.2
+    # 6 frames of a narrow-angle dome pin the rig down loosely, but far better than declared
+    e = common.rig_errors(rigcal.load_rig(out), truth)
+    declared = common.rig_errors(rigcal.load_rig(d / "rig.yaml"), truth)
+    for k in ("rot_deg", "trans_mm"):
+        assert max(p[k] for p in e["pairs"].values()) < 0.5 * max(p[k] for p in declared["pairs"].values())

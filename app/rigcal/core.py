@@ -670,8 +670,10 @@ def calibrate_views(views_in: list[ViewIn], rig: Rig, corners: dict[str, np.ndar
         res = bundle_adjust(obs, st, gauge_cam, gauge_board, fix)
         solve_s += res.seconds
     elif (distortion == "auto" or intrinsics == "auto") and not fix_intrinsics:
+        t_m = time.perf_counter()  # model selection's covariance and refits are solver time too
         covariance = _covariance(res)
         reduced, logs = _reduce_models(res, covariance, centres, distortion == "auto", intrinsics == "auto")
+        solve_s += time.perf_counter() - t_m
         if intrinsics == "auto" and covariance is not None:
             free_sigma = {c: intrinsic_sigmas(C) for c, C in
                           enumerate(intrinsics_covariance(covariance[0], covariance[1], res.state.intrinsics))

@@ -34,6 +34,9 @@ from . import geometry as geo
 from .camera import distort_fisheye, distort_pinhole
 
 POSE_DIM = 6
+# corners per chunk of Problem.normal_equations: bounds its temporaries (~1.5 kB a corner
+# in the chunk) whatever the problem's size, and is large enough for numpy to amortise
+NE_CHUNK = 8192
 
 
 @dataclass(frozen=True)
@@ -275,6 +278,8 @@ class Problem:
         self.gauge_cam, self.gauge_board = gauge_cam, gauge_board
         self._sparsity = None
         self._csr_structure = None  # (order, indices, indptr) of the Jacobian, see jacobian()
+        self._order = None  # see _sorted()
+        self._bases = [it.basis() for it in state.intrinsics]
 
     # -- parameter vector <-> state
 
@@ -326,35 +331,69 @@ class Problem:
             vals.append(it.with_params(x[s]).values if s is not None else it.values)
         return vals
 
-    def _chain(self, x: np.ndarray):
-        o = self.obs
-        Rc, tc, dc = self._poses(x, self.ref.T_cam_body, self.layout.cam)
-        Rf, tf, df = self._poses(x, self.ref.T_body_world, self.layout.frame)
-        Rb, tb, db = self._poses(x, self.ref.T_world_board, self.layout.board)
+    def _pose_sets(self, x: np.ndarray) -> tuple:
+        """(R, t, delta, J_l(delta)) of the cameras, frames and boards at x (see _poses);
+        the left Jacobians once per x, not once per chunk."""
+        return tuple((*P, _left_jacobian(P[2])) for P in (self._poses(x, self.ref.T_cam_body, self.layout.cam),
+                                                          self._poses(x, self.ref.T_body_world, self.layout.frame),
+                                                          self._poses(x, self.ref.T_world_board, self.layout.board)))
+
+    @staticmethod
+    def _chain(o: Observations, poses: tuple) -> dict:
+        """The pose chain of observations `o` (any subset of the problem's) at `poses`."""
+        (Rc, tc, dc, Jc), (Rf, tf, df, Jf), (Rb, tb, db, Jb) = poses
         w_rot = np.einsum("mij,mj->mi", Rb[o.board], o.p_board)  # R_world_board p_board
         q1 = w_rot + tb[o.board]  # world point
         f_rot = np.einsum("mij,mj->mi", Rf[o.frame], q1)
         q2 = f_rot + tf[o.frame]  # body point
         c_rot = np.einsum("mij,mj->mi", Rc[o.cam], q2)
         p = c_rot + tc[o.cam]  # camera point
-        return dict(Rc=Rc, Rf=Rf, dc=dc, df=df, db=db, w_rot=w_rot, f_rot=f_rot, c_rot=c_rot, p=p)
+        return dict(Rc=Rc, Rf=Rf, Jc=Jc, Jf=Jf, Jb=Jb, w_rot=w_rot, f_rot=f_rot, c_rot=c_rot, p=p)
 
     def _project(self, p: np.ndarray, vals: list[np.ndarray]) -> np.ndarray:
         """Camera points (M, 3) of the observations -> pixels (M, 2)."""
         return project_obs(p, self.obs.cam, vals, [it.model for it in self.ref.intrinsics])
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        ch = self._chain(x)
+        ch = self._chain(self.obs, self._pose_sets(x))
         uv = self._project(ch["p"], self._intrinsic_arrays(x))
         return (uv - self.obs.uv).ravel()
 
+    def _blocks(self, o: Observations, poses: tuple, vals: list, cam: int | None = None) -> tuple:
+        """Jacobian blocks of the observations `o` at `poses` / `vals`: camera -> d uv /
+        d estimated intrinsics (M_c, 2, n_c) (rows of that camera's observations in `o`
+        order), and d uv / d [rotation, translation] (M, 2, 6) of the camera, frame and
+        board poses (gauge poses included: callers skip them). cam: every observation is
+        of this camera (skips the per-camera split)."""
+        ch = self._chain(o, poses)
+        models = [it.model for it in self.ref.intrinsics]
+        if cam is None:
+            J_p, J_list = projection_jacobians(ch["p"], o.cam, vals, models)
+            J_intr = dict(enumerate(J_list))
+        else:
+            J_p, Ji = _projection_jacobians_one(ch["p"], vals[cam], models[cam])
+            J_intr = {cam: Ji}
+        # d uv / d params = d uv / d values @ E: a tied focal's column is fx's + fy's
+        J_intr = {c: Ji @ self._bases[c] for c, Ji in J_intr.items()}
+        # camera extrinsics: p = exp(dc) Rc0 q2 + tc
+        D_rot_c = -geo.skew(ch["c_rot"]) @ ch["Jc"][o.cam]
+        cam = np.concatenate([J_p @ D_rot_c, J_p], axis=2)
+        # frames: q2 = exp(df) Rf0 q1 + tf, p = Rc q2 + ...
+        Rc_o = ch["Rc"][o.cam]
+        D_rot_f = Rc_o @ (-geo.skew(ch["f_rot"])) @ ch["Jf"][o.frame]
+        frame = np.concatenate([J_p @ D_rot_f, J_p @ Rc_o], axis=2)
+        # boards: q1 = exp(db) Rb0 P + tb
+        RcRf = Rc_o @ ch["Rf"][o.frame]
+        D_rot_b = RcRf @ (-geo.skew(ch["w_rot"])) @ ch["Jb"][o.board]
+        board = np.concatenate([J_p @ D_rot_b, J_p @ RcRf], axis=2)
+        return J_intr, cam, frame, board
+
     def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
+        """The whole sparse Jacobian (2M, size): for tests and small problems; the solve
+        itself sums the normal equations chunk by chunk (normal_equations)."""
         o = self.obs
         M = len(o)
-        ch = self._chain(x)
-        vals = self._intrinsic_arrays(x)
-        models = [it.model for it in self.ref.intrinsics]
-        J_p, J_intr = projection_jacobians(ch["p"], o.cam, vals, models)  # (M,2,3), list per cam (Mc,2,ni)
+        J_intr, cam, frame, board = self._blocks(o, self._pose_sets(x), self._intrinsic_arrays(x))
         rows, cols, data = [], [], []
         row2 = np.arange(M) * 2
         need_structure = self._csr_structure is None
@@ -372,27 +411,15 @@ class Problem:
                 rows.append(r.ravel())
                 cols.append(c.ravel())
 
-        # intrinsics
         for c, s in enumerate(self.layout.intr):
-            if s is None:
-                continue
-            mask = o.cam == c
-            # d uv / d params = d uv / d values @ E: a tied focal's column is fx's + fy's
-            add_block(mask, np.full(mask.sum(), s.start), J_intr[c] @ self.ref.intrinsics[c].basis())
-        # camera extrinsics: p = exp(dc) Rc0 q2 + tc
-        Jl_c = _left_jacobian(ch["dc"])
-        D_rot_c = -geo.skew(ch["c_rot"]) @ Jl_c[o.cam]
-        self._add_pose(add_block, J_p, D_rot_c, np.broadcast_to(np.eye(3), (M, 3, 3)), o.cam, self.layout.cam)
-        # frames: q2 = exp(df) Rf0 q1 + tf, p = Rc q2 + ...
-        Rc_o = ch["Rc"][o.cam]
-        Jl_f = _left_jacobian(ch["df"])
-        D_rot_f = Rc_o @ (-geo.skew(ch["f_rot"])) @ Jl_f[o.frame]
-        self._add_pose(add_block, J_p, D_rot_f, Rc_o, o.frame, self.layout.frame)
-        # boards: q1 = exp(db) Rb0 P + tb
-        RcRf = Rc_o @ ch["Rf"][o.frame]
-        Jl_b = _left_jacobian(ch["db"])
-        D_rot_b = RcRf @ (-geo.skew(ch["w_rot"])) @ Jl_b[o.board]
-        self._add_pose(add_block, J_p, D_rot_b, RcRf, o.board, self.layout.board)
+            if s is not None:
+                mask = o.cam == c
+                add_block(mask, np.full(mask.sum(), s.start), J_intr[c])
+        for D, idx, slices in ((cam, o.cam, self.layout.cam), (frame, o.frame, self.layout.frame),
+                               (board, o.board, self.layout.board)):
+            starts = np.array([s.start if s is not None else -1 for s in slices])[idx]
+            mask = starts >= 0
+            add_block(mask, starts[mask], D[mask])
         shape = (2 * M, self.layout.size)
         if not data:
             return sp.csr_matrix(shape)
@@ -401,14 +428,64 @@ class Problem:
         order, indices, indptr = self._csr_structure
         return sp.csr_matrix((np.concatenate(data)[order], indices, indptr), shape=shape)
 
-    @staticmethod
-    def _add_pose(add_block, J_p, D_rot, D_trans, idx, slices):
-        starts = np.array([s.start if s is not None else -1 for s in slices])[idx]
-        mask = starts >= 0
-        if not mask.any():
+    def _sorted(self) -> np.ndarray:
+        """Observation indices sorted by (camera, board, frame), cached (8 bytes a corner):
+        normal_equations sums runs of one camera and board, frame by frame."""
+        if self._order is None:
+            o = self.obs
+            self._order = np.lexsort((o.frame, o.board, o.cam))
+        return self._order
+
+    def normal_equations(self, x: np.ndarray, e: np.ndarray, w: np.ndarray) -> "NormalEquations":
+        """J^T W J and J^T W e at x (e (2M,) residuals, w (2M,) row weights), summed over
+        chunks of NE_CHUNK corners, each split into runs of one camera and one board: the
+        Jacobian is never held whole, so memory per corner stays a few hundred bytes
+        (issue 21) and the time linear in corners."""
+        L = self.layout
+        n_a = _frame_split(L)
+        nF = len(L.frame)
+        ne = NormalEquations(np.zeros(n_a), np.zeros(6 * nF), np.zeros((n_a, n_a)), np.zeros((n_a, 6 * nF)),
+                             np.zeros((nF, 6, 6)))
+        poses, vals = self._pose_sets(x), self._intrinsic_arrays(x)
+        sw = np.sqrt(w).reshape(-1, 2)
+        rw = sw * e.reshape(-1, 2)
+        order = self._sorted()
+        o = self.obs
+        for lo in range(0, len(order), NE_CHUNK):
+            idx = order[lo:lo + NE_CHUNK]
+            key = o.cam[idx] * len(L.board) + o.board[idx]
+            cuts = np.concatenate([[0], np.flatnonzero(np.diff(key)) + 1, [len(idx)]])
+            for a, b in zip(cuts[:-1], cuts[1:]):
+                g = idx[a:b]
+                self._accumulate(ne, o.subset(g), poses, vals, sw[g], rw[g])
+        return ne
+
+    def _accumulate(self, ne: "NormalEquations", o: Observations, poses: tuple, vals: list, sw: np.ndarray,
+                    rw: np.ndarray) -> None:
+        """Add the observations `o` (one camera, one board, frames ascending) to `ne`; sw
+        (m, 2) row sqrt-weights, rw (m, 2) weighted residuals."""
+        L = self.layout
+        c, b = int(o.cam[0]), int(o.board[0])
+        J_intr, cam, frame, board = self._blocks(o, poses, vals, cam=c)
+        parts, cols = [], []
+        for D, s in ((J_intr[c], L.intr[c]), (cam, L.cam[c]), (board, L.board[b])):
+            if s is not None:
+                parts.append(D)
+                cols.append(np.arange(s.start, s.stop))
+        D = frame * sw[:, :, None]
+        starts = np.concatenate([[0], np.flatnonzero(np.diff(o.frame)) + 1])
+        uf = o.frame[starts]  # frame indices, in layout order (frames are the trailing block)
+        ne.H_dd[uf] += np.add.reduceat(np.matmul(D.transpose(0, 2, 1), D), starts)
+        ne.g_d.reshape(-1, 6)[uf] += np.add.reduceat(np.einsum("mki,mk->mi", D, rw), starts)
+        if not parts:
             return
-        D = np.concatenate([J_p[mask] @ D_rot[mask], J_p[mask] @ D_trans[mask]], axis=2)  # (m, 2, 6)
-        add_block(mask, starts[mask], D)
+        A = np.concatenate(parts, axis=2) * sw[:, :, None]
+        ca = np.concatenate(cols)
+        A2 = A.reshape(-1, len(ca))
+        ne.H_aa[np.ix_(ca, ca)] += A2.T @ A2
+        ne.g_a[ca] += A2.T @ rw.ravel()
+        X = np.add.reduceat(np.matmul(A.transpose(0, 2, 1), D), starts)  # (frames, K, 6)
+        ne.H_ad.reshape(ne.H_ad.shape[0], -1, 6)[ca[:, None], uf[None, :]] += X.transpose(1, 0, 2)
 
     def sparsity(self) -> sp.csr_matrix:
         if self._sparsity is None:
@@ -449,34 +526,38 @@ def projection_jacobians(p: np.ndarray, cam: np.ndarray, vals: list[np.ndarray],
     J_intr = []
     for c, (v, model) in enumerate(zip(vals, models)):
         m = cam == c
-        pc = p[m]
         if not m.any():
             J_intr.append(np.zeros((0, 2, len(v))))
             continue
-        h = 1e-6 * np.maximum(np.linalg.norm(pc, axis=1), 1e-3)
-        Jp = np.empty((len(pc), 2, 3))
-        for k in range(3):
-            dp = np.zeros_like(pc)
-            dp[:, k] = h
-            Jp[:, :, k] = (_project_one(pc + dp, v, model) - _project_one(pc - dp, v, model)) / (2 * h[:, None])
-        J_p[m] = Jp
-        Ji = np.empty((len(pc), 2, len(v)))
-        base = _project_one(pc, v, model)
-        # fx, fy, cx, cy enter linearly: exact derivatives.
-        Ji[:, 0, 0] = (base[:, 0] - v[2]) / v[0]
-        Ji[:, 1, 0] = 0.0
-        Ji[:, 0, 1] = 0.0
-        Ji[:, 1, 1] = (base[:, 1] - v[3]) / v[1]
-        Ji[:, :, 2] = [1.0, 0.0]
-        Ji[:, :, 3] = [0.0, 1.0]
-        for k in range(4, len(v)):
-            hk = 1e-6
-            vp, vm = v.copy(), v.copy()
-            vp[k] += hk
-            vm[k] -= hk
-            Ji[:, :, k] = (_project_one(pc, vp, model) - _project_one(pc, vm, model)) / (2 * hk)
+        J_p[m], Ji = _projection_jacobians_one(p[m], v, model)
         J_intr.append(Ji)
     return J_p, J_intr
+
+
+def _projection_jacobians_one(pc: np.ndarray, v: np.ndarray, model: str) -> tuple[np.ndarray, np.ndarray]:
+    """projection_jacobians for points pc (M, 3) all of one camera (values v, model)."""
+    h = 1e-6 * np.maximum(np.linalg.norm(pc, axis=1), 1e-3)
+    Jp = np.empty((len(pc), 2, 3))
+    for k in range(3):
+        dp = np.zeros_like(pc)
+        dp[:, k] = h
+        Jp[:, :, k] = (_project_one(pc + dp, v, model) - _project_one(pc - dp, v, model)) / (2 * h[:, None])
+    Ji = np.empty((len(pc), 2, len(v)))
+    base = _project_one(pc, v, model)
+    # fx, fy, cx, cy enter linearly: exact derivatives.
+    Ji[:, 0, 0] = (base[:, 0] - v[2]) / v[0]
+    Ji[:, 1, 0] = 0.0
+    Ji[:, 0, 1] = 0.0
+    Ji[:, 1, 1] = (base[:, 1] - v[3]) / v[1]
+    Ji[:, :, 2] = [1.0, 0.0]
+    Ji[:, :, 3] = [0.0, 1.0]
+    for k in range(4, len(v)):
+        hk = 1e-6
+        vp, vm = v.copy(), v.copy()
+        vp[k] += hk
+        vm[k] -= hk
+        Ji[:, :, k] = (_project_one(pc, vp, model) - _project_one(pc, vm, model)) / (2 * hk)
+    return Jp, Ji
 
 
 # ----------------------------------------------------------------------------- solving
@@ -503,12 +584,23 @@ def _frame_split(layout: Layout) -> int:
     return layout.frame[0].start if layout.frame else layout.size
 
 
+@dataclass
 class NormalEquations:
     """J^T W J and J^T W r split into the camera/board part (a) and the block-diagonal
-    frame part (d), built once per iteration; solve() then costs one small dense solve
-    per damping value."""
+    frame part (d), built once per iteration (Problem.normal_equations, or from_jacobian
+    from a whole Jacobian); solve() then costs one small dense solve per damping value.
+    g_a (n_a,), g_d (6F,), H_aa (n_a, n_a), H_ad (n_a, 6F), H_dd (F, 6, 6)."""
 
-    def __init__(self, J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, split: int):
+    g_a: np.ndarray
+    g_d: np.ndarray
+    H_aa: np.ndarray
+    H_ad: np.ndarray
+    H_dd: np.ndarray
+
+    @classmethod
+    def from_jacobian(cls, J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, split: int) -> "NormalEquations":
+        """From the whole sparse Jacobian (2M, size), frames from column `split` on: the
+        plain construction, kept as the reference the chunked sums are tested against."""
         sw = np.sqrt(w)
         J = sp.csr_matrix(J)
         # row scaling straight on the CSR values (a diagonal matrix product copies twice)
@@ -516,11 +608,7 @@ class NormalEquations:
         rw = sw * r
         Ja = Jw[:, :split]
         Jd = Jw[:, split:]
-        self.g_a = Ja.T @ rw
-        self.g_d = Jd.T @ rw
-        self.H_aa = (Ja.T @ Ja).toarray()
-        self.H_ad = (Ja.T @ Jd).toarray()
-        self.H_dd = _frame_blocks(Jd.T @ Jd)
+        return cls(Ja.T @ rw, Jd.T @ rw, (Ja.T @ Ja).toarray(), (Ja.T @ Jd).toarray(), _frame_blocks(Jd.T @ Jd))
 
     def solve(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
         """Solve (H + lam diag(H)) dx = -g; returns (dx, Schur complement S)."""
@@ -547,11 +635,6 @@ class NormalEquations:
         g_d2 = -(self.g_d + self.H_ad.T @ dx_a)
         dx_d = np.matmul(Hinv, g_d2.reshape(nF, 6, 1)).ravel()
         return np.concatenate([dx_a, dx_d]), S
-
-
-def schur_solve(J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, lam: float, split: int):
-    """One damped Gauss-Newton step with the frame block eliminated (see NormalEquations)."""
-    return NormalEquations(J, r, w, split).solve(lam)
 
 
 def _frame_blocks(H_dd: sp.spmatrix) -> np.ndarray:
@@ -594,7 +677,6 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
     in units of the residual variance) by less than chi2_tol: past that, further digits
     are far below what the data can tell. Returns (x, iterations, converged)."""
     x = problem.x0()
-    split = _frame_split(problem.layout)
     sw = problem.obs.sqrt_weights()  # weighted least squares = plain LS on sw * e
     e = problem.residuals(x)  # px
     r = sw * e
@@ -602,8 +684,7 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
     dof = max(r.size - problem.layout.size, 1)
     lam = lam0
     for it in range(1, max_iter + 1):
-        J = problem.jacobian(x)
-        ne = NormalEquations(J, e, sw**2 * _robust_weights(r, scale), split)
+        ne = problem.normal_equations(x, e, sw**2 * _robust_weights(r, scale))
         improved = False
         for _ in range(12):
             dx, _ = ne.solve(lam)
@@ -705,11 +786,9 @@ def camera_covariance(result: SolveResult) -> tuple[np.ndarray, list, list]:
     Returns (cov, intr_slices, cam_slices) indexing cov."""
     pb = result.problem
     x = pb.x0()
-    J = pb.jacobian(x)
-    split = _frame_split(pb.layout)
     weighted = result.variance_factor is not None and pb.obs.weight is not None
-    w = pb.obs.sqrt_weights() ** 2 if weighted else np.ones(J.shape[0])
-    _, S = schur_solve(J, np.zeros(J.shape[0]), w, 0.0, split)
+    w = pb.obs.sqrt_weights() ** 2 if weighted else np.ones(2 * len(pb.obs))
+    _, S = pb.normal_equations(x, np.zeros(2 * len(pb.obs)), w).solve(0.0)
     cov = (result.variance_factor if weighted else result.sigma_px**2) * np.linalg.inv(S)
     return cov, list(pb.layout.intr), list(pb.layout.cam)
 
