@@ -95,16 +95,17 @@ def _imu_sigmas(imu: ImuInput) -> tuple[float, float]:
 
 
 def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, coarse_dt: float, pad: int = 2) -> spl.Spline:
-    """A spline with knots every dt through sampled body poses: a coarse fit (every segment
-    has samples), resampled at 200 Hz and fitted at dt, then `pad` copies of the end control
-    points on each side so clock-offset steps cannot leave it (the IMU shapes them)."""
+    """A spline with knots every dt through sampled body poses: a coarse least-squares fit
+    (every segment has samples; it smooths the pose noise), whose values at the fine knots
+    become the fine control points (a cubic B-spline's control points lie within
+    dt^2 |p''| / 6 of its curve: a start, which the estimator refines), with `pad` more
+    on each side so clock-offset steps cannot leave it (the IMU shapes them)."""
     order = np.argsort(t)
     coarse = spl.fit(t[order], T_world_body[order, :3, :3], T_world_body[order, :3, 3], coarse_dt)
-    tt = np.arange(coarse.t0, coarse.t_end, 0.005)
-    m = spl.evaluate(coarse, tt)
-    fine = spl.fit(tt, m.R_world_body, m.p_world, dt)
-    rep = np.r_[[0] * pad, np.arange(len(fine.p)), [len(fine.p) - 1] * pad]
-    return spl.Spline(fine.t0 - pad * dt, dt, fine.R[rep], fine.p[rep])
+    t0, n = spl.knots_for(coarse.t0, coarse.t_end, dt)
+    knot_t = np.clip(t0 + (np.arange(-pad, n + pad) - 1) * dt, coarse.t0, coarse.t_end)
+    m = spl.evaluate(coarse, knot_t)
+    return spl.Spline(t0 - pad * dt, dt, m.R_world_body, m.p_world)
 
 
 def gravity_start(spline: spl.Spline, imu: ImuInput, t: np.ndarray, accel: np.ndarray) -> np.ndarray:

@@ -31,7 +31,8 @@ import scipy.sparse as sp
 
 from . import geometry as geo
 from .camera import CameraModel
-from .spline import ORDER, Spline, motion_from_controls, segment
+from .solve import projection_jacobians
+from .spline import ORDER, Motion, Spline, basis, motion_from_controls, segment
 
 GRAVITY = 9.80665
 STEP = 1e-6  # central-difference step (radians, metres, seconds, bias units)
@@ -252,34 +253,66 @@ def corner_times(state: State, obs: Corners) -> np.ndarray:
     return obs.t_cam + state.time_offset_s[obs.cam] + obs.uv[:, 1] * state.line_delay_s[obs.cam]
 
 
+def pose_jacobian(state: State, t: np.ndarray) -> tuple[Motion, np.ndarray, np.ndarray]:
+    """(motion at t (M,), segment index i (M,), d [theta; p] / d local controls (M, 6, 24)):
+    theta the world-side rotation perturbation of R_world_body (Exp(theta) R), p the body
+    position; local controls as in the blocks (12 rotations, then 12 positions). Positions
+    enter linearly, so their part is exact; the rotation part is a local difference."""
+    i, u, Rc, P = _controls(state.spline, t)
+    dt = state.spline.dt
+    m0 = motion_from_controls(t, u, Rc, P, dt)
+
+    def fun(d):
+        m = _motion(t, u, Rc, P, dt, d, np.zeros((len(t), 12)))
+        return geo.rotvecs_from_R(m.R_world_body @ np.swapaxes(m0.R_world_body, 1, 2))
+
+    _, J_rot = local_jacobian(fun, len(t), 12)
+    b = basis(u, dt)[0]
+    w = b - np.concatenate([b[:, 1:], np.zeros((len(b), 1))], axis=1)  # p = sum_k w_k P_k
+    J = np.zeros((len(t), 6, 24))
+    J[:, :3, :12] = J_rot
+    J[:, 3:, 12:] = np.einsum("mk,ij->mikj", w, np.eye(3)).reshape(len(t), 3, 12)
+    return m0, i, J
+
+
 def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float
                        ) -> Block:
     """(project(T_body_cam^-1 T_world_body(t)^-1 p_world) - uv) / sigma_px at the corner's
     IMU-clock time; local parameters: 4 control rotations (12) and positions (12), the
     camera's rotation (3) and position (3) in the body, its time offset (1). The row time
-    uses the measured row (v), as Kalibr and basalt do for rolling shutters."""
-    t = corner_times(state, obs)
-    i, u, Rc, P = _controls(state.spline, t)
+    uses the measured row (v), as Kalibr and basalt do for rolling shutters.
+
+    The spline is differentiated once per distinct time (an image's corners share it under
+    a global shutter), the rest by the chain rule; d/d(offset) is the image motion from the
+    spline's velocity and angular velocity."""
+    t_all = corner_times(state, obs)
+    t_u, inv = np.unique(t_all, return_inverse=True)
+    m_u, i_u, Jpose_u = pose_jacobian(state, t_u)
+    R, p = m_u.R_world_body[inv], m_u.p_world[inv]
     c = obs.cam
     R_bc, t_bc = state.T_body_cam[c, :3, :3], state.T_body_cam[c, :3, 3]
-    dt = state.spline.dt
-
-    def fun(d):
-        # a time shift moves u within the segment's polynomial: exact to first order at knots (C2 spline)
-        m = _motion(t + d[:, 30], u + d[:, 30] / dt, Rc, P, dt, d[:, :12], d[:, 12:24])
-        p_body = np.einsum("mji,mj->mi", m.R_world_body, obs.p_world - m.p_world)
-        p_cam = np.einsum("mji,mj->mi", _turn(R_bc, d[:, 24:27]), p_body - t_bc - d[:, 27:30])
-        uv = np.empty((len(t), 2))
-        for ci, cam in enumerate(cameras):
-            k = c == ci
-            uv[k] = cam.project(p_cam[k])[0]
-        return (uv - obs.uv) / sigma_px
-
-    r, J = local_jacobian(fun, len(t), 31)
-    rot, pos = _spline_cols(lay, i)
+    dw = obs.p_world - p
+    p_body = np.einsum("mji,mj->mi", R, dw)
+    q = p_body - t_bc
+    p_cam = np.einsum("mji,mj->mi", R_bc, q)
+    vals = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in cameras]
+    uv = np.empty((len(c), 2))
+    for ci, cam in enumerate(cameras):
+        k = c == ci
+        uv[k] = cam.project(p_cam[k])[0]
+    J_uv = projection_jacobians(p_cam, c, vals, [k.model for k in cameras])[0]  # (M, 2, 3)
+    Rt = np.swapaxes(R, 1, 2)
+    d_body_pose = np.concatenate([Rt @ geo.skew(dw), -Rt], axis=2)  # (M, 3, 6): theta, p
+    omega_world = np.einsum("mij,mj->mi", R, m_u.omega_body[inv])
+    d_body_dt = np.einsum("mij,mj->mi", Rt @ geo.skew(dw), omega_world) - np.einsum("mji,mj->mi", R, m_u.v_world[inv])
+    A = J_uv @ np.swapaxes(R_bc, 1, 2) / sigma_px  # d r / d p_body (M, 2, 3)
+    J = np.concatenate([A @ d_body_pose @ Jpose_u[inv],
+                        (J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A,
+                        (A @ d_body_dt[..., None])], axis=2)
+    rot, pos = _spline_cols(lay, i_u[inv])
     cols = np.concatenate([rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1)],
                           axis=1)
-    return Block(r, J, cols)
+    return Block((uv - obs.uv) / sigma_px, J, cols)
 
 
 def bias_prior_block(state: State, lay: Layout, gyro_random_walk: float, accel_random_walk: float) -> Block:
