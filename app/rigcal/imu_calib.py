@@ -94,18 +94,33 @@ def _imu_sigmas(imu: ImuInput) -> tuple[float, float]:
     return imu.gyroscope_noise_density * r, imu.accelerometer_noise_density * r
 
 
-def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, coarse_dt: float, pad: int = 2) -> spl.Spline:
-    """A spline with knots every dt through sampled body poses: a coarse least-squares fit
-    (every segment has samples; it smooths the pose noise), whose values at the fine knots
-    become the fine control points (a cubic B-spline's control points lie within
-    dt^2 |p''| / 6 of its curve: a start, which the estimator refines), with `pad` more
-    on each side so clock-offset steps cannot leave it (the IMU shapes them)."""
+def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s: float, pad: int = 2) -> spl.Spline:
+    """A start spline with knots every dt through noisy sampled body poses: each control point
+    is the Gaussian-weighted (sigma smooth_s) mean of the samples near its knot, positions
+    arithmetically, rotations by the chordal mean. A cubic B-spline's curve lies within
+    dt^2 |p''| / 6 of its control points, so this is a start the estimator refines; linear
+    in the samples (each knot gathers a fixed window). `pad` extra knots on each side keep
+    clock-offset steps on the spline (the IMU shapes them)."""
     order = np.argsort(t)
-    coarse = spl.fit(t[order], T_world_body[order, :3, :3], T_world_body[order, :3, 3], coarse_dt)
-    t0, n = spl.knots_for(coarse.t0, coarse.t_end, dt)
-    knot_t = np.clip(t0 + (np.arange(-pad, n + pad) - 1) * dt, coarse.t0, coarse.t_end)
-    m = spl.evaluate(coarse, knot_t)
-    return spl.Spline(t0 - pad * dt, dt, m.R_world_body, m.p_world)
+    t, T = t[order], T_world_body[order]
+    t0, n = spl.knots_for(t[0], t[-1], dt)
+    knot_t = t0 + (np.arange(-pad, n + pad) - 1) * dt
+    lo = np.searchsorted(t, knot_t - 3 * smooth_s)
+    hi = np.searchsorted(t, knot_t + 3 * smooth_s)
+    width = max(int((hi - lo).max()), 1)
+    idx = np.minimum(lo[:, None] + np.arange(width), len(t) - 1)
+    inside = np.arange(width)[None] < (hi - lo)[:, None]
+    w = np.exp(-0.5 * ((t[idx] - knot_t[:, None]) / smooth_s) ** 2) * inside
+    # a knot past the ends (padding) takes the nearest sample
+    empty = w.sum(axis=1) == 0
+    idx[empty, 0] = np.clip(np.searchsorted(t, knot_t[empty]), 0, len(t) - 1)
+    w[empty, 0] = 1.0
+    w /= w.sum(axis=1, keepdims=True)
+    p = np.einsum("kw,kwi->ki", w, T[idx, :3, 3])
+    U, _, Vt = np.linalg.svd(np.einsum("kw,kwij->kij", w, T[idx, :3, :3]))
+    D = np.ones((len(knot_t), 3))
+    D[:, 2] = np.linalg.det(U @ Vt)
+    return spl.Spline(t0 - pad * dt, dt, (U * D[:, None, :]) @ Vt, p)
 
 
 def gravity_start(spline: spl.Spline, imu: ImuInput, t: np.ndarray, accel: np.ndarray) -> np.ndarray:
@@ -134,8 +149,8 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
         t_all.append(c.t_cam + s.time_offset_s)
         T_wb.append(c.T_world_cam @ geo.inv_T(T))
     t_all, T_wb = np.concatenate(t_all), np.concatenate(T_wb)
-    coarse_dt = max(settings.knot_dt, 2.5 * float(np.median(np.diff(np.sort(cams[0].t_cam)))))
-    spline = initial_spline(t_all, T_wb, settings.knot_dt, coarse_dt)
+    frame_dt = float(np.median(np.diff(np.sort(cams[0].t_cam))))
+    spline = initial_spline(t_all, T_wb, settings.knot_dt, max(settings.knot_dt, 1.5 * frame_dt))
     imu_start.check_acceleration(spl.evaluate(spline, np.arange(t_all.min(), t_all.max(), 0.01)).a_world,
                                  "the camera trajectory")
     use = (imu.t >= spline.t0 + 0.5 * spline.dt) & (imu.t <= spline.t_end - 0.5 * spline.dt)
