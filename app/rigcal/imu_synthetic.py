@@ -31,12 +31,14 @@ MIN_PNP_CORNERS = 8
 @dataclass(frozen=True, eq=False)
 class SyntheticRecording:
     """truth: the true rig (time offsets included); cams and imu: the estimator's inputs
-    (true intrinsics, declared T_body_cam, PnP frame poses); obs: all corners."""
+    (true intrinsics, declared T_body_cam, PnP frame poses); obs: all corners; the true
+    biases (N, 3) at times t_bias (N,)."""
 
     truth: Rig
     cams: list
     imu: ImuInput
     obs: Corners
+    t_bias: np.ndarray
     gyro_bias: np.ndarray
     accel_bias: np.ndarray
 
@@ -60,10 +62,12 @@ def _frame_poses(cam_model, T_world_board_f, p_board, uv, keep):
 
 
 def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, seed: int = 0, sigma_px: float = 0.3,
-                        time_offset_ms: float = 10.0) -> SyntheticRecording:
-    """A recording of `rig` (one IMU) as `simulate --scene imu` would make it, as corners."""
+                        time_offset_ms: float = 10.0, trajectory: imu_model.SineTrajectory | None = None
+                        ) -> SyntheticRecording:
+    """A recording of `rig` (one IMU) as `simulate --scene imu` would make it, as corners;
+    `trajectory` replaces the hand-held motion (e.g. a degenerate one)."""
     truth = true_rig_for_motion(rig, seed, time_offset_ms, PERTURBATION)
-    traj = imu_model.hand_held_trajectory(np.random.default_rng([seed, 2]))
+    traj = trajectory or imu_model.hand_held_trajectory(np.random.default_rng([seed, 2]))
     mean_pose = geo.make_T(geo.R_from_rotvec(np.array([0.0, 0.0, traj.ypr0[0]])), traj.p0)
     target, T_world_board = plan_boards(truth, mean_pose, None)
     timing = frame_timing(truth, duration, camera_rate)
@@ -101,7 +105,7 @@ def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, se
     imu_in = ImuInput(t_imu, stream.gyro, stream.accel, imu.update_rate, imu.gyroscope_noise_density,
                       imu.gyroscope_random_walk, imu.accelerometer_noise_density, imu.accelerometer_random_walk,
                       declared_imu.T_body_imu.copy())
-    return SyntheticRecording(truth, cams, imu_in, obs, stream.gyro_bias, stream.accel_bias)
+    return SyntheticRecording(truth, cams, imu_in, obs, t_imu, stream.gyro_bias, stream.accel_bias)
 
 
 def errors_against_truth(rec: SyntheticRecording, T_imu_cam: np.ndarray, time_offset_s: np.ndarray) -> np.ndarray:
