@@ -13,6 +13,7 @@ Sections (each also runs alone: python -m bench.<name>):
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
+  imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
@@ -27,12 +28,12 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import (accuracy, indie, indie_noise, ingest, montecarlo, noise_limit, peer_opencv, real, scale,
+from . import (accuracy, imu_calib, indie, indie_noise, ingest, montecarlo, noise_limit, peer_opencv, real, scale,
                simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "real", "indie", "indie_noise",
-            "simulate_imu", "solvers", "ingest")
+            "simulate_imu", "imu_calib", "solvers", "ingest")
 
 
 def main(argv=None) -> None:
@@ -121,6 +122,12 @@ def main(argv=None) -> None:
             write_json("simulate_imu", {**r, "machine": info})
             return simulate_imu.tables(r)
         section("simulate_imu", sim_imu)
+    if "imu_calib" in todo:
+        def imu_cal():
+            r = imu_calib.run(duration=8.0 if a.quick else 30.0, seeds=1 if a.quick else 3)
+            write_json("imu_calib", {**r, "machine": info})
+            return imu_calib.tables(r)
+        section("imu_calib", imu_cal)
     if "solvers" in todo:
         def solvers():
             r = solver_libraries.run((100,) if a.quick else solver_libraries.FRAMES)

@@ -13,7 +13,7 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
-MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "solver_libraries", "ingest",
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "imu_calib", "solver_libraries", "ingest",
            "__main__")
 
 
@@ -151,6 +151,15 @@ def test_simulate_imu_section_runs_small(tmp_path, monkeypatch):
     assert r["images"] == 3 and r["imu_samples"]["imu0"] == int(1.3 * 200) + 1
     assert (tmp_path / "simulate_imu.png").stat().st_size > 0 and (tmp_path / "simulate_imu.html").exists()
     assert "peak angular rate" in simulate_imu.tables(r)
+
+
+def test_imu_calib_section_runs_small():
+    from bench import imu_calib
+
+    r = imu_calib.run(duration=3.0, seeds=1)
+    x = r["results"][0]
+    assert len(x["rot_err_deg"]) == 3 and max(x["rot_err_deg"]) < 0.2 and max(x["pos_err_m"]) < 0.01
+    assert "offset err ms" in imu_calib.tables(r)
 
 
 def test_ingest_bench_runs_at_small_size():
