@@ -63,12 +63,13 @@ class State:
 @dataclass(frozen=True)
 class Layout:
     """Column offsets of each parameter group in the global vector; `held` names groups
-    kept fixed (their columns are -1): any of 'imu_rot', 'imu_pos', 'cam', 'offset'."""
+    kept fixed (their columns are -1): any of 'imu_rot', 'imu_pos', 'cam', 'offset',
+    'line_delay' (held by default: estimated only for a declared rolling shutter)."""
 
     n_ctrl: int
     n_cam: int
     n_bias: int
-    held: frozenset = frozenset({"imu_rot", "imu_pos"})
+    held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay"})
 
     @property
     def rot(self) -> int:
@@ -103,8 +104,12 @@ class Layout:
         return self.grav + 2
 
     @property
-    def size(self) -> int:
+    def line_delay(self) -> int:
         return self.imu + 6
+
+    @property
+    def size(self) -> int:
+        return self.line_delay + self.n_cam
 
     def group(self, name: str, start: np.ndarray | int, width: int) -> np.ndarray:
         """Columns start .. start + width - 1 (start (M,) or scalar), or -1 when `name` is held."""
@@ -112,7 +117,7 @@ class Layout:
         return np.full_like(cols, -1) if name in self.held else cols
 
 
-def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos"})) -> Layout:
+def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay"})) -> Layout:
     return Layout(len(state.spline.p), len(state.T_body_cam), len(state.gyro_bias), held)
 
 
@@ -279,8 +284,8 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
                        ) -> Block:
     """(project(T_body_cam^-1 T_world_body(t)^-1 p_world) - uv) / sigma_px at the corner's
     IMU-clock time; local parameters: 4 control rotations (12) and positions (12), the
-    camera's rotation (3) and position (3) in the body, its time offset (1). The row time
-    uses the measured row (v), as Kalibr and basalt do for rolling shutters.
+    camera's rotation (3) and position (3) in the body, its time offset (1) and line delay
+    (1). The row time uses the measured row (v), as Kalibr and basalt do for rolling shutters.
 
     The spline is differentiated once per distinct time (an image's corners share it under
     a global shutter), the rest by the chain rule; d/d(offset) is the image motion from the
@@ -306,12 +311,13 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     omega_world = np.einsum("mij,mj->mi", R, m_u.omega_body[inv])
     d_body_dt = np.einsum("mij,mj->mi", Rt @ geo.skew(dw), omega_world) - np.einsum("mji,mj->mi", R, m_u.v_world[inv])
     A = J_uv @ np.swapaxes(R_bc, 1, 2) / sigma_px  # d r / d p_body (M, 2, 3)
+    d_dt = A @ d_body_dt[..., None]
     J = np.concatenate([A @ d_body_pose @ Jpose_u[inv],
                         (J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A,
-                        (A @ d_body_dt[..., None])], axis=2)
+                        d_dt, d_dt * obs.uv[:, 1, None, None]], axis=2)
     rot, pos = _spline_cols(lay, i_u[inv])
-    cols = np.concatenate([rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1)],
-                          axis=1)
+    cols = np.concatenate([rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
+                           lay.group("line_delay", lay.line_delay + c, 1)], axis=1)
     return Block((uv - obs.uv) / sigma_px, J, cols)
 
 
@@ -363,5 +369,6 @@ def retract(state: State, lay: Layout, dx: np.ndarray) -> State:
     R_grav = geo.R_from_rotvec(tangent_basis(state.R_grav) @ dx[lay.grav:lay.grav + 2]) @ state.R_grav
     return replace(state, spline=spline, T_body_cam=T_bc, T_body_imu=T_bi,
                    time_offset_s=state.time_offset_s + dx[lay.offset:lay.offset + c],
+                   line_delay_s=state.line_delay_s + dx[lay.line_delay:lay.line_delay + c],
                    gyro_bias=state.gyro_bias + dx[lay.bg:lay.bg + 3 * k].reshape(k, 3),
                    accel_bias=state.accel_bias + dx[lay.ba:lay.ba + 3 * k].reshape(k, 3), R_grav=R_grav)
