@@ -63,7 +63,8 @@ class CameraInput:
 @dataclass(frozen=True)
 class Settings:
     """knot_dt: spline knot spacing (s); bias_dt: bias knot spacing (s); sigma_px: corner
-    noise (px); gravity: |g|; window_s: the clock-offset search half-width."""
+    noise (px); gravity: |g|; window_s: the clock-offset search half-width; line_delay:
+    estimate line delays (else held at the declared ones)."""
 
     knot_dt: float = 0.05
     bias_dt: float = 1.0
@@ -71,6 +72,7 @@ class Settings:
     gravity: float = ir.GRAVITY
     window_s: float = imu_start.SEARCH_WINDOW_S
     max_iter: int = 30
+    line_delay: bool = False  # estimate every camera's line delay (rolling shutter)
 
 
 @dataclass(frozen=True, eq=False)
@@ -229,7 +231,8 @@ def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput
     t_obs = ir.corner_times(state, obs)
     if t_obs.min() < state.spline.t0 or t_obs.max() > state.spline.t_end:
         raise CalibrationError("corner times fall outside the camera frames' span; give every frame's pose")
-    lay = ir.layout_for(state)
+    held = frozenset({"imu_rot", "imu_pos"} | (set() if settings.line_delay else {"line_delay"}))
+    lay = ir.layout_for(state, held)
     models = [c.model for c in cams]
     state, blocks, iters = levenberg_marquardt(state, lay, lambda s: _blocks(s, lay, obs, models, imu, use, settings),
                                                settings.max_iter)

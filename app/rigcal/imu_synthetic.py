@@ -5,8 +5,8 @@ pixel noise, and per-frame camera poses by PnP on those corners (as a real start
 get them). For tests and benches of rigcal.imu_calib; the rendering path itself is tested
 in tests/test_simulate_imu.py.
 
-Global shutter only: a rolling shutter makes each corner's time depend on its own row,
-which this projection does not iterate.
+A rolling shutter (a camera's line_delay_s) exposes each corner at its own row's time:
+the projection iterates on the row.
 """
 
 from __future__ import annotations
@@ -61,6 +61,23 @@ def _frame_poses(cam_model, T_world_board_f, p_board, uv, keep):
     return np.array([idx[k] for k in ok]), T_wc
 
 
+def _project_rows(traj, cam, t_frame: np.ndarray, p_world: np.ndarray, iters: int = 4):
+    """Pixels (F * N, 2) and validity of world points (N, 3) seen by `cam` in frames at IMU
+    times t_frame (F,); with a rolling shutter each point at its own row's time, found by
+    fixed-point iteration on the row (converges: the image moves far less than a row per
+    row-time)."""
+    t = np.repeat(t_frame, len(p_world))
+    p = np.tile(p_world, (len(t_frame), 1))
+    ld = cam.line_delay_s or 0.0
+    t_row = t
+    for _ in range(iters if ld else 1):
+        T_cam_world = geo.inv_T(traj.at(t_row).T_world_body @ cam.T_body_cam)
+        p_c = np.einsum("mij,mj->mi", T_cam_world[:, :3, :3], p) + T_cam_world[:, :3, 3]
+        uv, valid = cam.intrinsics.project(p_c)
+        t_row = t + np.nan_to_num(uv[:, 1]) * ld
+    return uv, valid
+
+
 def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, seed: int = 0, sigma_px: float = 0.3,
                         time_offset_ms: float = 10.0, trajectory: imu_model.SineTrajectory | None = None
                         ) -> SyntheticRecording:
@@ -79,15 +96,11 @@ def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, se
     p_board = [b.corners for b in target.boards]
     cams, parts = [], []
     for ci, cam in enumerate(truth.cameras):
-        if cam.line_delay_s:
-            raise ValueError("synthetic_recording: rolling shutters are not modelled")
         t_true = timing.t_imu_s[ci]
-        T_cam_world = geo.inv_T(traj.at(t_true).T_world_body @ cam.T_body_cam)  # (F, 4, 4)
         uv_all, keep_all = [], []
         for b, T_wB in enumerate(T_world_board):
             p_w = geo.transform(T_wB, p_board[b])
-            p_c = np.einsum("fij,nj->fni", T_cam_world[:, :3, :3], p_w) + T_cam_world[:, None, :3, 3]
-            uv, valid = cam.intrinsics.project(p_c.reshape(-1, 3))
+            uv, valid = _project_rows(traj, cam, t_true, p_w)
             uv = uv + rng.normal(0.0, sigma_px, uv.shape)
             keep = valid & cam.intrinsics.in_image(uv)
             uv_all.append(uv.reshape(len(t_true), -1, 2))
@@ -99,7 +112,8 @@ def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, se
         uv_fb = np.stack(uv_all, axis=1)
         frames, T_wc = _frame_poses(cam.intrinsics, T_world_board, p_board, uv_fb, keep_fb)
         declared = rig.camera(cam.name)
-        cams.append(CameraInput(cam.intrinsics, declared.T_body_cam.copy(), t_true[frames] - cam.time_offset_s, T_wc))
+        cams.append(CameraInput(cam.intrinsics, declared.T_body_cam.copy(), t_true[frames] - cam.time_offset_s, T_wc,
+                                declared.line_delay_s or 0.0))
     obs = Corners(*(np.concatenate(x) for x in zip(*parts)))
     declared_imu = rig.imus[0]
     imu_in = ImuInput(t_imu, stream.gyro, stream.accel, imu.update_rate, imu.gyroscope_noise_density,
