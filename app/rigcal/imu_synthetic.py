@@ -122,8 +122,9 @@ def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, se
     return SyntheticRecording(truth, cams, imu_in, obs, t_imu, stream.gyro_bias, stream.accel_bias)
 
 
-def errors_against_truth(rec: SyntheticRecording, T_imu_cam: np.ndarray, time_offset_s: np.ndarray) -> np.ndarray:
-    """(C, 3): rotation error (deg), translation error (m) of T_imu_cam and offset error (s)."""
+def errors_against_truth(rec, T_imu_cam: np.ndarray, time_offset_s: np.ndarray) -> np.ndarray:
+    """(C, 3): rotation error (deg), translation error (m) of T_imu_cam and offset error (s)
+    against `rec.truth` (a SyntheticRecording or simulate_imu.MotionSimResult)."""
     T_bi = rec.truth.imus[0].T_body_imu
     out = []
     for c, T, off in zip(rec.truth.cameras, T_imu_cam, time_offset_s):
