@@ -13,7 +13,7 @@ Sections (each also runs alone: python -m bench.<name>):
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
-  imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds
+  imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds + 30 s rendered
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
@@ -124,7 +124,8 @@ def main(argv=None) -> None:
         section("simulate_imu", sim_imu)
     if "imu_calib" in todo:
         def imu_cal():
-            r = imu_calib.run(duration=8.0 if a.quick else 30.0, seeds=1 if a.quick else 3)
+            r = imu_calib.run(duration=8.0 if a.quick else 30.0, seeds=1 if a.quick else 3,
+                              rendered=4.0 if a.quick else 30.0)
             write_json("imu_calib", {**r, "machine": info})
             return imu_calib.tables(r)
         section("imu_calib", imu_cal)

@@ -156,10 +156,18 @@ def test_simulate_imu_section_runs_small(tmp_path, monkeypatch):
 def test_imu_calib_section_runs_small():
     from bench import imu_calib
 
-    r = imu_calib.run(duration=3.0, seeds=1)
+    r = imu_calib.run(duration=3.0, seeds=1, rendered=0.0)
     x = r["results"][0]
     assert len(x["rot_err_deg"]) == 3 and max(x["rot_err_deg"]) < 0.2 and max(x["pos_err_m"]) < 0.01
     assert "offset err ms" in imu_calib.tables(r)
+
+
+def test_imu_calib_rendered_part_runs_small():
+    from bench import imu_calib
+
+    x = imu_calib.run_rendered(duration=2.5, camera_rate=10.0)
+    assert x["corners"] > 1000 and max(x["rot_err_deg"]) < 0.2 and max(x["pos_err_m"]) < 0.01
+    assert "rendered 2.5 s" in imu_calib.tables({"results": [], "rendered": x})
 
 
 def test_ingest_bench_runs_at_small_size():
