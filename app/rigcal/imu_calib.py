@@ -185,6 +185,8 @@ def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: in
         g = J.T @ r
         d = H.diagonal()
         while True:
+            if lam > 1e8:  # no step lowers the cost: converged as far as it can
+                return state, blocks, it
             dx = spla.spsolve((H + sp.diags(lam * np.maximum(d, 1e-9))).tocsc(), -g)
             trial = ir.retract(state, lay, dx)
             try:
@@ -194,11 +196,9 @@ def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: in
                 continue
             Jt, rt = ir.assemble(tb, lay.size)
             c = float(rt @ rt)
-            if c < cost:
+            if c < cost:  # False for NaN too
                 break
             lam *= 10
-            if lam > 1e8:
-                return state, blocks, it
         done = cost - c < 1e-9 * cost
         state, blocks, J, r, cost, lam = trial, tb, Jt, rt, c, max(lam / 10, 1e-9)
         if done:
