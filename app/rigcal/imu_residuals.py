@@ -8,17 +8,19 @@ parameters each row touches, and the global column of each (M, K) in a `Layout`
 State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
 - the body trajectory T_world_body(t): a rigcal.spline.Spline on the IMU clock;
 - T_body_imu (the reference IMU; normally held: it defines the body frame);
-- T_body_cam and time_offset_s per camera (t_imu = t_cam + time_offset_s, plus
-  row * line_delay_s for a rolling shutter);
+- T_body_cam, time_offset_s and line_delay_s per camera (t_imu = t_cam + time_offset_s
+  + row * line_delay_s);
 - gyroscope and accelerometer biases, piecewise linear between knots every bias_dt;
 - gravity g_world = R_grav @ [0, 0, -|g|], two tangent degrees of freedom.
 
-Jacobians: central differences over each row's own local parameters, vectorised over
-the rows (2 K evaluations of the block, each over all rows). The spline derivatives
-with respect to control rotations have closed forms (Sommer et al. 2020) but long ones;
-local differences of an exact evaluation are accurate to ~1e-9 relative and cannot
-disagree with the residual they differentiate. Tests check every block against
-differences of the whole problem (global state perturbed, spline re-evaluated).
+Jacobians: the IMU blocks take central differences over each row's own local parameters,
+vectorised over the rows (2 K evaluations of the block, each over all rows); the corner
+block differentiates the spline pose that way once per distinct time and chains the rest
+analytically. The spline derivatives with respect to control rotations have closed forms
+(Sommer et al. 2020) but long ones; local differences of an exact evaluation are accurate
+to ~1e-9 relative and cannot disagree with the residual they differentiate. Tests check
+every block against differences of the whole problem (global state perturbed through
+`retract`, spline re-evaluated).
 """
 
 from __future__ import annotations
