@@ -87,3 +87,10 @@ def test_kabsch_recovers_a_rotation_and_gyro_means_integrate_exactly():
     m = imu_start.gyro_means(t, g, np.array([0.1, 0.33]), np.array([0.5, 0.9]))
     np.testing.assert_allclose(m[:, 0], [0.3, 0.615], atol=1e-12)
     np.testing.assert_allclose(m[:, 1], 2 * m[:, 0], atol=1e-12)
+
+
+def test_images_outside_the_imu_stream_are_refused():
+    traj = imu_model.hand_held_trajectory(np.random.default_rng(4))
+    t_cam, R_wc, t_imu, gyro = _recording(traj, offset=0.0)
+    with pytest.raises(CalibrationError, match="overlap the IMU stream"):
+        imu_start.rate_start(t_cam + 100.0, R_wc, t_imu, gyro)

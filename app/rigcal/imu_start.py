@@ -122,6 +122,9 @@ def rate_start(t_cam: np.ndarray, R_world_cam: np.ndarray, t_imu: np.ndarray, gy
     # judged on the gyroscope: pose noise differentiated at the frame rate (~1-3 deg/s for
     # PnP) would pass a one-axis recording
     span = (t_imu >= t_cam[0] + guess_s - window_s) & (t_imu <= t_cam[-1] + guess_s + window_s)
+    if span.sum() < 10:
+        raise CalibrationError(f"{what}: its frames ({t_cam[0]:.3f} .. {t_cam[-1]:.3f} s, offset {guess_s:+.3f} "
+                               f"+- {window_s:g} s) do not overlap the IMU stream ({t_imu[0]:.3f} .. {t_imu[-1]:.3f} s)")
     check_rotation_excitation(gyro[span], what)
     offset, corr = time_offset_from_rates(t_cam, R_world_cam, t_imu, gyro, guess_s, window_s)
     inside = (ta + offset >= t_imu[0]) & (tb + offset <= t_imu[-1])
