@@ -168,9 +168,10 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
 
 def _blocks(state, lay, obs, models, imu, use, settings):
     sg, sa = _imu_sigmas(imu)
+    mj = ir.motion_jacobian(state, imu.t[use])  # shared by both IMU blocks
     return [ir.reprojection_block(state, lay, obs, models, settings.sigma_px),
-            ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg),
-            ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa),
+            ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg, mj),
+            ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa, mj),
             ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
 
 

@@ -188,25 +188,64 @@ def _spline_cols(lay: Layout, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return rot, pos
 
 
-def gyro_block(state: State, lay: Layout, t: np.ndarray, gyro: np.ndarray, sigma: float) -> Block:
-    """(R_body_imu^T omega_body(t) + b_g(t) - gyro) / sigma; local parameters: 4 control
-    rotations (12), R_body_imu (3), two gyro bias knots (6)."""
+@dataclass(frozen=True, eq=False)
+class MotionJacobian:
+    """The motion at times t and its derivatives with respect to each time's local controls:
+    J_rot (M, 9, 12) of [theta; omega_body; alpha_body] (theta: the world-side rotation
+    perturbation of R_world_body) by the 12 control-rotation perturbations (a local central
+    difference: 24 evaluations of the spline over all rows), and the exact weights (M, 4) of
+    the control positions in p_world (w_p) and a_world (w_a)."""
+
+    motion: Motion
+    i: np.ndarray
+    J_rot: np.ndarray
+    w_p: np.ndarray
+    w_a: np.ndarray
+
+
+def _position_weights(b: np.ndarray) -> np.ndarray:
+    """Cumulative basis (M, 4) -> weight of each control position (M, 4) (sum_k w_k P_k)."""
+    return b - np.concatenate([b[:, 1:], np.zeros((len(b), 1))], axis=1)
+
+
+def motion_jacobian(state: State, t: np.ndarray) -> MotionJacobian:
     i, u, Rc, P = _controls(state.spline, t)
-    j, s = _bias_at(state, t)
-    R_bi = state.T_body_imu[:3, :3]
-    bg = state.gyro_bias
+    dt = state.spline.dt
+    m0 = motion_from_controls(t, u, Rc, P, dt)
+    zero = np.zeros((len(t), 12))
 
     def fun(d):
-        m = _motion(t, u, Rc, P, state.spline.dt, d[:, :12], np.zeros((len(t), 12)))
-        R = _turn(R_bi, d[:, 12:15])
-        b = (1 - s)[:, None] * (bg[j] + d[:, 15:18]) + s[:, None] * (bg[j + 1] + d[:, 18:21])
-        return (np.einsum("mji,mj->mi", R, m.omega_body) + b - gyro) / sigma
+        m = _motion(t, u, Rc, P, dt, d, zero)
+        theta = geo.rotvecs_from_R(m.R_world_body @ np.swapaxes(m0.R_world_body, 1, 2))
+        return np.concatenate([theta, m.omega_body, m.alpha_body], axis=1)
 
-    r, J = local_jacobian(fun, len(t), 21)
-    rot, _ = _spline_cols(lay, i)
+    _, J = local_jacobian(fun, len(t), 12)
+    b, _, ddb = basis(u, dt)
+    return MotionJacobian(m0, i, J, _position_weights(b), _position_weights(ddb))
+
+
+def _per_control(M: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) matrices times each control's weight (M, 4) -> (M, 3, 12)."""
+    return np.einsum("mij,mk->mikj", M, w).reshape(len(w), 3, 12)
+
+
+def gyro_block(state: State, lay: Layout, t: np.ndarray, gyro: np.ndarray, sigma: float,
+               mj: MotionJacobian | None = None) -> Block:
+    """(R_body_imu^T omega_body(t) + b_g(t) - gyro) / sigma; local parameters: 4 control
+    rotations (12), R_body_imu (3), two gyro bias knots (6). `mj`: motion_jacobian(state, t)
+    when the caller has it (the accelerometer block shares it)."""
+    mj = mj or motion_jacobian(state, t)
+    j, s = _bias_at(state, t)
+    Rt_bi = state.T_body_imu[:3, :3].T
+    w = mj.motion.omega_body
+    b = (1 - s)[:, None] * state.gyro_bias[j] + s[:, None] * state.gyro_bias[j + 1]
+    eye = np.broadcast_to(np.eye(3), (len(t), 3, 3))
+    J = np.concatenate([Rt_bi @ mj.J_rot[:, 3:6], Rt_bi @ geo.skew(w), (1 - s)[:, None, None] * eye,
+                        s[:, None, None] * eye], axis=2) / sigma
+    rot, _ = _spline_cols(lay, mj.i)
     cols = np.concatenate([rot, lay.group("imu_rot", np.full(len(t), lay.imu), 3),
                            lay.group("bg", lay.bg + 3 * j, 6)], axis=1)
-    return Block(r, J, cols)
+    return Block((w @ Rt_bi.T + b - gyro) / sigma, J, cols)
 
 
 def specific_force(m, R_body_imu: np.ndarray, t_body_imu: np.ndarray, g_world: np.ndarray) -> np.ndarray:
@@ -218,29 +257,33 @@ def specific_force(m, R_body_imu: np.ndarray, t_body_imu: np.ndarray, g_world: n
     return np.einsum("...ji,...j->...i", R_body_imu, f_body)
 
 
-def accel_block(state: State, lay: Layout, t: np.ndarray, accel: np.ndarray, sigma: float) -> Block:
+def accel_block(state: State, lay: Layout, t: np.ndarray, accel: np.ndarray, sigma: float,
+                mj: MotionJacobian | None = None) -> Block:
     """(specific force(t) + b_a(t) - accel) / sigma; local parameters: 4 control rotations
     (12) and positions (12), R_body_imu (3), t_body_imu (3), two accel bias knots (6),
-    gravity's direction (2)."""
-    i, u, Rc, P = _controls(state.spline, t)
+    gravity's direction (2). Chain rule on f_body = R^T (a - g) + alpha x r + omega x (omega x r)."""
+    mj = mj or motion_jacobian(state, t)
+    m = mj.motion
     j, s = _bias_at(state, t)
-    R_bi, t_bi = state.T_body_imu[:3, :3], state.T_body_imu[:3, 3]
-    ba, B = state.accel_bias, tangent_basis(state.R_grav)
+    Rt_bi, r_lever = state.T_body_imu[:3, :3].T, state.T_body_imu[:3, 3]
     g0 = state.g_world
-
-    def fun(d):
-        m = _motion(t, u, Rc, P, state.spline.dt, d[:, :12], d[:, 12:24])
-        R = _turn(R_bi, d[:, 24:27])
-        g = np.einsum("mij,j->mi", geo.R_from_rotvec(d[:, 36:38] @ B.T), g0)
-        b = (1 - s)[:, None] * (ba[j] + d[:, 30:33]) + s[:, None] * (ba[j + 1] + d[:, 33:36])
-        return (specific_force(m, R, t_bi + d[:, 27:30], g) + b - accel) / sigma
-
-    r, J = local_jacobian(fun, len(t), 38)
-    rot, pos = _spline_cols(lay, i)
+    w, al = m.omega_body, m.alpha_body
+    Rt = np.swapaxes(m.R_world_body, 1, 2)
+    f_body = np.einsum("mij,mj->mi", Rt, m.a_world - g0) + np.cross(al, r_lever) + np.cross(w, np.cross(w, r_lever))
+    K_r, K_w = geo.skew(r_lever), geo.skew(w)
+    d_theta = Rt @ geo.skew(m.a_world - g0)
+    d_omega = -K_w @ K_r - geo.skew(np.cross(w, r_lever))
+    d_rot = d_theta @ mj.J_rot[:, :3] - K_r @ mj.J_rot[:, 6:9] + d_omega @ mj.J_rot[:, 3:6]
+    eye = np.broadcast_to(np.eye(3), (len(t), 3, 3))
+    J = np.concatenate([Rt_bi @ d_rot, Rt_bi @ _per_control(Rt, mj.w_a), Rt_bi @ geo.skew(f_body),
+                        Rt_bi @ (geo.skew(al) + K_w @ K_w), (1 - s)[:, None, None] * eye, s[:, None, None] * eye,
+                        Rt_bi @ Rt @ (geo.skew(g0) @ tangent_basis(state.R_grav))], axis=2) / sigma
+    b = (1 - s)[:, None] * state.accel_bias[j] + s[:, None] * state.accel_bias[j + 1]
+    rot, pos = _spline_cols(lay, mj.i)
     n = np.full(len(t), 0)
     cols = np.concatenate([rot, pos, lay.group("imu_rot", n + lay.imu, 3), lay.group("imu_pos", n + lay.imu + 3, 3),
                            lay.group("ba", lay.ba + 3 * j, 6), lay.group("grav", n + lay.grav, 2)], axis=1)
-    return Block(r, J, cols)
+    return Block((f_body @ Rt_bi.T + b - accel) / sigma, J, cols)
 
 
 @dataclass(frozen=True, eq=False)
@@ -263,23 +306,12 @@ def corner_times(state: State, obs: Corners) -> np.ndarray:
 def pose_jacobian(state: State, t: np.ndarray) -> tuple[Motion, np.ndarray, np.ndarray]:
     """(motion at t (M,), segment index i (M,), d [theta; p] / d local controls (M, 6, 24)):
     theta the world-side rotation perturbation of R_world_body (Exp(theta) R), p the body
-    position; local controls as in the blocks (12 rotations, then 12 positions). Positions
-    enter linearly, so their part is exact; the rotation part is a local difference."""
-    i, u, Rc, P = _controls(state.spline, t)
-    dt = state.spline.dt
-    m0 = motion_from_controls(t, u, Rc, P, dt)
-
-    def fun(d):
-        m = _motion(t, u, Rc, P, dt, d, np.zeros((len(t), 12)))
-        return geo.rotvecs_from_R(m.R_world_body @ np.swapaxes(m0.R_world_body, 1, 2))
-
-    _, J_rot = local_jacobian(fun, len(t), 12)
-    b = basis(u, dt)[0]
-    w = b - np.concatenate([b[:, 1:], np.zeros((len(b), 1))], axis=1)  # p = sum_k w_k P_k
+    position; local controls as in the blocks (12 rotations, then 12 positions)."""
+    mj = motion_jacobian(state, t)
     J = np.zeros((len(t), 6, 24))
-    J[:, :3, :12] = J_rot
-    J[:, 3:, 12:] = np.einsum("mk,ij->mikj", w, np.eye(3)).reshape(len(t), 3, 12)
-    return m0, i, J
+    J[:, :3, :12] = mj.J_rot[:, :3]
+    J[:, 3:, 12:] = _per_control(np.broadcast_to(np.eye(3), (len(t), 3, 3)), mj.w_p)
+    return mj.motion, mj.i, J
 
 
 def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float
