@@ -10,7 +10,7 @@ from rigcal import geometry as geo
 from rigcal import imu as imu_model
 from rigcal import imu_residuals as ir
 from rigcal.camera import CameraModel
-from rigcal.spline import Spline, evaluate
+from rigcal.spline import Spline, evaluate, fit
 
 
 def _state(rng, n=9, dt=0.1, n_bias=3):
@@ -108,7 +108,7 @@ def test_residuals_vanish_on_the_simulators_readings():
     traj = imu_model.hand_held_trajectory(rng)
     t = np.arange(0.0, 3.0, 0.002)
     mo = traj.at(t)
-    spline = __import__("rigcal.spline", fromlist=["fit"]).fit(t, mo.R_world_body, mo.p_world, 0.02)
+    spline = fit(t, mo.R_world_body, mo.p_world, 0.02)
     T_bi = geo.make_T(geo.R_from_rotvec([0.02, -0.03, 0.5]), [0.03, -0.02, 0.01])
     st = _state(rng)
     st = ir.State(spline=spline, T_body_imu=T_bi, T_body_cam=st.T_body_cam, time_offset_s=st.time_offset_s,
