@@ -15,6 +15,7 @@ Sections (each also runs alone: python -m bench.<name>):
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
+  imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds + 30 s rendered
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
@@ -31,12 +32,12 @@ from __future__ import annotations
 import argparse
 import time
 
-from . import (accuracy, aprilgrid_excess, dome, indie, indie_noise, ingest, long_recording, montecarlo,
-               noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, dome, imu_calib, indie, indie_noise, ingest, long_recording,
+               montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "dome", "long_recording", "real", "indie",
-            "indie_noise", "simulate_imu", "solvers", "ingest", "aprilgrid")
+            "indie_noise", "simulate_imu", "imu_calib", "solvers", "ingest", "aprilgrid")
 
 
 def main(argv=None) -> None:
@@ -137,6 +138,13 @@ def main(argv=None) -> None:
             write_json("simulate_imu", {**r, "machine": info})
             return simulate_imu.tables(r)
         section("simulate_imu", sim_imu)
+    if "imu_calib" in todo:
+        def imu_cal():
+            r = imu_calib.run(duration=8.0 if a.quick else 30.0, seeds=1 if a.quick else 3,
+                              rendered=4.0 if a.quick else 30.0)
+            write_json("imu_calib", {**r, "machine": info})
+            return imu_calib.tables(r)
+        section("imu_calib", imu_cal)
     if "solvers" in todo:
         def solvers():
             r = solver_libraries.run((100,) if a.quick else solver_libraries.FRAMES)

@@ -14,8 +14,9 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
-MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie", "indie_noise", "simulate_imu", "solver_libraries", "ingest",
-           "aprilgrid_excess", "dome", "long_recording", "__main__")
+MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
+           "indie_noise", "simulate_imu", "imu_calib", "solver_libraries", "ingest", "aprilgrid_excess", "dome",
+           "long_recording", "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -152,6 +153,23 @@ def test_simulate_imu_section_runs_small(tmp_path, monkeypatch):
     assert r["images"] == 3 and r["imu_samples"]["imu0"] == int(1.3 * 200) + 1
     assert (tmp_path / "simulate_imu.png").stat().st_size > 0 and (tmp_path / "simulate_imu.html").exists()
     assert "peak angular rate" in simulate_imu.tables(r)
+
+
+def test_imu_calib_section_runs_small():
+    from bench import imu_calib
+
+    r = imu_calib.run(duration=3.0, seeds=1, rendered=0.0)
+    x = r["results"][0]
+    assert len(x["rot_err_deg"]) == 3 and max(x["rot_err_deg"]) < 0.2 and max(x["pos_err_m"]) < 0.01
+    assert "offset err ms" in imu_calib.tables(r)
+
+
+def test_imu_calib_rendered_part_runs_small():
+    from bench import imu_calib
+
+    x = imu_calib.run_rendered(duration=2.5, camera_rate=10.0)
+    assert x["corners"] > 1000 and max(x["rot_err_deg"]) < 0.2 and max(x["pos_err_m"]) < 0.01
+    assert "rendered 2.5 s" in imu_calib.tables({"results": [], "rendered": x})
 
 
 def test_ingest_bench_runs_at_small_size():

@@ -104,17 +104,22 @@ def basis(u: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 def evaluate(spline: Spline, t: np.ndarray) -> Motion:
     """The pose and its derivatives at times t (M,)."""
     i, u = segment(spline, t)
-    b, db, ddb = basis(u, spline.dt)
     idx = i[:, None] + np.arange(ORDER)  # (M, 4) control points of each time
-    P = spline.p[idx]
+    return motion_from_controls(np.asarray(t, dtype=float), u, spline.R[idx], spline.p[idx], spline.dt)
+
+
+def motion_from_controls(t: np.ndarray, u: np.ndarray, Rc: np.ndarray, P: np.ndarray, dt: float) -> Motion:
+    """The motion at times t (M,) at segment fractions u (M,) from each time's own four control
+    rotations Rc (M, 4, 3, 3) and positions P (M, 4, 3): what residual Jacobians perturb
+    (rigcal.imu_residuals), one row at a time."""
+    b, db, ddb = basis(u, dt)
     d = np.diff(P, axis=1)  # (M, 3, 3): p_{i+j} - p_{i+j-1}, j = 1..3
     p = P[:, 0] + np.einsum("mj,mjk->mk", b[:, 1:], d)
     v = np.einsum("mj,mjk->mk", db[:, 1:], d)
     a = np.einsum("mj,mjk->mk", ddb[:, 1:], d)
-    Rc = spline.R[idx]  # (M, 4, 3, 3)
     R = Rc[:, 0].copy()
-    omega = np.zeros((len(i), 3))
-    alpha = np.zeros((len(i), 3))
+    omega = np.zeros((len(u), 3))
+    alpha = np.zeros((len(u), 3))
     for j in range(1, ORDER):
         phi = geo.rotvecs_from_R(np.swapaxes(Rc[:, j - 1], 1, 2) @ Rc[:, j])
         A = geo.R_from_rotvec(b[:, j, None] * phi)
@@ -124,7 +129,7 @@ def evaluate(spline: Spline, t: np.ndarray) -> Motion:
         alpha = np.einsum("mij,mj->mi", At, alpha) + ddb[:, j, None] * phi + np.cross(w_rot, dphi)
         omega = w_rot + dphi
         R = R @ A
-    return Motion(np.asarray(t, dtype=float), R, p, v, a, omega, alpha)
+    return Motion(t, R, p, v, a, omega, alpha)
 
 
 def knots_for(t_start: float, t_end: float, dt: float) -> tuple[float, int]:

@@ -1,0 +1,244 @@
+"""Prototype camera-IMU estimator (issue 18): the body trajectory as a spline, every camera's
+T_body_cam and clock offset, gyroscope and accelerometer biases and gravity's direction,
+jointly, by Levenberg-Marquardt on the sparse residual blocks of rigcal.imu_residuals.
+
+NOT yet used by `rigcal calibrate` (README "Camera-IMU calibration (in progress)"). What
+it assumes today: intrinsics known (a camera-only calibration), the corners' world points
+known (static boards at known poses: the board frame is the world), the reference IMU's
+T_body_imu held (it defines the body frame, imu.md), no outlier rejection, one IMU.
+
+The cost is linear in recording length: each residual touches 4 consecutive control
+points, so J^T J is banded apart from the few camera, offset and gravity columns, and
+scipy's sparse LU factors it in time linear in the number of knots.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from . import geometry as geo
+from . import imu_residuals as ir
+from . import imu_start
+from . import spline as spl
+from .camera import CameraModel
+from .errors import CalibrationError
+
+
+@dataclass(frozen=True)
+class ImuInput:
+    """One IMU's samples (t (N,) seconds on the IMU clock, gyro, accel (N, 3)), its declared
+    noise (Kalibr units) and its pose T_body_imu (held)."""
+
+    t: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    update_rate: float
+    gyroscope_noise_density: float
+    gyroscope_random_walk: float
+    accelerometer_noise_density: float
+    accelerometer_random_walk: float
+    T_body_imu: np.ndarray
+
+
+@dataclass(frozen=True)
+class CameraInput:
+    """One camera: its intrinsics, declared T_body_cam (its translation is the start),
+    line delay, and its poses T_world_cam (F, 4, 4) at frame times t_cam (F,) (camera clock),
+    e.g. from PnP on the board views: only the start uses them."""
+
+    model: CameraModel
+    T_body_cam: np.ndarray
+    t_cam: np.ndarray
+    T_world_cam: np.ndarray
+    line_delay_s: float = 0.0
+    time_offset_guess_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Settings:
+    """knot_dt: spline knot spacing (s); bias_dt: bias knot spacing (s); sigma_px: corner
+    noise (px); gravity: |g|; window_s: the clock-offset search half-width; line_delay:
+    estimate line delays (else held at the declared ones)."""
+
+    knot_dt: float = 0.05
+    bias_dt: float = 1.0
+    sigma_px: float = 0.5
+    gravity: float = ir.GRAVITY
+    window_s: float = imu_start.SEARCH_WINDOW_S
+    max_iter: int = 30
+    line_delay: bool = False  # estimate every camera's line delay (rolling shutter)
+
+
+@dataclass(frozen=True, eq=False)
+class CameraImuResult:
+    """The estimate: state (all of it), per camera T_imu_cam (C, 4, 4) and time_offset_s (C,),
+    their 1-sigma (C, 7): rotation (rad, body axes), translation (m), offset (s), from the
+    declared noise; the starts; per-block RMS of the normalised residuals (1 = as declared)."""
+
+    state: ir.State
+    T_imu_cam: np.ndarray
+    time_offset_s: np.ndarray
+    sigma: np.ndarray
+    starts: tuple
+    normalised_rms: dict
+    iterations: int
+    seconds: float
+
+
+def _imu_sigmas(imu: ImuInput) -> tuple[float, float]:
+    r = math.sqrt(imu.update_rate)
+    return imu.gyroscope_noise_density * r, imu.accelerometer_noise_density * r
+
+
+def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s: float, pad: int = 2) -> spl.Spline:
+    """A start spline with knots every dt through noisy sampled body poses: each control point
+    is the Gaussian-weighted (sigma smooth_s) mean of the samples near its knot, positions
+    arithmetically, rotations by the chordal mean. A cubic B-spline's curve lies within
+    dt^2 |p''| / 6 of its control points, so this is a start the estimator refines; linear
+    in the samples (each knot gathers a fixed window). `pad` extra knots on each side keep
+    clock-offset steps on the spline (the IMU shapes them)."""
+    order = np.argsort(t)
+    t, T = t[order], T_world_body[order]
+    t0, n = spl.knots_for(t[0], t[-1], dt)
+    knot_t = t0 + (np.arange(-pad, n + pad) - 1) * dt
+    lo = np.searchsorted(t, knot_t - 3 * smooth_s)
+    hi = np.searchsorted(t, knot_t + 3 * smooth_s)
+    width = max(int((hi - lo).max()), 1)
+    idx = np.minimum(lo[:, None] + np.arange(width), len(t) - 1)
+    inside = np.arange(width)[None] < (hi - lo)[:, None]
+    w = np.exp(-0.5 * ((t[idx] - knot_t[:, None]) / smooth_s) ** 2) * inside
+    # a knot past the ends (padding) takes the nearest sample
+    empty = w.sum(axis=1) == 0
+    idx[empty, 0] = np.clip(np.searchsorted(t, knot_t[empty]), 0, len(t) - 1)
+    w[empty, 0] = 1.0
+    w /= w.sum(axis=1, keepdims=True)
+    p = np.einsum("kw,kwi->ki", w, T[idx, :3, 3])
+    U, _, Vt = np.linalg.svd(np.einsum("kw,kwij->kij", w, T[idx, :3, :3]))
+    D = np.ones((len(knot_t), 3))
+    D[:, 2] = np.linalg.det(U @ Vt)
+    return spl.Spline(t0 - pad * dt, dt, (U * D[:, None, :]) @ Vt, p)
+
+
+def gravity_start(spline: spl.Spline, imu: ImuInput, t: np.ndarray, accel: np.ndarray) -> np.ndarray:
+    """R_grav whose third column is -g's direction: g_world = a_world - R_world_imu f, averaged."""
+    m = spl.evaluate(spline, t)
+    R_wi = m.R_world_body @ imu.T_body_imu[:3, :3]
+    g = (m.a_world - np.einsum("mij,mj->mi", R_wi, accel)).mean(axis=0)
+    z = -g / np.linalg.norm(g)
+    x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> tuple[ir.State, tuple, np.ndarray]:
+    """(state, per-camera RateStart, IMU sample mask): offsets and rotations from rates,
+    declared translations, the trajectory from the camera poses, zero biases, gravity from
+    the accelerometer. Refuses a recording that turns about one axis or never accelerates."""
+    starts, T_bc, t_all, T_wb = [], [], [], []
+    for ci, c in enumerate(cams):
+        s = imu_start.rate_start(c.t_cam, c.T_world_cam[:, :3, :3], imu.t, imu.gyro, c.time_offset_guess_s,
+                                 settings.window_s, what=f"camera {ci}")
+        T = c.T_body_cam.copy()
+        T[:3, :3] = imu.T_body_imu[:3, :3] @ s.R_imu_cam
+        starts.append(s)
+        T_bc.append(T)
+        t_all.append(c.t_cam + s.time_offset_s)
+        T_wb.append(c.T_world_cam @ geo.inv_T(T))
+    t_all, T_wb = np.concatenate(t_all), np.concatenate(T_wb)
+    frame_dt = float(np.median(np.diff(np.sort(cams[0].t_cam))))
+    spline = initial_spline(t_all, T_wb, settings.knot_dt, max(settings.knot_dt, 1.5 * frame_dt))
+    imu_start.check_acceleration(spl.evaluate(spline, np.arange(t_all.min(), t_all.max(), 0.01)).a_world,
+                                 "the camera trajectory")
+    use = (imu.t >= spline.t0 + 0.5 * spline.dt) & (imu.t <= spline.t_end - 0.5 * spline.dt)
+    n_bias = int(math.ceil((spline.t_end - spline.t0) / settings.bias_dt)) + 1
+    state = ir.State(spline=spline, T_body_imu=imu.T_body_imu.copy(), T_body_cam=np.stack(T_bc),
+                     time_offset_s=np.array([s.time_offset_s for s in starts]),
+                     line_delay_s=np.array([c.line_delay_s for c in cams]), bias_t0=spline.t0,
+                     bias_dt=settings.bias_dt, gyro_bias=np.zeros((n_bias, 3)), accel_bias=np.zeros((n_bias, 3)),
+                     R_grav=np.eye(3), gravity=settings.gravity)
+    R_grav = gravity_start(spline, imu, imu.t[use], imu.accel[use])
+    return ir.State(**{**state.__dict__, "R_grav": R_grav}), tuple(starts), use
+
+
+def _blocks(state, lay, obs, models, imu, use, settings):
+    sg, sa = _imu_sigmas(imu)
+    mj = ir.motion_jacobian(state, imu.t[use])  # shared by both IMU blocks
+    return [ir.reprojection_block(state, lay, obs, models, settings.sigma_px),
+            ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg, mj),
+            ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa, mj),
+            ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
+
+
+def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: int) -> tuple[ir.State, list, int]:
+    """Minimise the sum of squared block residuals; returns (state, its blocks, iterations).
+    Steps solve (J^T J + lam diag(J^T J)) dx = -J^T r by sparse LU."""
+    blocks = blocks_of(state)
+    J, r = ir.assemble(blocks, lay.size)
+    cost, lam = float(r @ r), 1e-4
+    for it in range(1, max_iter + 1):
+        H = (J.T @ J).tocsc()
+        g = J.T @ r
+        d = H.diagonal()
+        while True:
+            if lam > 1e8:  # no step lowers the cost: converged as far as it can
+                return state, blocks, it
+            dx = spla.spsolve((H + sp.diags(lam * np.maximum(d, 1e-9))).tocsc(), -g)
+            trial = ir.retract(state, lay, dx)
+            try:
+                tb = blocks_of(trial)
+            except ValueError:  # a step that moves a time off the spline: a smaller step
+                lam *= 10
+                continue
+            Jt, rt = ir.assemble(tb, lay.size)
+            c = float(rt @ rt)
+            if c < cost:  # False for NaN too
+                break
+            lam *= 10
+        done = cost - c < 1e-9 * cost
+        state, blocks, J, r, cost, lam = trial, tb, Jt, rt, c, max(lam / 10, 1e-9)
+        if done:
+            return state, blocks, it
+    return state, blocks, max_iter
+
+
+def camera_sigmas(J: sp.csr_matrix, lay: ir.Layout) -> np.ndarray:
+    """1-sigma (C, 7) of each camera's rotation, translation and offset: the diagonal of
+    (J^T J)^-1 for those columns, by one sparse LU and 7 C solves."""
+    H = (J.T @ J).tocsc()
+    active = np.flatnonzero(H.diagonal() > 0)  # held groups have empty columns
+    where = np.full(lay.size, -1)
+    where[active] = np.arange(len(active))
+    lu = spla.splu(H[active][:, active].tocsc())
+    cols = where[np.concatenate([lay.cam + np.arange(6 * lay.n_cam), lay.offset + np.arange(lay.n_cam)])]
+    E = np.zeros((len(active), len(cols)))
+    E[cols, np.arange(len(cols))] = 1.0
+    var = lu.solve(E)[cols, np.arange(len(cols))]
+    sd = np.sqrt(np.maximum(var, 0.0))
+    return np.column_stack([sd[:6 * lay.n_cam].reshape(lay.n_cam, 6), sd[6 * lay.n_cam:]])
+
+
+def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput,
+                         settings: Settings = Settings()) -> CameraImuResult:
+    """Start (imu_start), then the joint estimate; raises CalibrationError on a recording
+    that cannot determine it or when the corners' times fall outside the IMU stream."""
+    t0 = time.perf_counter()
+    state, starts, use = start_state(cams, imu, settings)
+    t_obs = ir.corner_times(state, obs)
+    if t_obs.min() < state.spline.t0 or t_obs.max() > state.spline.t_end:
+        raise CalibrationError("corner times fall outside the camera frames' span; give every frame's pose")
+    held = frozenset({"imu_rot", "imu_pos"} | (set() if settings.line_delay else {"line_delay"}))
+    lay = ir.layout_for(state, held)
+    models = [c.model for c in cams]
+    state, blocks, iters = levenberg_marquardt(state, lay, lambda s: _blocks(s, lay, obs, models, imu, use, settings),
+                                               settings.max_iter)
+    J, _ = ir.assemble(blocks, lay.size)
+    rms = {k: float(np.sqrt(np.mean(b.r ** 2))) for k, b in zip(("corners", "gyro", "accel", "bias_walk"), blocks)}
+    T_imu_cam = geo.inv_T(state.T_body_imu)[None] @ state.T_body_cam
+    return CameraImuResult(state, T_imu_cam, state.time_offset_s.copy(), camera_sigmas(J, lay), tuple(starts), rms,
+                           iters, time.perf_counter() - t0)

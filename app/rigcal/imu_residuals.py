@@ -1,0 +1,408 @@
+"""Residual blocks of the camera-IMU calibration (issue 18, ../shared/spec/imu.md).
+
+Each block is a pure vectorised function of the estimation state returning a `Block`:
+weighted residuals r (M, D), their Jacobian J (M, D, K) with respect to the K local
+parameters each row touches, and the global column of each (M, K) in a `Layout`
+(-1 for a parameter held fixed), so a sparse solver assembles them (`assemble`).
+
+State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
+- the body trajectory T_world_body(t): a rigcal.spline.Spline on the IMU clock;
+- T_body_imu (the reference IMU; normally held: it defines the body frame);
+- T_body_cam, time_offset_s and line_delay_s per camera (t_imu = t_cam + time_offset_s
+  + row * line_delay_s);
+- gyroscope and accelerometer biases, piecewise linear between knots every bias_dt;
+- gravity g_world = R_grav @ [0, 0, -|g|], two tangent degrees of freedom.
+
+Jacobians: the IMU blocks take central differences over each row's own local parameters,
+vectorised over the rows (2 K evaluations of the block, each over all rows); the corner
+block differentiates the spline pose that way once per distinct time and chains the rest
+analytically. The spline derivatives with respect to control rotations have closed forms
+(Sommer et al. 2020) but long ones; local differences of an exact evaluation are accurate
+to ~1e-9 relative and cannot disagree with the residual they differentiate. Tests check
+every block against differences of the whole problem (global state perturbed through
+`retract`, spline re-evaluated).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from . import geometry as geo
+from .camera import CameraModel
+from .solve import projection_jacobians
+from .spline import ORDER, Motion, Spline, basis, motion_from_controls, segment
+
+GRAVITY = 9.80665
+STEP = 1e-6  # central-difference step (radians, metres, seconds, bias units)
+
+
+@dataclass(frozen=True, eq=False)
+class State:
+    """Everything the estimator moves. T_body_cam (C, 4, 4), time_offset_s and line_delay_s
+    (C,), biases (K, 3) at knots bias_t0 + k * bias_dt, R_grav (3, 3), T_body_imu (4, 4)."""
+
+    spline: Spline
+    T_body_imu: np.ndarray
+    T_body_cam: np.ndarray
+    time_offset_s: np.ndarray
+    line_delay_s: np.ndarray
+    bias_t0: float
+    bias_dt: float
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    R_grav: np.ndarray
+    gravity: float = GRAVITY
+
+    @property
+    def g_world(self) -> np.ndarray:
+        return self.R_grav @ np.array([0.0, 0.0, -self.gravity])
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Column offsets of each parameter group in the global vector; `held` names groups
+    kept fixed (their columns are -1): any of 'imu_rot', 'imu_pos', 'cam', 'offset',
+    'line_delay' (held by default: estimated only for a declared rolling shutter)."""
+
+    n_ctrl: int
+    n_cam: int
+    n_bias: int
+    held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay"})
+
+    @property
+    def rot(self) -> int:
+        return 0
+
+    @property
+    def pos(self) -> int:
+        return 3 * self.n_ctrl
+
+    @property
+    def cam(self) -> int:
+        return 6 * self.n_ctrl
+
+    @property
+    def offset(self) -> int:
+        return self.cam + 6 * self.n_cam
+
+    @property
+    def bg(self) -> int:
+        return self.offset + self.n_cam
+
+    @property
+    def ba(self) -> int:
+        return self.bg + 3 * self.n_bias
+
+    @property
+    def grav(self) -> int:
+        return self.ba + 3 * self.n_bias
+
+    @property
+    def imu(self) -> int:
+        return self.grav + 2
+
+    @property
+    def line_delay(self) -> int:
+        return self.imu + 6
+
+    @property
+    def size(self) -> int:
+        return self.line_delay + self.n_cam
+
+    def group(self, name: str, start: np.ndarray | int, width: int) -> np.ndarray:
+        """Columns start .. start + width - 1 (start (M,) or scalar), or -1 when `name` is held."""
+        cols = np.asarray(start)[..., None] + np.arange(width)
+        return np.full_like(cols, -1) if name in self.held else cols
+
+
+def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay"})) -> Layout:
+    return Layout(len(state.spline.p), len(state.T_body_cam), len(state.gyro_bias), held)
+
+
+@dataclass(frozen=True, eq=False)
+class Block:
+    """r (M, D) weighted residuals, J (M, D, K), cols (M, K) global columns (-1: held)."""
+
+    r: np.ndarray
+    J: np.ndarray
+    cols: np.ndarray
+
+
+def local_jacobian(fun: Callable[[np.ndarray], np.ndarray], m: int, k: int, h: float = STEP
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """fun maps local perturbations (m, k) to residuals (m, D); returns (r (m, D), J (m, D, k))
+    by central differences, each column one vectorised pair of evaluations."""
+    r = fun(np.zeros((m, k)))
+    J = np.empty(r.shape + (k,))
+    for j in range(k):
+        d = np.zeros((m, k))
+        d[:, j] = h
+        J[:, :, j] = (fun(d) - fun(-d)) / (2 * h)
+    return r, J
+
+
+def tangent_basis(R_grav: np.ndarray) -> np.ndarray:
+    """(3, 2): the two world directions orthogonal to gravity that its 2 dof turn about."""
+    return R_grav[:, :2]
+
+
+def _controls(spline: Spline, t: np.ndarray):
+    i, u = segment(spline, t)
+    idx = i[:, None] + np.arange(ORDER)
+    return i, u, spline.R[idx], spline.p[idx]
+
+
+def _turn(R: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Exp(d) @ R, d (..., 3)."""
+    return geo.R_from_rotvec(d) @ R
+
+
+def _motion(t, u, Rc, P, dt, d_rot, d_pos):
+    """Motion with the local control perturbations d_rot, d_pos (M, 12) applied."""
+    Rp = _turn(Rc, d_rot.reshape(-1, ORDER, 3))
+    return motion_from_controls(t, u, Rp, P + d_pos.reshape(-1, ORDER, 3), dt)
+
+
+def _bias_at(state: State, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(knot j (M,), fraction s (M,)) of the linear bias interpolation at times t."""
+    x = (t - state.bias_t0) / state.bias_dt
+    j = np.clip(np.floor(x).astype(int), 0, len(state.gyro_bias) - 2)
+    return j, x - j
+
+
+def bias_values(state: State, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(gyro bias (M, 3), accel bias (M, 3)) at times t."""
+    j, s = _bias_at(state, t)
+    lerp = lambda b: (1 - s)[:, None] * b[j] + s[:, None] * b[j + 1]  # noqa: E731
+    return lerp(state.gyro_bias), lerp(state.accel_bias)
+
+
+def _spline_cols(lay: Layout, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    ctrl = (i[:, None] + np.arange(ORDER))  # (M, 4)
+    rot = (lay.rot + 3 * ctrl[:, :, None] + np.arange(3)).reshape(len(i), -1)
+    pos = (lay.pos + 3 * ctrl[:, :, None] + np.arange(3)).reshape(len(i), -1)
+    return rot, pos
+
+
+@dataclass(frozen=True, eq=False)
+class MotionJacobian:
+    """The motion at times t and its derivatives with respect to each time's local controls:
+    J_rot (M, 9, 12) of [theta; omega_body; alpha_body] (theta: the world-side rotation
+    perturbation of R_world_body) by the 12 control-rotation perturbations (a local central
+    difference: 24 evaluations of the spline over all rows), and the exact weights (M, 4) of
+    the control positions in p_world (w_p) and a_world (w_a)."""
+
+    motion: Motion
+    i: np.ndarray
+    J_rot: np.ndarray
+    w_p: np.ndarray
+    w_a: np.ndarray
+
+
+def _position_weights(b: np.ndarray) -> np.ndarray:
+    """Cumulative basis (M, 4) -> weight of each control position (M, 4) (sum_k w_k P_k)."""
+    return b - np.concatenate([b[:, 1:], np.zeros((len(b), 1))], axis=1)
+
+
+def motion_jacobian(state: State, t: np.ndarray) -> MotionJacobian:
+    i, u, Rc, P = _controls(state.spline, t)
+    dt = state.spline.dt
+    m0 = motion_from_controls(t, u, Rc, P, dt)
+    zero = np.zeros((len(t), 12))
+
+    def fun(d):
+        m = _motion(t, u, Rc, P, dt, d, zero)
+        theta = geo.rotvecs_from_R(m.R_world_body @ np.swapaxes(m0.R_world_body, 1, 2))
+        return np.concatenate([theta, m.omega_body, m.alpha_body], axis=1)
+
+    _, J = local_jacobian(fun, len(t), 12)
+    b, _, ddb = basis(u, dt)
+    return MotionJacobian(m0, i, J, _position_weights(b), _position_weights(ddb))
+
+
+def _per_control(M: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) matrices times each control's weight (M, 4) -> (M, 3, 12)."""
+    return np.einsum("mij,mk->mikj", M, w).reshape(len(w), 3, 12)
+
+
+def gyro_block(state: State, lay: Layout, t: np.ndarray, gyro: np.ndarray, sigma: float,
+               mj: MotionJacobian | None = None) -> Block:
+    """(R_body_imu^T omega_body(t) + b_g(t) - gyro) / sigma; local parameters: 4 control
+    rotations (12), R_body_imu (3), two gyro bias knots (6). `mj`: motion_jacobian(state, t)
+    when the caller has it (the accelerometer block shares it)."""
+    mj = mj or motion_jacobian(state, t)
+    j, s = _bias_at(state, t)
+    Rt_bi = state.T_body_imu[:3, :3].T
+    w = mj.motion.omega_body
+    b = (1 - s)[:, None] * state.gyro_bias[j] + s[:, None] * state.gyro_bias[j + 1]
+    eye = np.broadcast_to(np.eye(3), (len(t), 3, 3))
+    J = np.concatenate([Rt_bi @ mj.J_rot[:, 3:6], Rt_bi @ geo.skew(w), (1 - s)[:, None, None] * eye,
+                        s[:, None, None] * eye], axis=2) / sigma
+    rot, _ = _spline_cols(lay, mj.i)
+    cols = np.concatenate([rot, lay.group("imu_rot", np.full(len(t), lay.imu), 3),
+                           lay.group("bg", lay.bg + 3 * j, 6)], axis=1)
+    return Block((w @ Rt_bi.T + b - gyro) / sigma, J, cols)
+
+
+def specific_force(m, R_body_imu: np.ndarray, t_body_imu: np.ndarray, g_world: np.ndarray) -> np.ndarray:
+    """What an ideal accelerometer at (R_body_imu, t_body_imu) reads (M, 3), row-wise
+    parameters allowed ((M, 3, 3), (M, 3), (M, 3)); the model of rigcal.imu.ideal_readings."""
+    w, al, r = m.omega_body, m.alpha_body, t_body_imu
+    lever = np.cross(al, r) + np.cross(w, np.cross(w, r))
+    f_body = np.einsum("mji,mj->mi", m.R_world_body, m.a_world - g_world) + lever
+    return np.einsum("...ji,...j->...i", R_body_imu, f_body)
+
+
+def accel_block(state: State, lay: Layout, t: np.ndarray, accel: np.ndarray, sigma: float,
+                mj: MotionJacobian | None = None) -> Block:
+    """(specific force(t) + b_a(t) - accel) / sigma; local parameters: 4 control rotations
+    (12) and positions (12), R_body_imu (3), t_body_imu (3), two accel bias knots (6),
+    gravity's direction (2). Chain rule on f_body = R^T (a - g) + alpha x r + omega x (omega x r)."""
+    mj = mj or motion_jacobian(state, t)
+    m = mj.motion
+    j, s = _bias_at(state, t)
+    Rt_bi, r_lever = state.T_body_imu[:3, :3].T, state.T_body_imu[:3, 3]
+    g0 = state.g_world
+    w, al = m.omega_body, m.alpha_body
+    Rt = np.swapaxes(m.R_world_body, 1, 2)
+    f_body = np.einsum("mij,mj->mi", Rt, m.a_world - g0) + np.cross(al, r_lever) + np.cross(w, np.cross(w, r_lever))
+    K_r, K_w = geo.skew(r_lever), geo.skew(w)
+    d_theta = Rt @ geo.skew(m.a_world - g0)
+    d_omega = -K_w @ K_r - geo.skew(np.cross(w, r_lever))
+    d_rot = d_theta @ mj.J_rot[:, :3] - K_r @ mj.J_rot[:, 6:9] + d_omega @ mj.J_rot[:, 3:6]
+    eye = np.broadcast_to(np.eye(3), (len(t), 3, 3))
+    J = np.concatenate([Rt_bi @ d_rot, Rt_bi @ _per_control(Rt, mj.w_a), Rt_bi @ geo.skew(f_body),
+                        Rt_bi @ (geo.skew(al) + K_w @ K_w), (1 - s)[:, None, None] * eye, s[:, None, None] * eye,
+                        Rt_bi @ Rt @ (geo.skew(g0) @ tangent_basis(state.R_grav))], axis=2) / sigma
+    b = (1 - s)[:, None] * state.accel_bias[j] + s[:, None] * state.accel_bias[j + 1]
+    rot, pos = _spline_cols(lay, mj.i)
+    n = np.full(len(t), 0)
+    cols = np.concatenate([rot, pos, lay.group("imu_rot", n + lay.imu, 3), lay.group("imu_pos", n + lay.imu + 3, 3),
+                           lay.group("ba", lay.ba + 3 * j, 6), lay.group("grav", n + lay.grav, 2)], axis=1)
+    return Block((f_body @ Rt_bi.T + b - accel) / sigma, J, cols)
+
+
+@dataclass(frozen=True, eq=False)
+class Corners:
+    """Corner observations: cam (M,) int, t_cam (M,) seconds on that camera's clock (the
+    image's first-row mid-exposure), uv (M, 2) pixels, p_world (M, 3) the corner's point
+    (boards static in the world)."""
+
+    cam: np.ndarray
+    t_cam: np.ndarray
+    uv: np.ndarray
+    p_world: np.ndarray
+
+
+def corner_times(state: State, obs: Corners) -> np.ndarray:
+    """IMU-clock time of each corner's row: t_cam + time_offset_s + v * line_delay_s."""
+    return obs.t_cam + state.time_offset_s[obs.cam] + obs.uv[:, 1] * state.line_delay_s[obs.cam]
+
+
+def pose_jacobian(state: State, t: np.ndarray) -> tuple[Motion, np.ndarray, np.ndarray]:
+    """(motion at t (M,), segment index i (M,), d [theta; p] / d local controls (M, 6, 24)):
+    theta the world-side rotation perturbation of R_world_body (Exp(theta) R), p the body
+    position; local controls as in the blocks (12 rotations, then 12 positions)."""
+    mj = motion_jacobian(state, t)
+    J = np.zeros((len(t), 6, 24))
+    J[:, :3, :12] = mj.J_rot[:, :3]
+    J[:, 3:, 12:] = _per_control(np.broadcast_to(np.eye(3), (len(t), 3, 3)), mj.w_p)
+    return mj.motion, mj.i, J
+
+
+def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float
+                       ) -> Block:
+    """(project(T_body_cam^-1 T_world_body(t)^-1 p_world) - uv) / sigma_px at the corner's
+    IMU-clock time; local parameters: 4 control rotations (12) and positions (12), the
+    camera's rotation (3) and position (3) in the body, its time offset (1) and line delay
+    (1). The row time uses the measured row (v), as Kalibr and basalt do for rolling shutters.
+
+    The spline is differentiated once per distinct time (an image's corners share it under
+    a global shutter), the rest by the chain rule; d/d(offset) is the image motion from the
+    spline's velocity and angular velocity."""
+    t_all = corner_times(state, obs)
+    t_u, inv = np.unique(t_all, return_inverse=True)
+    m_u, i_u, Jpose_u = pose_jacobian(state, t_u)
+    R, p = m_u.R_world_body[inv], m_u.p_world[inv]
+    c = obs.cam
+    R_bc, t_bc = state.T_body_cam[c, :3, :3], state.T_body_cam[c, :3, 3]
+    dw = obs.p_world - p
+    p_body = np.einsum("mji,mj->mi", R, dw)
+    q = p_body - t_bc
+    p_cam = np.einsum("mji,mj->mi", R_bc, q)
+    vals = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in cameras]
+    uv = np.empty((len(c), 2))
+    for ci, cam in enumerate(cameras):
+        k = c == ci
+        uv[k] = cam.project(p_cam[k])[0]
+    J_uv = projection_jacobians(p_cam, c, vals, [k.model for k in cameras])[0]  # (M, 2, 3)
+    Rt = np.swapaxes(R, 1, 2)
+    d_body_pose = np.concatenate([Rt @ geo.skew(dw), -Rt], axis=2)  # (M, 3, 6): theta, p
+    omega_world = np.einsum("mij,mj->mi", R, m_u.omega_body[inv])
+    d_body_dt = np.einsum("mij,mj->mi", Rt @ geo.skew(dw), omega_world) - np.einsum("mji,mj->mi", R, m_u.v_world[inv])
+    A = J_uv @ np.swapaxes(R_bc, 1, 2) / sigma_px  # d r / d p_body (M, 2, 3)
+    d_dt = A @ d_body_dt[..., None]
+    J = np.concatenate([A @ d_body_pose @ Jpose_u[inv],
+                        (J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A,
+                        d_dt, d_dt * obs.uv[:, 1, None, None]], axis=2)
+    rot, pos = _spline_cols(lay, i_u[inv])
+    cols = np.concatenate([rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
+                           lay.group("line_delay", lay.line_delay + c, 1)], axis=1)
+    return Block((uv - obs.uv) / sigma_px, J, cols)
+
+
+def bias_prior_block(state: State, lay: Layout, gyro_random_walk: float, accel_random_walk: float) -> Block:
+    """(b_{k+1} - b_k) / (random_walk * sqrt(bias_dt)) for both biases: a random walk of the
+    declared density (Kalibr units, per sqrt(s)) over one knot interval. Linear: exact J."""
+    k = len(state.gyro_bias) - 1
+    sig = np.array([gyro_random_walk, accel_random_walk]) * np.sqrt(state.bias_dt)
+    db = np.concatenate([np.diff(state.gyro_bias, axis=0) / sig[0], np.diff(state.accel_bias, axis=0) / sig[1]])
+    J = np.zeros((2 * k, 3, 6))
+    J[:, :, :3] = -np.eye(3)
+    J[:, :, 3:] = np.eye(3)
+    J /= np.repeat(sig, k)[:, None, None]
+    start = np.concatenate([lay.bg + 3 * np.arange(k), lay.ba + 3 * np.arange(k)])
+    return Block(db, J, start[:, None] + np.arange(6))
+
+
+def assemble(blocks: list[Block], n_cols: int) -> tuple[sp.csr_matrix, np.ndarray]:
+    """The sparse Jacobian (rows: every residual of every block in order) and residual vector."""
+    rows, cols, vals, res = [], [], [], []
+    row0 = 0
+    for b in blocks:
+        m, d, k = b.J.shape
+        r_idx = row0 + np.arange(m * d).reshape(m, d)
+        rr = np.broadcast_to(r_idx[:, :, None], (m, d, k))
+        cc = np.broadcast_to(b.cols[:, None, :], (m, d, k))
+        keep = cc >= 0
+        rows.append(rr[keep])
+        cols.append(cc[keep])
+        vals.append(b.J[keep])
+        res.append(b.r.ravel())
+        row0 += m * d
+    J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row0, n_cols))
+    return J, np.concatenate(res)
+
+
+def retract(state: State, lay: Layout, dx: np.ndarray) -> State:
+    """The state moved by a step dx (lay.size,) in the block's perturbation conventions."""
+    n, c, k = lay.n_ctrl, lay.n_cam, lay.n_bias
+    sp_ = state.spline
+    spline = replace(sp_, R=_turn(sp_.R, dx[:3 * n].reshape(n, 3)), p=sp_.p + dx[lay.pos:lay.pos + 3 * n].reshape(n, 3))
+    dc = dx[lay.cam:lay.cam + 6 * c].reshape(c, 6)
+    T_bc = state.T_body_cam.copy()
+    T_bc[:, :3, :3] = _turn(T_bc[:, :3, :3], dc[:, :3])
+    T_bc[:, :3, 3] += dc[:, 3:]
+    T_bi = state.T_body_imu.copy()
+    T_bi[:3, :3] = _turn(T_bi[:3, :3], dx[lay.imu:lay.imu + 3])
+    T_bi[:3, 3] += dx[lay.imu + 3:lay.imu + 6]
+    R_grav = geo.R_from_rotvec(tangent_basis(state.R_grav) @ dx[lay.grav:lay.grav + 2]) @ state.R_grav
+    return replace(state, spline=spline, T_body_cam=T_bc, T_body_imu=T_bi,
+                   time_offset_s=state.time_offset_s + dx[lay.offset:lay.offset + c],
+                   line_delay_s=state.line_delay_s + dx[lay.line_delay:lay.line_delay + c],
+                   gyro_bias=state.gyro_bias + dx[lay.bg:lay.bg + 3 * k].reshape(k, 3),
+                   accel_bias=state.accel_bias + dx[lay.ba:lay.ba + 3 * k].reshape(k, 3), R_grav=R_grav)

@@ -1,0 +1,127 @@
+"""Residual blocks of the camera-IMU calibration against differences of the whole problem,
+and the models they encode against rigcal.imu's simulator (an independent writing)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from rigcal import geometry as geo
+from rigcal import imu as imu_model
+from rigcal import imu_residuals as ir
+from rigcal.camera import CameraModel
+from rigcal.spline import Spline, evaluate, fit
+
+
+def _state(rng, n=9, dt=0.1, n_bias=3):
+    R = geo.R_from_rotvec(np.cumsum(rng.normal(0, 0.15, (n, 3)), axis=0))
+    p = np.cumsum(rng.normal(0, 0.05, (n, 3)), axis=0) + [0, 0, 1.0]
+    T_bc = np.stack([geo.make_T(geo.R_from_rotvec(rng.normal(0, 0.2, 3)) @ geo.R_from_axes(["-L", "-U", "F"]),
+                                rng.normal(0, 0.05, 3)) for _ in range(2)])
+    T_bi = geo.make_T(geo.R_from_rotvec(rng.normal(0, 0.1, 3)), rng.normal(0, 0.03, 3))
+    return ir.State(spline=Spline(0.0, dt, R, p), T_body_imu=T_bi, T_body_cam=T_bc,
+                    time_offset_s=np.array([0.004, -0.007]), line_delay_s=np.array([0.0, 2e-5]),
+                    bias_t0=0.0, bias_dt=0.3, gyro_bias=rng.normal(0, 1e-2, (n_bias, 3)),
+                    accel_bias=rng.normal(0, 0.1, (n_bias, 3)),
+                    R_grav=geo.R_from_rotvec(rng.normal(0, 0.1, 3)))
+
+
+def _corners(rng, state, m=14):
+    t = rng.uniform(0.05, 0.5, m)
+    cam = rng.integers(0, 2, m)
+    mo = evaluate(state.spline, t + state.time_offset_s[cam])
+    # points 1-2 m in front of each camera
+    p_cam = np.column_stack([rng.uniform(-0.3, 0.3, (m, 2)), rng.uniform(1, 2, m)])
+    T_wc = mo.T_world_body @ state.T_body_cam[cam]
+    p_world = np.einsum("mij,mj->mi", T_wc[:, :3, :3], p_cam) + T_wc[:, :3, 3]
+    uv = rng.uniform(0, 480, (m, 2))
+    return ir.Corners(cam, t, uv, p_world)
+
+
+CAMS = [CameraModel("pinhole", 640, 480, 300.0, 310.0, 320.0, 240.0, (0.05, -0.02, 0.001, 0.0, 0.0)),
+        CameraModel("fisheye", 640, 480, 250.0, 250.0, 320.0, 240.0, (0.02, -0.01, 0.0, 0.0))]
+
+
+def _global_fd(state, lay, blocks_of, h=1e-6):
+    """Whole-problem central differences: every global column perturbed through retract."""
+    _, r0 = ir.assemble(blocks_of(state), lay.size)
+    J = np.zeros((len(r0), lay.size))
+    for k in range(lay.size):
+        dx = np.zeros(lay.size)
+        dx[k] = h
+        rp = ir.assemble(blocks_of(ir.retract(state, lay, dx)), lay.size)[1]
+        rm = ir.assemble(blocks_of(ir.retract(state, lay, -dx)), lay.size)[1]
+        J[:, k] = (rp - rm) / (2 * h)
+    return J
+
+
+@pytest.mark.parametrize("kind", ["gyro", "accel", "corners", "prior"])
+def test_block_jacobians_match_whole_problem_differences(kind):
+    rng = np.random.default_rng(7)
+    st = _state(rng)
+    lay = ir.layout_for(st, held=frozenset())
+    t = rng.uniform(0.0, 0.55, 12)
+    meas = rng.normal(0, 1, (12, 3))
+    obs = _corners(rng, st)
+    blocks_of = {
+        "gyro": lambda s: [ir.gyro_block(s, lay, t, meas, 0.01)],
+        "accel": lambda s: [ir.accel_block(s, lay, t, meas, 0.05)],
+        "corners": lambda s: [ir.reprojection_block(s, lay, obs, CAMS, 0.5)],
+        "prior": lambda s: [ir.bias_prior_block(s, lay, 2e-5, 3e-3)],
+    }[kind]
+    J, _ = ir.assemble(blocks_of(st), lay.size)
+    J_fd = _global_fd(st, lay, blocks_of)
+    J = J.toarray()
+    scale = np.abs(J_fd).max()
+    assert scale > 0
+    np.testing.assert_allclose(J, J_fd, atol=2e-5 * scale)
+    # every column a block claims is one it really moves (no stray index)
+    assert np.all((np.abs(J) > 0).sum(axis=0)[np.abs(J_fd).max(axis=0) > 1e-6 * scale] > 0)
+
+
+def test_time_offset_column_is_the_image_motion():
+    """d uv / d offset equals the pixel velocity from the spline's v and omega (first order)."""
+    rng = np.random.default_rng(3)
+    st = _state(rng)
+    lay = ir.layout_for(st)
+    obs = _corners(rng, st, m=6)
+    J, _ = ir.assemble([ir.reprojection_block(st, lay, obs, CAMS, 1.0)], lay.size)
+    col = J.toarray()[:, lay.offset:lay.offset + 2]
+    h = 1e-5
+    t = ir.corner_times(st, obs)
+    uv = []
+    for dt_ in (h, -h):
+        mo = evaluate(st.spline, t + dt_)
+        T_cw = np.linalg.inv(mo.T_world_body @ st.T_body_cam[obs.cam])
+        p_cam = np.einsum("mij,mj->mi", T_cw[:, :3, :3], obs.p_world) + T_cw[:, :3, 3]
+        uv.append(np.stack([CAMS[c].project(p[None])[0][0] for c, p in zip(obs.cam, p_cam)]))
+    vel = ((uv[0] - uv[1]) / (2 * h)).ravel()
+    got = col[np.arange(len(vel)), np.repeat(obs.cam, 2)]
+    np.testing.assert_allclose(got, vel, rtol=1e-5, atol=1e-4)
+    assert np.abs(vel).max() > 1.0  # the test would see a missing time column
+
+
+def test_residuals_vanish_on_the_simulators_readings():
+    """Blocks evaluated at a spline fitted to the simulator's motion reproduce
+    rigcal.imu.ideal_readings (bias included): the two models agree."""
+    rng = np.random.default_rng(1)
+    traj = imu_model.hand_held_trajectory(rng)
+    t = np.arange(0.0, 3.0, 0.002)
+    mo = traj.at(t)
+    spline = fit(t, mo.R_world_body, mo.p_world, 0.02)
+    T_bi = geo.make_T(geo.R_from_rotvec([0.02, -0.03, 0.5]), [0.03, -0.02, 0.01])
+    st = _state(rng)
+    st = ir.State(spline=spline, T_body_imu=T_bi, T_body_cam=st.T_body_cam, time_offset_s=st.time_offset_s,
+                  line_delay_s=st.line_delay_s, bias_t0=0.0, bias_dt=1.0, gyro_bias=rng.normal(0, 1e-2, (4, 3)),
+                  accel_bias=rng.normal(0, 0.1, (4, 3)), R_grav=np.eye(3))
+    lay = ir.layout_for(st)
+    tq = np.arange(0.2, 2.8, 0.05)
+    g, a = imu_model.ideal_readings(traj.at(tq), T_bi)
+    bg, ba = ir.bias_values(st, tq)
+    rg = ir.gyro_block(st, lay, tq, g + bg, 1.0).r
+    ra = ir.accel_block(st, lay, tq, a + ba, 1.0).r
+    assert np.abs(rg).max() < 2e-3  # rad/s: spline fit error at 50 knots/s of the sine motion
+    assert np.abs(ra).max() < 2e-2  # m/s^2
+    # and a wrong lever arm is seen
+    st2 = ir.State(**{**st.__dict__, "T_body_imu": geo.make_T(T_bi[:3, :3], [0.0, 0.0, 0.0])})
+    assert np.abs(ir.accel_block(st2, lay, tq, a + ba, 1.0).r).max() > 5 * np.abs(ra).max()
