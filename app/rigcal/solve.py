@@ -14,8 +14,11 @@ Rotations are parameterised locally, R = exp(delta) @ R0, so every rotation can
 be anywhere on SO(3) while the optimiser only sees small vectors. The Jacobian is
 analytic in the poses (with the SO(3) left Jacobian, so it is exact away from
 delta = 0 too) and central-differenced only through the per-point projection,
-which costs a handful of vectorised projections; it is assembled as a sparse
-matrix, so a solve is linear in the number of frames.
+which costs a handful of vectorised projections. The solve never holds the whole
+Jacobian: Problem.normal_equations sums J^T W J and J^T W r chunk by chunk straight into
+the camera/board, frame and coupling blocks the Schur solve uses, so time and memory are
+linear in corners (a few hundred bytes each; issue 21). Problem.jacobian builds the whole
+sparse matrix for tests.
 
 Corners may carry weights (Observations.weight: inverse variances, from the detector's
 own per-corner sigma calibrated by a NoiseModel); the solve is then least squares on
@@ -34,7 +37,7 @@ from . import geometry as geo
 from .camera import distort_fisheye, distort_pinhole
 
 POSE_DIM = 6
-# corners per chunk of Problem.normal_equations: bounds its temporaries (~1.5 kB a corner
+# corners per chunk of Problem.normal_equations: bounds its temporaries (2-3 kB a corner
 # in the chunk) whatever the problem's size, and is large enough for numpy to amortise
 NE_CHUNK = 8192
 
