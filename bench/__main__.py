@@ -23,6 +23,8 @@ Sections (each also runs alone: python -m bench.<name>):
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
 a rerun skips them. Measured on 2 cores: 760 s from a fresh clone, 490 s rerun.
+The dome and long_recording sections (issue 21) add about 15 min and, on a fresh clone,
+5 min of rendering (measured under load 7; --quick: dome 100 frames, 300-frame recording).
 
     python -m bench [--only SECTION ...] [--quick]
 """
