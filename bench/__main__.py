@@ -33,13 +33,64 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any, Callable
 
 from . import (accuracy, aprilgrid_excess, dome, imu_calib, indie, indie_noise, ingest, long_recording,
                montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
-SECTIONS = ("accuracy", "peer", "speed", "noise", "montecarlo", "scale", "dome", "long_recording", "real", "indie",
-            "indie_noise", "simulate_imu", "imu_calib", "solvers", "ingest", "aprilgrid")
+@dataclass(frozen=True)
+class Section:
+    """One benchmark section: `run(quick, done)` gives its result (`done`: the results of
+    the sections before it, by name), written to bench/out/<json>.json; `tables(result,
+    done)` gives its markdown."""
+
+    name: str
+    json: str
+    run: Callable[[bool, dict], Any]
+    tables: Callable[[Any, dict], str]
+
+
+def _only(mod: ModuleType) -> Callable[[Any, dict], str]:
+    return lambda r, done: mod.tables(r)
+
+
+# The one table of sections, in running order (the module docstring says what each measures).
+TABLE = (
+    Section("accuracy", "accuracy", lambda q, d: accuracy.run(), _only(accuracy)),
+    Section("peer", "peer_opencv", lambda q, d: peer_opencv.run(accuracy=d.get("accuracy")), _only(peer_opencv)),
+    Section("speed", "speed", lambda q, d: speed.run(), _only(speed)),
+    Section("noise", "noise_limit", lambda q, d: noise_limit.run(seeds=3 if q else 10, diag_seeds=1 if q else 3),
+            _only(noise_limit)),
+    Section("montecarlo", "montecarlo", lambda q, d: montecarlo.run(seeds=10 if q else 30),
+            lambda r, d: montecarlo.tables(r, d.get("noise"))),
+    Section("scale", "scale", lambda q, d: scale.run((100, 200) if q else scale.FRAMES), _only(scale)),
+    Section("dome", "dome", lambda q, d: dome.run((100,) if q else dome.FRAMES), _only(dome)),
+    Section("long_recording", "long_recording", lambda q, d: long_recording.run(300 if q else long_recording.FRAMES),
+            _only(long_recording)),
+    Section("real", "real", lambda q, d: real.run(), _only(real)),
+    Section("indie", "indie", lambda q, d: indie.run(), _only(indie)),
+    Section("indie_noise", "indie_noise", lambda q, d: indie_noise.run(seeds=3 if q else 10), _only(indie_noise)),
+    Section("simulate_imu", "simulate_imu", lambda q, d: simulate_imu.run(duration=5.0 if q else 30.0),
+            _only(simulate_imu)),
+    Section("imu_calib", "imu_calib", lambda q, d: imu_calib.run(duration=8.0 if q else 30.0, seeds=1 if q else 3,
+                                                                 rendered=4.0 if q else 30.0), _only(imu_calib)),
+    Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
+            _only(solver_libraries)),
+    Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),
+    Section("aprilgrid", "aprilgrid_excess", lambda q, d: aprilgrid_excess.run(frames=1 if q else 3),
+            _only(aprilgrid_excess)),
+)
+SECTIONS = tuple(s.name for s in TABLE)
+
+
+def _record(result: Any, info: dict) -> dict:
+    """What bench/out/<section>.json holds: a dict result with the machine beside its keys
+    (a result that records its own machine facts, as speed's does, keeps them), a list as
+    `results`."""
+    return {"machine": info, **result} if isinstance(result, dict) else {"results": result, "machine": info}
 
 
 def main(argv=None) -> None:
@@ -54,117 +105,17 @@ def main(argv=None) -> None:
     say(f"rigcal benchmarks - {info['date']}, {info['cpus']} CPUs, load average {info['load_avg_1_5_15']}, "
         f"OpenCV {info['opencv']}, numpy {info['numpy']}, Python {info['python']}")
     out: list[str] = []
-    timings = {}
-
-    def section(name: str, fn):
+    timings: dict[str, float] = {}
+    done: dict[str, Any] = {}
+    for sec in (s for s in TABLE if s.name in todo):
         t = time.perf_counter()
-        text = fn()
-        timings[name] = time.perf_counter() - t
+        done[sec.name] = result = sec.run(a.quick, done)
+        write_json(sec.json, _record(result, info))
+        text = sec.tables(result, done)
+        timings[sec.name] = time.perf_counter() - t
         say(text)
-        say(f"\n({name}: {timings[name]:.0f} s)")
+        say(f"\n({sec.name}: {timings[sec.name]:.0f} s)")
         out.append(text)
-
-    acc = None
-    if "accuracy" in todo:
-        def accu():
-            nonlocal acc
-            acc = accuracy.run()
-            write_json("accuracy", {"results": acc, "machine": info})
-            return accuracy.tables(acc)
-        section("accuracy", accu)
-    if "peer" in todo:
-        def peer():
-            res = peer_opencv.run(accuracy=acc)
-            write_json("peer_opencv", {"results": res, "machine": info})
-            return peer_opencv.tables(res)
-        section("peer", peer)
-    if "speed" in todo:
-        def sp():
-            r = speed.run()
-            write_json("speed", r)
-            return speed.tables(r)
-        section("speed", sp)
-    nl = None
-    if "noise" in todo:
-        def noise():
-            nonlocal nl
-            nl = noise_limit.run(seeds=3 if a.quick else 10, diag_seeds=1 if a.quick else 3)
-            write_json("noise_limit", {**nl, "machine": info})
-            return noise_limit.tables(nl)
-        section("noise", noise)
-    if "montecarlo" in todo:
-        def mc():
-            r = montecarlo.run(seeds=10 if a.quick else 30)
-            write_json("montecarlo", {**r, "machine": info})
-            return montecarlo.tables(r, nl)
-        section("montecarlo", mc)
-    if "scale" in todo:
-        def sc():
-            r = scale.run((100, 200) if a.quick else scale.FRAMES)
-            write_json("scale", {"results": r, "machine": info})
-            return scale.tables(r)
-        section("scale", sc)
-    if "dome" in todo:
-        def dm():
-            r = dome.run((100,) if a.quick else dome.FRAMES)
-            write_json("dome", {"results": r, "machine": info})
-            return dome.tables(r)
-        section("dome", dm)
-    if "long_recording" in todo:
-        def lr():
-            r = long_recording.run(300 if a.quick else long_recording.FRAMES)
-            write_json("long_recording", {**r, "machine": info})
-            return long_recording.tables(r)
-        section("long_recording", lr)
-    if "real" in todo:
-        def rl():
-            r = real.run()
-            write_json("real", {"results": r, "machine": info})
-            return real.tables(r)
-        section("real", rl)
-    if "indie" in todo:
-        def ind():
-            r = indie.run()
-            write_json("indie", {"results": r, "machine": info})
-            return indie.tables(r)
-        section("indie", ind)
-    if "indie_noise" in todo:
-        def ind_noise():
-            r = indie_noise.run(seeds=3 if a.quick else 10)
-            write_json("indie_noise", {**r, "machine": info})
-            return indie_noise.tables(r)
-        section("indie_noise", ind_noise)
-    if "simulate_imu" in todo:
-        def sim_imu():
-            r = simulate_imu.run(duration=5.0 if a.quick else 30.0)
-            write_json("simulate_imu", {**r, "machine": info})
-            return simulate_imu.tables(r)
-        section("simulate_imu", sim_imu)
-    if "imu_calib" in todo:
-        def imu_cal():
-            r = imu_calib.run(duration=8.0 if a.quick else 30.0, seeds=1 if a.quick else 3,
-                              rendered=4.0 if a.quick else 30.0)
-            write_json("imu_calib", {**r, "machine": info})
-            return imu_calib.tables(r)
-        section("imu_calib", imu_cal)
-    if "solvers" in todo:
-        def solvers():
-            r = solver_libraries.run((100,) if a.quick else solver_libraries.FRAMES)
-            write_json("solver_libraries", {"results": r, "machine": info})
-            return solver_libraries.tables(r)
-        section("solvers", solvers)
-    if "ingest" in todo:
-        def ing():
-            r = ingest.run(seconds=10.0 if a.quick else 60.0)
-            write_json("ingest", {**r, "machine": info})
-            return ingest.tables(r)
-        section("ingest", ing)
-    if "aprilgrid" in todo:
-        def april():
-            r = aprilgrid_excess.run(frames=1 if a.quick else 3)
-            write_json("aprilgrid_excess", {**r, "machine": info})
-            return aprilgrid_excess.tables(r)
-        section("aprilgrid", april)
     total = time.perf_counter() - t0
     head = (f"# rigcal benchmarks\n\n{info['date']}; {info['cpus']} CPUs; load average at start "
             f"{info['load_avg_1_5_15']}; {info['platform']}; Python {info['python']}, OpenCV {info['opencv']}, "
