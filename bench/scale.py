@@ -46,7 +46,7 @@ def one(frames: int) -> dict:
 
 
 def run(frames=FRAMES, log=say) -> list[dict]:
-    return run_sizes("bench.scale", frames, log, f"scale: 6 cameras")
+    return run_sizes("bench.scale", frames, log, "scale: 6 cameras")
 
 
 def tables(res: list[dict]) -> str:
