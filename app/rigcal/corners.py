@@ -17,6 +17,7 @@ import numpy as np
 
 from .errors import DatasetError
 from .target import Target
+from .validate import parses_as_float
 
 COLUMNS = ("frame", "board", "corner_id", "x_px", "y_px")
 HEADER = "#" + ",".join(COLUMNS)
@@ -56,7 +57,7 @@ def _numbers(col: np.ndarray, line_no: np.ndarray, path: Path, name: str, intege
     try:
         x = col.astype(float)
     except ValueError:
-        bad = next(k for k, c in enumerate(col) if not _is_number(c))
+        bad = next(k for k, c in enumerate(col) if not parses_as_float(c))
         raise DatasetError(f"{path}: row {line_no[bad]}: {name}: expected a number, got {col[bad]!r}") from None
     bad = ~np.isfinite(x) | ((x != np.round(x)) | (x < 0) if integer else np.zeros(len(x), bool))
     if bad.any():
@@ -64,14 +65,6 @@ def _numbers(col: np.ndarray, line_no: np.ndarray, path: Path, name: str, intege
         what = "a non-negative integer" if integer else "a finite number"
         raise DatasetError(f"{path}: row {line_no[k]}: {name}: expected {what}, got {col[k]!r}")
     return x.astype(np.int64) if integer else x
-
-
-def _is_number(s: str) -> bool:
-    try:
-        float(s)
-        return True
-    except ValueError:
-        return False
 
 
 def _check_rows(frames, boards, ids, line_no, path: Path, target: Target) -> None:

@@ -17,6 +17,7 @@ import numpy as np
 from .dataset import DatasetImages
 from .errors import DatasetError
 from .rig import Rig
+from .validate import parses_as_float
 
 IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
               "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
@@ -61,7 +62,7 @@ def read_imu_csv(path: str | Path) -> ImuSamples:
         try:
             vals = [float(c) for c in cells[1:]]
         except ValueError:
-            bad = next(i for i, c in enumerate(cells[1:], start=2) if not _is_float(c))
+            bad = next(i for i, c in enumerate(cells[1:], start=2) if not parses_as_float(c))
             raise DatasetError(f"{path}: row {lineno}: column {bad}: {cells[bad - 1][:40]!r} is not a number") from None
         if not all(np.isfinite(vals)):
             bad = next(i for i, v in enumerate(vals, start=2) if not np.isfinite(v))
@@ -82,12 +83,11 @@ def read_imu_csv(path: str | Path) -> ImuSamples:
     return ImuSamples(path, np.array([t for t, _ in t_ns], np.int64), data[:, :3], data[:, 3:])
 
 
-def _is_float(c: str) -> bool:
-    try:
-        float(c)
-        return True
-    except ValueError:
-        return False
+def imu_csv(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str:
+    """The text of an imu/<imu>.csv (EuRoC's imu0/data.csv, imu.md) that read_imu_csv reads:
+    integer-ns stamps and every number as the shortest text that reads back to the same double."""
+    rows = [f"{int(t)}," + ",".join(repr(float(x)) for x in (*g, *a)) for t, g, a in zip(t_ns, gyro, accel)]
+    return IMU_HEADER + "\n" + "\n".join(rows) + "\n"
 
 
 def image_times_ns(images: DatasetImages) -> dict[str, np.ndarray]:

@@ -40,7 +40,7 @@ from . import imu as imu_model
 from . import render
 from .errors import InputError, OutputError
 from .io import atomic_dir
-from .motion import IMU_HEADER
+from .motion import imu_csv
 from .rig import Imu, Rig, load_rig, rig_to_dict
 from .simulate import (DICTIONARY, MARKER_RATIO, OPTICS_SIGMA_PX, RenderSettings, Scene,
                        CameraCoverage, coverage, perturb_rig, prepare_state, run_render_tasks)
@@ -255,12 +255,6 @@ def _render_and_write(ci: int, fi: int, path: str) -> float:
 
 def _num(x: float) -> str:
     return repr(float(x))  # shortest text that reads back to the same double
-
-
-def imu_csv(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str:
-    """EuRoC's imu0/data.csv text (imu.md), numbers at full double precision."""
-    rows = [f"{int(t)}," + ",".join(_num(x) for x in (*g, *a)) for t, g, a in zip(t_ns, gyro, accel)]
-    return IMU_HEADER + "\n" + "\n".join(rows) + "\n"
 
 
 def trajectory_csv(t_ns: np.ndarray, T_world_body: np.ndarray) -> str:

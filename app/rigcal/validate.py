@@ -85,6 +85,15 @@ def _check_finite_tree(v: Any, key: str, err) -> None:
         raise err(key, f"expected numbers, text, lists or mappings, got {_kind(v)}")
 
 
+def parses_as_float(text: str) -> bool:
+    """Whether float() reads `text` (a CSV cell): finds the cell to name in an error."""
+    try:
+        float(text)
+        return True
+    except ValueError:
+        return False
+
+
 def read_text(path: str | Path, error: type[Exception]) -> str:
     """An input file's text, or one line `file: file not found` / `file: cannot read (...)`."""
     path = Path(path)

@@ -9,7 +9,6 @@ It writes into a folder the caller made (a temporary one renamed into place at t
 
 from __future__ import annotations
 
-import io
 import os
 import shutil
 from collections import deque
@@ -22,10 +21,9 @@ import numpy as np
 
 from ..dataset import IMAGE_EXTENSIONS
 from ..errors import InputError
+from ..motion import imu_csv
 from .images import decode, focus_measure
 
-IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
-              "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
 # IMU samples are kept this far outside the image window: the IMU terms need samples
 # around the first and last image, and imu.md tolerates clocks that differ by up to 1 s.
 IMU_PAD_NS = 500_000_000
@@ -251,16 +249,6 @@ def first_of_monotonic(t: np.ndarray) -> tuple[np.ndarray, int, int]:
     keep[1:] = t[1:] > before
     dup = int((t[1:] == before).sum())
     return keep, dup, int((~keep).sum()) - dup
-
-
-def imu_csv(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str:
-    """EuRoC's imu0/data.csv (imu.md), numbers at full double precision."""
-    buf = io.StringIO()
-    buf.write(IMU_HEADER + "\n")
-    table = np.column_stack([gyro, accel]).astype(np.float64)
-    np.savetxt(buf, np.column_stack([np.asarray(t_ns, np.int64).astype(object), table.astype(object)]),
-               fmt=["%d"] + ["%.17g"] * 6, delimiter=",")
-    return buf.getvalue()
 
 
 def thin_by_rate(focus: dict[str, dict[int, float]], t0_ns: int, rate_hz: float) -> dict[str, list[int]]:
