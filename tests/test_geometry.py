@@ -277,3 +277,20 @@ def test_robust_mean_pose_shortcut_for_one_or_two_equals_the_iteration(n):
             R = geo.mean_rotation(Ts[:, :3, :3], w)
         expected = geo.make_T(R, np.median(Ts[w > 0, :3, 3], axis=0))
         assert np.allclose(geo.robust_mean_pose(Ts), expected, atol=1e-12)
+
+
+def test_nearest_rotation_known_answers_and_batches():
+    rng = np.random.default_rng(7)
+    Rs = random_rotations(rng, 5)
+    # a scaled rotation's nearest rotation is itself; so is one with a little symmetric noise
+    np.testing.assert_allclose(geo.nearest_rotation(3.0 * Rs[0]), Rs[0], atol=1e-12)
+    noisy = Rs + 1e-3 * rng.normal(size=(5, 3, 3))
+    got = geo.nearest_rotation(noisy)  # batched (5, 3, 3)
+    assert got.shape == (5, 3, 3)
+    np.testing.assert_allclose(got @ np.swapaxes(got, 1, 2), np.broadcast_to(np.eye(3), (5, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(got), 1.0, atol=1e-12)
+    assert np.abs(got - Rs).max() < 5e-3
+    for M, R in zip(noisy, got):  # the batch equals one at a time
+        np.testing.assert_allclose(geo.nearest_rotation(M), R, atol=1e-14)
+    # a reflection is never returned: the determinant is fixed to +1
+    assert np.linalg.det(geo.nearest_rotation(np.diag([1.0, 1.0, -1.0]))) > 0

@@ -977,8 +977,7 @@ def fit_rigid_to(S: np.ndarray, D: np.ndarray) -> np.ndarray:
     tD, tS = D[:, :3, 3], S[:, :3, 3]
     cD, cS = tD.mean(0), tS.mean(0)
     M = np.einsum("nij,nkj->ik", D[:, :3, :3], S[:, :3, :3]) + (tD - cD).T @ (tS - cS)
-    U, _, Vt = np.linalg.svd(M)
-    R = U @ np.diag([1, 1, np.linalg.det(U @ Vt)]) @ Vt
+    R = geo.nearest_rotation(M)
     return geo.make_T(R, cD - R @ cS)
 
 

@@ -276,14 +276,20 @@ def T_nav_body_from_axes(position: Sequence[float], axes: Sequence[object]) -> n
     return make_T(R_from_axes(axes, NAV_AXES), position)
 
 
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation(s) nearest M (..., 3, 3) in the Frobenius norm: SVD with the determinant
+    fixed to +1 (the step shared by the chordal mean, Kabsch and the rigid fit)."""
+    U, _, Vt = np.linalg.svd(M)
+    d = np.ones(U.shape[:-1])
+    d[..., 2] = np.linalg.det(U @ Vt)
+    return (U * d[..., None, :]) @ Vt
+
+
 def mean_rotation(Rs: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """Chordal L2 mean of rotations (N, 3, 3): the rotation nearest the weighted sum (SVD)."""
     Rs = np.asarray(Rs, dtype=float)
     w = np.ones(len(Rs)) if weights is None else np.asarray(weights, dtype=float)
-    M = np.einsum("n,nij->ij", w, Rs)
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.linalg.det(U @ Vt)])
-    return U @ D @ Vt
+    return nearest_rotation(np.einsum("n,nij->ij", w, Rs))
 
 
 def robust_mean_pose(Ts: np.ndarray, iters: int = 3) -> np.ndarray:

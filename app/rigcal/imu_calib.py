@@ -119,10 +119,8 @@ def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s:
     w[empty, 0] = 1.0
     w /= w.sum(axis=1, keepdims=True)
     p = np.einsum("kw,kwi->ki", w, T[idx, :3, 3])
-    U, _, Vt = np.linalg.svd(np.einsum("kw,kwij->kij", w, T[idx, :3, :3]))
-    D = np.ones((len(knot_t), 3))
-    D[:, 2] = np.linalg.det(U @ Vt)
-    return spl.Spline(t0 - pad * dt, dt, (U * D[:, None, :]) @ Vt, p)
+    R = geo.nearest_rotation(np.einsum("kw,kwij->kij", w, T[idx, :3, :3]))
+    return spl.Spline(t0 - pad * dt, dt, R, p)
 
 
 def gravity_start(spline: spl.Spline, imu: ImuInput, t: np.ndarray, accel: np.ndarray) -> np.ndarray:

@@ -87,8 +87,7 @@ def time_offset_from_rates(t_cam: np.ndarray, R_world_cam: np.ndarray, t_imu: np
 
 def kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation R minimising sum |a_k - R b_k|^2 for a, b (K, 3)."""
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    return U @ np.diag([1.0, 1.0, np.linalg.det(U @ Vt)]) @ Vt
+    return geo.nearest_rotation(a.T @ b)
 
 
 def check_rotation_excitation(omega: np.ndarray, what: str) -> None:
