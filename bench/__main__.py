@@ -20,6 +20,10 @@ Sections (each also runs alone: python -m bench.<name>):
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
 
+Not a section (a check run by hand, before and after a change to the pipeline):
+
+  same_outputs `rigcal calibrate` on every benchmark dataset, calibrated YAMLs compared to 1e-9
+
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
 a rerun skips them. Measured on 2 cores: 760 s from a fresh clone, 490 s rerun.

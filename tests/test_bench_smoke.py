@@ -9,6 +9,7 @@ import re
 
 import numpy as np
 import pytest
+import yaml
 
 import rigcal
 from rigcal.bounds import pair_bounds
@@ -16,7 +17,7 @@ from rigcal.synthetic import room_scene, with_noise
 
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
            "indie_noise", "simulate_imu", "imu_calib", "solver_libraries", "ingest", "aprilgrid_excess", "dome",
-           "long_recording", "__main__")
+           "long_recording", "same_outputs", "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -233,3 +234,26 @@ def test_dome_dataset_is_a_dataset_calibrate_reads(tmp_path):
     declared = common.rig_errors(rigcal.load_rig(d / "rig.yaml"), truth)
     for k in ("rot_deg", "trans_mm"):
         assert max(p[k] for p in e["pairs"].values()) < 0.5 * max(p[k] for p in declared["pairs"].values())
+
+
+def test_same_outputs_compares_full_precision_at_1e9_and_printed_figures_to_their_last_digit(tmp_path):
+    from bench.same_outputs import compare
+
+    doc = {"cameras": {"a": {"intrinsics": {"fx": 300.123456789, "cx": 320.5}, "distortion": [0.1, 0.0],
+                             "calibration": {"sigma": {"position_mm": [0.0081]}, "dataset": "x"}}}}
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "s.yaml").write_text(yaml.safe_dump(doc))
+    cases = {"same": (lambda d: None, 0),
+             "tiny": (lambda d: d["cameras"]["a"]["intrinsics"].update(fx=300.123456789 * (1 + 1e-12)), 0),
+             "real": (lambda d: d["cameras"]["a"]["intrinsics"].update(fx=300.123456789 * (1 + 1e-8)), 1),
+             "zero": (lambda d: d["cameras"]["a"]["distortion"].__setitem__(1, 1e-10), 1),
+             "round": (lambda d: d["cameras"]["a"]["calibration"]["sigma"].update(position_mm=[0.0082]), 0),
+             "stat": (lambda d: d["cameras"]["a"]["calibration"]["sigma"].update(position_mm=[0.0084]), 1),
+             "path": (lambda d: d["cameras"]["a"]["calibration"].update(dataset="elsewhere"), 0),
+             "key": (lambda d: d["cameras"]["a"].update(extra=1), 1)}
+    for name, (edit, expected) in cases.items():
+        new = yaml.safe_load(yaml.safe_dump(doc))
+        edit(new)
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "s.yaml").write_text(yaml.safe_dump(new))
+        assert compare(tmp_path / "old", tmp_path / name) == expected, name

@@ -126,3 +126,24 @@ def test_camera_whose_views_contradict_the_rig_motion_is_named():
     corners = dict(corners, **{"back_" + b: p for b, p in corners.items()})
     with pytest.raises(CalibrationError, match=r"back: .*never linked to the rest of the rig"):
         calibrate_views(lonely, drone, corners)
+
+
+def test_pinhole_start_is_the_same_run_to_run_and_leaves_opencv_threads_alone():
+    """cv2.calibrateCamera sums per-view terms in parallel in the order threads finish;
+    fit_pinhole runs it on one thread so the same corners give the same start, bit for bit
+    (results of one process compared, so exact equality is the claim)."""
+    import cv2
+
+    from rigcal.initialise import fit_pinhole
+
+    rng = np.random.default_rng(3)
+    truth = perturb(rigcal.load_rig("drone-stereo-back"), rng)
+    views, corners = noisy_room(truth, rng, 0.3, n_frames=25)
+    mine = [v for v in views if v.camera == "front_left" and len(v.ids) >= 8]
+    obj = [corners[v.board][np.asarray(v.ids)] for v in mine]
+    img = [np.asarray(v.uv, float) for v in mine]
+    before = cv2.getNumThreads()
+    fits = [fit_pinhole(obj, img, truth.camera("front_left").intrinsics, 5) for _ in range(4)]
+    assert cv2.getNumThreads() == before
+    for f in fits[1:]:
+        assert np.array_equal(f.values, fits[0].values) and f.rms_px == fits[0].rms_px

@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import cv2
@@ -104,6 +105,20 @@ def _select_views(n_corners: np.ndarray, limit: int, rng_seed: int = 0) -> np.nd
     return np.sort(np.concatenate([best, spread]))
 
 
+@contextmanager
+def opencv_one_thread():
+    """Run OpenCV on one thread inside the block. cv2.calibrateCamera's parallel sums add
+    per-view terms in the order threads finish, so two runs on the same corners differed
+    by up to 1e-5 (relative) in weakly determined distortion terms; one thread makes a
+    calibration reproducible run to run, at no measurable cost on these problem sizes."""
+    n = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(n)
+
+
 def fit_pinhole(obj: list[np.ndarray], img: list[np.ndarray], model: CameraModel, n_dist: int) -> MonoFit:
     """cv2.calibrateCameraExtended with the given distortion length; tries Zhang's closed-form
     start and the declared intrinsics as a guess, keeps the better."""
@@ -123,7 +138,8 @@ def fit_pinhole(obj: list[np.ndarray], img: list[np.ndarray], model: CameraModel
             d = np.array(model.dist[: min(len(model.dist), len(D0))])
             D0[: len(d)] = d
         try:
-            out = cv2.calibrateCameraExtended(objp, imgp, size, K0, D0, flags=flags, criteria=crit)
+            with opencv_one_thread():
+                out = cv2.calibrateCameraExtended(objp, imgp, size, K0, D0, flags=flags, criteria=crit)
         except cv2.error:
             continue
         rms, K, D, rvecs, tvecs, std_intr, _, per_view = out
