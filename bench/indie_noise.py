@@ -59,10 +59,9 @@ import numpy as np
 import rigcal
 from rigcal.bounds import measured_corner_noise
 from rigcal.compare import load_truth
-from rigcal.core import ViewIn
 from rigcal.errors import RigcalError
 
-from .common import (OUT, Timer, calibrate, gaussian_views, md_table, run_pool, say, true_projections, view_tuples,
+from .common import (OUT, Timer, calibrate, gaussian_views, md_table, run_pool, say, true_projections,
                      write_json)
 from .noise_limit import _pair_stats, _ratio, view_offsets
 
@@ -155,7 +154,7 @@ def render_and_detect(kind: str, seed: int, S: int) -> tuple:
     target = load_target(d / "target.yaml")
     with Timer() as td:
         det = detect_dataset(list_dataset(d, rig), target, rig=rig, jobs=1, progress=False)
-    views = [ViewIn(*v) for v in view_tuples(det.views)]
+    views = list(det.views)
     truth = load_truth(d / "truth.yaml")
     shutil.rmtree(d, ignore_errors=True)
     return rig, truth, {b.name: b.corners for b in target.boards}, views, tr.wall, td.wall

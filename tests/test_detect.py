@@ -17,7 +17,8 @@ import pytest
 from typer.testing import CliRunner
 
 from rigcal.dataset import list_dataset
-from rigcal.detect import (BoardDetector, DetectionResult, View, chessboard_order, detect_dataset, detect_image,
+from rigcal.observations import BoardView
+from rigcal.detect import (BoardDetector, DetectionResult, chessboard_order, detect_dataset, detect_image,
                            diagnose_no_detection, find_chessboard, is_degenerate, local_grid, quadratic_axes,
                            read_gray, refine_corners, to_gray8)
 from rigcal.target import Board, Target, parse_target
@@ -383,7 +384,7 @@ def test_corners_missing_a_neighbour_are_refined_as_well_through_a_fisheye():
 
 
 def test_corner_sigma_follows_the_image_noise():
-    """The refinement's per-corner sigma (View.sigma) is on the scale of the true error at 2 and at 8 grey levels of noise, and a corner of a
+    """The refinement's per-corner sigma (BoardView.sigma) is on the scale of the true error at 2 and at 8 grey levels of noise, and a corner of a
     noisier image is predicted noisier than the same corner of a cleaner one."""
     det = BoardDetector(Target((CHARUCO,)))
     rng = np.random.default_rng(12)
@@ -527,9 +528,9 @@ def test_read_gray_takes_float64_colour_and_signed_tiffs(tmp_path):
 
 
 def test_view_equality_compares_arrays():
-    a = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
-    b = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
-    assert a == b and a != View("c", "f", "b", np.array([1, 3]), b.uv)
+    a = BoardView("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
+    b = BoardView("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
+    assert a == b and a != BoardView("c", "f", "b", np.array([1, 3]), b.uv)
 
 
 # ----------------------------------------------------------------------------- wrong board description

@@ -150,7 +150,7 @@ def test_guided_cameras_by_mode():
 def fisheye_pair(tmp_path_factory):
     """rigcal's own fisheye-stereo render (8 frames), detected, and calibrated without the pass."""
     from rigcal.compare import load_truth
-    from rigcal.core import ViewIn, calibrate_views
+    from rigcal.core import calibrate_views
     from rigcal.dataset import list_dataset
     from rigcal.detect import detect_dataset
     from rigcal.simulate import simulate_dataset
@@ -161,7 +161,7 @@ def fisheye_pair(tmp_path_factory):
     rig, target, truth = load_rig(d / "rig.yaml"), load_target(d / "target.yaml"), load_truth(d / "truth.yaml")
     images = list_dataset(d, rig)
     det = detect_dataset(images, target, rig=rig, jobs=2, progress=False)
-    views = [ViewIn(v.camera, v.frame, v.board, v.ids, v.uv, v.ambiguous, v.sigma) for v in det.views]
+    views = list(det.views)
     corners = {b.name: b.corners for b in target.boards}
     return d, rig, target, truth, images, views, corners, calibrate_views(views, rig, corners)
 

@@ -14,6 +14,7 @@ try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: tomllib is 3.11+
     import tomli as tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -23,7 +24,7 @@ import yaml
 
 import rigcal
 from rigcal import geometry as geo
-from rigcal.core import ViewIn, calibrate_views
+from rigcal.core import calibrate_views
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset
 from rigcal.target import load_target
@@ -37,8 +38,7 @@ def _detect(ds: Path, rig=None):
     rig = rig or rigcal.load_rig(ds / "rig.yaml")
     target = load_target(ds / "target.yaml")
     det = detect_dataset(list_dataset(ds, rig), target, rig=rig, jobs=1, progress=False)
-    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous)
-             for v in det.views]
+    views = [replace(v, sigma=None) for v in det.views]
     return rig, target, views
 
 

@@ -111,6 +111,8 @@ def depth_samples(cal, left: str, right: str) -> DepthSamples | None:
 
 
 def depth_check(cal, left: str, right: str, truth=None) -> dict:
+    """One stereo pair's entry of the calibrated YAML: baseline, the 10 m sanity figures and
+    (where the cameras share corners) the depth check, against the truth too when given."""
     rig = cal.rig
     rect = rectify_pair(rig.camera(left), rig.camera(right))
     out = {"baseline_m": rect.baseline_m, "sanity_10m": sanity_10m(rig, left, right, rect)}

@@ -32,7 +32,7 @@ Pipeline per image:
    bench_detect.py --accuracy): OpenCV's ChArUco corners are off by 0.04-0.08 px RMS
    on `rigcal simulate` renders (0.15 fisheye) with a per-view common offset of up to
    0.04 px; "symmetric" 0.011 px (0.018 fisheye), per-view offset 0.002-0.003.
-   "symmetric" also estimates each corner's own 1-sigma error (View.sigma: the fit's
+   "symmetric" also estimates each corner's own 1-sigma error (BoardView.sigma: the fit's
    residual variance x its inverse normal matrix). On fisheye renders it tracks the true
    error (0.007-0.03 px); on pinhole renders it spreads 2.2x where the true error spreads
    1.3x. Calibrated per camera on the residuals (solve.NoiseModel) it can weight the
@@ -59,6 +59,7 @@ import cv2
 import numpy as np
 
 from . import april
+from .observations import BoardView
 from .target import Board, Target
 from .workers import interrupts_deferred, pool
 
@@ -116,32 +117,9 @@ DIAGNOSE_DICTIONARIES = (
 )
 
 
-@dataclass(frozen=True, eq=False)
-class View:
-    """One board seen by one camera in one frame."""
-
-    camera: str
-    frame: str
-    board: str
-    ids: np.ndarray  # (N,) int64 corner ids, rows of Board.corners
-    uv: np.ndarray  # (N, 2) float64 pixels, OpenCV pixel-centre convention
-    ambiguous: bool = False  # 180-degree-symmetric chessboard: the order may be reversed
-    # (N,) each corner's own 1-sigma error in px as the refinement estimates it (NaN: unknown)
-    sigma: np.ndarray | None = None
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, View):
-            return NotImplemented
-        return ((self.camera, self.frame, self.board, self.ambiguous)
-                == (other.camera, other.frame, other.board, other.ambiguous)
-                and np.array_equal(self.ids, other.ids) and np.array_equal(self.uv, other.uv)
-                and ((self.sigma is None) == (other.sigma is None))
-                and (self.sigma is None or np.array_equal(self.sigma, other.sigma, equal_nan=True)))
-
-
 @dataclass
 class DetectionResult:
-    views: list[View]
+    views: list[BoardView]
     cameras: tuple[str, ...]
     frames: tuple[str, ...]
     image_size: dict[str, tuple[int, int]]  # per camera (w, h) as read (the first readable image)
@@ -154,7 +132,7 @@ class DetectionResult:
     jobs: int = 1  # worker processes actually used
     unreadable_by_camera: dict[str, int] = field(default_factory=dict)
 
-    def views_of(self, camera: str) -> list[View]:
+    def views_of(self, camera: str) -> list[BoardView]:
         return [v for v in self.views if v.camera == camera]
 
     def summary(self) -> str:
@@ -1232,7 +1210,7 @@ def detect_dataset(images, target: Target, rig=None, jobs: int | None = None, pr
         if not o.views:
             res.no_board[cam] += 1
         for name, ids, uv, amb, sigma in o.views:
-            res.views.append(View(cam, frame, name, ids, uv, amb, sigma))
+            res.views.append(BoardView(cam, frame, name, ids, uv, amb, sigma))
     res.seconds = time.perf_counter() - t0
     return res
 
