@@ -11,6 +11,7 @@ Sections (each also runs alone: python -m bench.<name>):
   dome         `rigcal calibrate` on a 60-camera dome's corners/ files, 100 / 300 / 1000 frames: time, memory
   long_recording  `rigcal calibrate` end to end on 4 cameras x 1,500 rendered frames (render cached)
   real         real photographs vs published references
+  holdout      caliscope's webcams: intrinsics and whole rigs scored on held-out frames (2-fold)
   indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
@@ -41,8 +42,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, dome, imu_calib, indie, indie_noise, ingest, long_recording,
-               montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, dome, imu_calib, indie, indie_noise, ingest, intrinsics_holdout,
+               long_recording, montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries,
+               speed)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -75,6 +77,7 @@ TABLE = (
     Section("long_recording", "long_recording", lambda q, d: long_recording.run(300 if q else long_recording.FRAMES),
             _only(long_recording)),
     Section("real", "real", lambda q, d: real.run(), _only(real)),
+    Section("holdout", "intrinsics_holdout", lambda q, d: intrinsics_holdout.run(), _only(intrinsics_holdout)),
     Section("indie", "indie", lambda q, d: indie.run(), _only(indie)),
     Section("indie_noise", "indie_noise", lambda q, d: indie_noise.run(seeds=3 if q else 10), _only(indie_noise)),
     Section("simulate_imu", "simulate_imu", lambda q, d: simulate_imu.run(duration=5.0 if q else 30.0),

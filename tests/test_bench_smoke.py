@@ -17,7 +17,7 @@ from rigcal.synthetic import room_scene, with_noise
 
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
            "indie_noise", "simulate_imu", "imu_calib", "solver_libraries", "ingest", "aprilgrid_excess", "dome",
-           "long_recording", "same_outputs", "__main__")
+           "long_recording", "same_outputs", "intrinsics_holdout", "__main__")
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -257,3 +257,31 @@ def test_same_outputs_compares_full_precision_at_1e9_and_printed_figures_to_thei
         (tmp_path / name).mkdir()
         (tmp_path / name / "s.yaml").write_text(yaml.safe_dump(new))
         assert compare(tmp_path / "old", tmp_path / name) == expected, name
+
+
+def test_holdout_scores_are_zero_for_the_truth_and_grow_with_a_wrong_rig():
+    """bench.intrinsics_holdout's two scores on noise-free synthetic views: the true rig
+    predicts held-out views exactly; turning one camera by 0.2 deg moves camera-to-camera
+    predictions by about f x 0.2 deg, and a principal point off by 10 px shows in PnP."""
+    from bench import common
+    from bench.intrinsics_holdout import cross_errors, pnp_rms
+    from rigcal import geometry as geo
+
+    rig = rigcal.load_rig(common.RIGS / "stereo-forward.yaml")
+    sc = room_scene(rig, np.random.default_rng(4), n_frames=8)
+    left = [v for v in sc.views if v.camera == "left"]
+    obj = [sc.corners[v.board][np.asarray(v.ids)] for v in left]
+    img = [np.asarray(v.uv, float) for v in left]
+    m = rig.camera("left").intrinsics
+    assert pnp_rms(m, obj, img)[0] < 1e-6
+    assert pnp_rms(m.with_(cx=m.cx + 10, dist=tuple(np.asarray(m.dist) + 0.05)), obj, img)[0] > 0.05
+    exact = cross_errors(rig, sc.views, sc.corners)
+    assert exact and max(e for e, _ in exact) < 1e-6
+    right = rig.camera("right")
+    turned = rig.with_cameras([c if c.name != "right" else
+                               type(c)(c.name, c.intrinsics, c.T_body_cam @ geo.make_T(
+                                   geo.R_from_rotvec(np.radians([0.2, 0, 0])), np.zeros(3)))
+                               for c in rig.cameras])
+    moved = np.median([e for e, _ in cross_errors(turned, sc.views, sc.corners)])
+    expected = right.intrinsics.fy * np.radians(0.2)
+    assert 0.7 * expected < moved < 1.3 * expected
