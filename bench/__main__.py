@@ -21,9 +21,15 @@ Sections (each also runs alone: python -m bench.<name>):
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
 
-Not a section (a check run by hand, before and after a change to the pipeline):
+Not sections (checks run by hand, each also `python -m bench.<name>`):
 
   same_outputs `rigcal calibrate` on every benchmark dataset, calibrated YAMLs compared to 1e-9
+               (before and after a change to the pipeline)
+  faults       a messy capture (blur, truncated, black and missing images) calibrates within 1.5x of the
+               clean one's error (issue 7)
+
+Finished studies, whose conclusions the README records, are in bench/archive/ (its README
+says what each concluded and where); they are not run here and not smoke-tested.
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so

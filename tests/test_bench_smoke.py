@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,15 +16,46 @@ import rigcal
 from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+# checks run by hand, not benchmark sections (bench/__main__.py's docstring lists them)
+CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
            "indie_noise", "simulate_imu", "imu_calib", "solver_libraries", "ingest", "aprilgrid_excess", "dome",
-           "long_recording", "same_outputs", "intrinsics_holdout", "__main__")
+           "long_recording", "intrinsics_holdout", "__main__") + CHECKS
 
 
 @pytest.mark.parametrize("name", MODULES)
 def test_bench_module_imports(name):
     mod = importlib.import_module(f"bench.{name}")
     assert mod.__doc__
+
+
+def test_every_live_bench_module_is_a_section_a_check_or_shared():
+    """bench/'s convention (issue 16): a module in bench/ itself is a section of the one
+    TABLE (running its module), a check named in CHECKS, or shared code; finished studies
+    live in bench/archive/ with a line in its README."""
+    from bench.__main__ import TABLE
+
+    live = {p.stem for p in BENCH.glob("*.py")} - {"__init__", "__main__", "common"}
+    in_table = set()
+    for sec in TABLE:
+        in_table |= {n for n in sec.run.__code__.co_names if n in live}
+    assert live - in_table - set(CHECKS) == set(), "neither a TABLE section nor a check"
+    assert set(MODULES) - {"common", "__main__"} == live
+    readme = (BENCH / "archive" / "README.md").read_text(encoding="utf-8")
+    for p in (BENCH / "archive").glob("*.py"):
+        if p.stem != "__init__":
+            assert f"`{p.stem}`" in readme, p.stem
+
+
+def test_scale_and_montecarlo_sections_run_small():
+    from bench import montecarlo, scale
+
+    r = scale.one(10)
+    assert r["frames"] == 10 and r["max_pair_rot_err_deg"] < 0.1
+    assert "Scale" in scale.tables([r])
+    m = montecarlo.run(seeds=1, log=lambda *a: None)
+    assert set(m["variants"]) and "Monte Carlo" in montecarlo.tables(m)
 
 
 @pytest.fixture(scope="module")

@@ -67,8 +67,8 @@ def check_output_path(path: Path) -> None:
 
 
 def _diagnosis(paths: list[Path], target) -> str:
-    """': <why no board shows>' from the first few of these images (detect.diagnose_no_detection), or ''."""
-    from .detect import diagnose_no_detection
+    """': <why no board shows>' from the first few of these images (detect_diagnose.diagnose_no_detection), or ''."""
+    from .detect_diagnose import diagnose_no_detection
 
     hint = diagnose_no_detection(paths[:4], target) if paths else ""
     return f": {hint}" if hint else ""

@@ -287,10 +287,6 @@ def opencv_files(rig: Rig, label: str = "<rig>") -> Export:
 # ----------------------------------------------------------------------------- ros
 
 
-ROS_KEYS = ("image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
-            "distortion_coefficients", "rectification_matrix", "projection_matrix")
-
-
 def _ros_distortion(cam: Camera, label: str) -> tuple[str, list[float], str | None]:
     m = cam.intrinsics
     d = list(m.dist)
