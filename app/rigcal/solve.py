@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
+from threadpoolctl import threadpool_limits
 
 from . import geometry as geo
 from .camera import distort_fisheye, distort_pinhole
@@ -460,13 +461,17 @@ class Problem:
         rw = sw * e.reshape(-1, 2)
         order = self._sorted()
         o = self.obs
-        for lo in range(0, len(order), NE_CHUNK):
-            idx = order[lo:lo + NE_CHUNK]
-            key = o.cam[idx] * len(L.board) + o.board[idx]
-            cuts = np.concatenate([[0], np.flatnonzero(np.diff(key)) + 1, [len(idx)]])
-            for a, b in zip(cuts[:-1], cuts[1:]):
-                g = idx[a:b]
-                self._accumulate(ne, o.subset(g), poses, vals, sw[g], rw[g])
+        # One BLAS thread for the per-run products: they are small (a run's 2m x ~21
+        # columns), and OpenBLAS's threads on them cost 10-100x their arithmetic in
+        # synchronisation, worst on a busy machine (README, scale: the dome).
+        with threadpool_limits(1, user_api="blas"):
+            for lo in range(0, len(order), NE_CHUNK):
+                idx = order[lo:lo + NE_CHUNK]
+                key = o.cam[idx] * len(L.board) + o.board[idx]
+                cuts = np.concatenate([[0], np.flatnonzero(np.diff(key)) + 1, [len(idx)]])
+                for a, b in zip(cuts[:-1], cuts[1:]):
+                    g = idx[a:b]
+                    self._accumulate(ne, o.subset(g), poses, vals, sw[g], rw[g])
         return ne
 
     def _accumulate(self, ne: "NormalEquations", o: Observations, poses: tuple, vals: list, sw: np.ndarray,
