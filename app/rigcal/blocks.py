@@ -88,8 +88,8 @@ class JacobianChunk:
     """The (unweighted) Jacobian of some rows of one residual block. rows (m,): the rows,
     in the block's residual order, each of D residuals (a corner's u, v: D = 2);
     J_a (m, D, K) over the kept parameters at columns cols_a: (K,) when every row has the
-    same columns (summed as one dense product: a run of one camera and one board), or
-    (m, K) per row; -1 marks a held column. J_e (m, D, E) over the eliminated block e (m,)
+    same (distinct) columns (summed as one dense product: a run of one camera and one
+    board), or (m, K) per row; -1 marks a held column. J_e (m, D, E) over the eliminated block e (m,)
     of each row (rows of one block adjacent, for speed), or both None."""
 
     rows: np.ndarray
