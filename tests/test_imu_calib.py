@@ -115,3 +115,42 @@ def test_rendered_recording_end_to_end(tmp_path):
     assert np.all(err[:, 0] < 0.05) and np.all(err[:, 1] < 3e-3) and np.all(np.abs(err[:, 2]) < 3e-4), err
     for k in ("gyro", "accel"):
         assert 0.8 < res.normalised_rms[k] < 1.2, res.normalised_rms
+
+
+def test_band_order_factor_solves_as_a_general_sparse_solver():
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=2.0, seed=0)
+    state, _, use = ic.start_state(rec.cams, rec.imu, ic.Settings())
+    lay = ir.layout_for(state)
+    J, r = ir.assemble([ir.gyro_block(state, lay, rec.imu.t[use], rec.imu.gyro[use], 1e-2),
+                        ir.accel_block(state, lay, rec.imu.t[use], rec.imu.accel[use], 1e-1),
+                        ir.reprojection_block(state, lay, rec.obs, [c.model for c in rec.cams], 0.3),
+                        ir.bias_prior_block(state, lay, 1e-3, 1e-2)], lay.size)
+    H = (J.T @ J).tocsc()
+    order = ic.band_order(lay)
+    assert sorted(order) == list(range(lay.size))  # a permutation
+    solve, act = ic.factor(H, order)
+    H_act = H[act][:, act].tocsc()
+    x = solve((J.T @ r)[act])
+    x_ref = spla.spsolve(H_act, (J.T @ r)[act])
+    assert np.abs(x - x_ref).max() < 1e-6 * np.abs(x_ref).max()
+    assert np.abs(H_act @ x - (J.T @ r)[act]).max() < 1e-8 * np.abs(J.T @ r).max()
+    assert set(act) == set(np.flatnonzero(H.diagonal() > 0)) and not sp.issparse(x)
+
+
+def test_huber_loss_resists_gross_corner_outliers():
+    """2 % of the corners moved by 20 px: least squares is pulled off, the Huber loss is not."""
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=3, sigma_px=SIGMA_PX)
+    rng = np.random.default_rng(7)
+    bad = rng.random(len(rec.obs.cam)) < 0.02
+    uv = rec.obs.uv.copy()
+    uv[bad] += rng.choice([-20.0, 20.0], size=(int(bad.sum()), 2))
+    obs = replace(rec.obs, uv=uv)
+    plain = ic.calibrate_camera_imu(rec.cams, obs, rec.imu, ic.Settings(sigma_px=SIGMA_PX))
+    robust = ic.calibrate_camera_imu(rec.cams, obs, rec.imu, ic.Settings(sigma_px=SIGMA_PX, huber=3.0))
+    e_plain = isyn.errors_against_truth(rec, plain.T_imu_cam, plain.time_offset_s)
+    e_robust = isyn.errors_against_truth(rec, robust.T_imu_cam, robust.time_offset_s)
+    assert np.all(e_robust[:, 0] < 0.05) and np.all(e_robust[:, 1] < 3e-3) and np.all(np.abs(e_robust[:, 2]) < 3e-4)
+    assert e_robust[:, 0].max() < 0.5 * e_plain[:, 0].max()
