@@ -16,7 +16,7 @@ from rigcal.bounds import pair_bounds
 from rigcal.synthetic import room_scene, with_noise
 
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
-           "indie_noise", "simulate_imu", "imu_calib", "solver_libraries", "ingest", "aprilgrid_excess", "dome",
+           "indie_noise", "simulate_imu", "imu_calib", "imu_euroc", "solver_libraries", "ingest", "aprilgrid_excess", "dome",
            "long_recording", "same_outputs", "__main__")
 
 

@@ -57,12 +57,24 @@ def test_residuals_match_the_declared_noise_and_gravity_biases_are_found(solved)
     assert np.abs(ba.mean(0) - rec.accel_bias[keep].mean(0)).max() < 2e-2  # m/s^2, true ~5e-2
 
 
-def test_one_axis_recording_is_refused():
+@pytest.mark.parametrize("still", [False, True], ids=["yaw-only", "yaw-only-no-translation"])
+def test_one_axis_recording_is_refused(still):
+    """Issue 18's degenerate recording: turning about one axis (with or without translation)
+    is refused before any solve, naming the missing motion."""
     traj = imu_model.hand_held_trajectory(np.random.default_rng([0, 2]))
     amp = traj.ang_amp.copy()
     amp[1:] = 0.0  # yaw only
-    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=0, trajectory=replace(traj, ang_amp=amp))
+    traj = replace(traj, ang_amp=amp, pos_amp=np.zeros_like(traj.pos_amp) if still else traj.pos_amp)
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=0, trajectory=traj)
     with pytest.raises(CalibrationError, match="fewer than two axes"):
+        ic.calibrate_camera_imu(rec.cams, rec.obs, rec.imu)
+
+
+def test_translation_free_recording_is_refused():
+    traj = imu_model.hand_held_trajectory(np.random.default_rng([0, 2]))
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=0,
+                                   trajectory=replace(traj, pos_amp=np.zeros_like(traj.pos_amp)))
+    with pytest.raises(CalibrationError, match="hardly accelerates"):
         ic.calibrate_camera_imu(rec.cams, rec.obs, rec.imu)
 
 
