@@ -97,13 +97,21 @@ def _imu_sigmas(imu: ImuInput) -> tuple[float, float]:
     return imu.gyroscope_noise_density * r, imu.accelerometer_noise_density * r
 
 
-def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s: float, pad: int = 2) -> spl.Spline:
+def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s: float, pad: int = 2,
+                   attitude=None) -> spl.Spline:
     """A start spline with knots every dt through noisy sampled body poses: each control point
     is the Gaussian-weighted (sigma smooth_s) mean of the samples near its knot, positions
     arithmetically, rotations by the chordal mean. A cubic B-spline's curve lies within
     dt^2 |p''| / 6 of its control points, so this is a start the estimator refines; linear
     in the samples (each knot gathers a fixed window). `pad` extra knots on each side keep
-    clock-offset steps on the spline (the IMU shapes them)."""
+    clock-offset steps on the spline (the IMU shapes them).
+
+    attitude: R_start_body(t) (e.g. gyro_attitude's, any start) or None; given, each sample's
+    rotation is carried to the knot's time by it before averaging, so the mean does not lag
+    behind fast turns, and a knot without samples near it (the board out of view: EuRoC's
+    recording has a 1.2 s gap) takes the nearest sample's rotation carried by the gyroscope
+    (positions there are interpolated linearly between covered knots; the accelerometer
+    then shapes them). Without it such a start put EuRoC's LM in a wrong minimum."""
     order = np.argsort(t)
     t, T = t[order], T_world_body[order]
     t0, n = spl.knots_for(t[0], t[-1], dt)
@@ -120,8 +128,28 @@ def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s:
     w[empty, 0] = 1.0
     w /= w.sum(axis=1, keepdims=True)
     p = np.einsum("kw,kwi->ki", w, T[idx, :3, 3])
-    R = geo.nearest_rotation(np.einsum("kw,kwij->kij", w, T[idx, :3, :3]))
+    R_s = T[idx, :3, :3]
+    if attitude is not None:
+        R_s = R_s @ np.swapaxes(attitude(t[idx]), -1, -2) @ attitude(knot_t)[:, None]
+        inner = (knot_t > t[0]) & (knot_t < t[-1])
+        lone = empty & inner
+        if lone.any() and (~lone).sum() >= 2:
+            for k in range(3):
+                p[lone, k] = np.interp(knot_t[lone], knot_t[~lone], p[~lone, k])
+    R = geo.nearest_rotation(np.einsum("kw,kwij->kij", w, R_s))
     return spl.Spline(t0 - pad * dt, dt, R, p)
+
+
+def gyro_attitude(imu: ImuInput):
+    """R_start_body(t) for any times (nearest IMU sample): the gyroscope (in body axes
+    through the held R_body_imu) integrated from the first sample, one Exp per interval."""
+    w = imu.gyro @ imu.T_body_imu[:3, :3].T
+    steps = geo.R_from_rotvec(0.5 * (w[1:] + w[:-1]) * np.diff(imu.t)[:, None])
+    out = np.empty((len(imu.t), 3, 3))
+    out[0] = np.eye(3)
+    for k, S in enumerate(steps):  # sequential by nature; 3x3 products, ~15k a minute of IMU
+        out[k + 1] = out[k] @ S
+    return lambda t: out[np.clip(np.searchsorted(imu.t, t), 0, len(imu.t) - 1)]
 
 
 def gravity_start(spline: spl.Spline, imu: ImuInput, t: np.ndarray, accel: np.ndarray) -> np.ndarray:
@@ -151,7 +179,8 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
         T_wb.append(c.T_world_cam @ geo.inv_T(T))
     t_all, T_wb = np.concatenate(t_all), np.concatenate(T_wb)
     frame_dt = float(np.median(np.diff(np.sort(cams[0].t_cam))))
-    spline = initial_spline(t_all, T_wb, settings.knot_dt, max(settings.knot_dt, 1.5 * frame_dt))
+    spline = initial_spline(t_all, T_wb, settings.knot_dt, max(settings.knot_dt, 1.5 * frame_dt),
+                            attitude=gyro_attitude(imu))
     imu_start.check_acceleration(spl.evaluate(spline, np.arange(t_all.min(), t_all.max(), 0.01)).a_world,
                                  "the camera trajectory")
     use = (imu.t >= spline.t0 + 0.5 * spline.dt) & (imu.t <= spline.t_end - 0.5 * spline.dt)
