@@ -244,6 +244,9 @@ def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: in
             solve, act = factor((H + sp.diags(lam * np.maximum(d, 1e-9))).tocsc(), order)
             dx = np.zeros(lay.size)
             dx[act] = solve(-g[act])
+            if not np.all(np.isfinite(dx)):  # a factorisation without pivoting broke down: damp more
+                lam *= 10
+                continue
             trial = ir.retract(state, lay, dx)
             try:
                 tb = blocks_of(trial)
