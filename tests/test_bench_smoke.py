@@ -20,8 +20,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 # checks run by hand, not benchmark sections (bench/__main__.py's docstring lists them)
 CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
-           "indie_noise", "simulate_imu", "imu_calib", "solver_libraries", "ingest", "aprilgrid_excess", "dome",
-           "long_recording", "intrinsics_holdout", "__main__") + CHECKS
+           "indie_noise", "simulate_imu", "imu_calib", "imu_euroc", "solver_libraries", "ingest", "aprilgrid_excess",
+           "dome", "long_recording", "intrinsics_holdout", "__main__") + CHECKS
 
 
 @pytest.mark.parametrize("name", MODULES)
