@@ -28,6 +28,7 @@ import scipy.sparse.linalg as spla
 from . import geometry as geo
 from . import imu_calib as ic
 from . import imu_residuals as ir
+from . import imu_start
 from . import spline as spl
 from .errors import CalibrationError, DatasetError, InputError
 from .initialise import pnp_views
@@ -211,26 +212,59 @@ def _settings_with(settings: ic.Settings, res: ic.CameraImuResult) -> ic.Setting
     return replace(settings, sigma_px=settings.sigma_px * max(res.normalised_rms["corners"], 1e-3))
 
 
+def _gauge_pass(inp: Inputs, T_wb: np.ndarray, gauge: int, settings: ic.Settings) -> ir.State:
+    """The trajectory from the IMU and the gauge board's corners alone (cameras that see it),
+    then every camera's T_body_cam and offset in it: those that see the gauge board from
+    this estimate, the others from their rate start (imu_start) and declared position. The
+    boards the camera-only step placed through unsynchronised frames do not enter."""
+    sees = np.zeros(len(inp.cams), bool)
+    sees[np.unique(inp.cam[inp.board == gauge])] = True
+    idx = np.flatnonzero(sees)
+    remap = np.full(len(inp.cams), -1)
+    remap[idx] = np.arange(len(idx))
+    cams, obs = _with_boards(inp, T_wb)
+    k = (inp.board == gauge) & sees[inp.cam]
+    sub = ir.Corners(remap[obs.cam[k]], obs.t_cam[k], obs.uv[k], obs.p_world[k])
+    res = ic.calibrate_camera_imu([cams[i] for i in idx], sub, inp.imu, settings)
+    st = res.state
+    T_bc = np.stack([c.T_body_cam for c in cams])
+    off = np.array([c.time_offset_guess_s for c in cams])
+    T_bi = inp.imu.T_body_imu
+    for c in np.flatnonzero(~sees):
+        s = imu_start.rate_start(cams[c].t_cam, cams[c].T_world_cam[:, :3, :3], inp.imu.t, inp.imu.gyro,
+                                 cams[c].time_offset_guess_s, settings.window_s, what=f"camera {c}")
+        T_bc[c, :3, :3] = T_bi[:3, :3] @ s.R_imu_cam
+        off[c] = s.time_offset_s
+    T_bc[idx], off[idx] = st.T_body_cam, st.time_offset_s
+    delay = np.array([c.line_delay_s for c in cams])
+    delay[idx] = st.line_delay_s
+    return replace(st, T_body_cam=T_bc, time_offset_s=off, line_delay_s=delay)
+
+
 def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
              ) -> tuple[ic.CameraImuResult, np.ndarray, ic.Settings, int]:
-    """The camera-IMU estimate, alternated with re-fitting every board but the gauge (most
-    corners) to its trajectory; returns (result, boards, the settings it used, passes).
-    Each pass weighs the corners by the noise the previous one found."""
+    """The camera-IMU estimate: with several boards, first the trajectory from the gauge
+    board (most corners) and the IMU, the other boards re-fitted to it (_gauge_pass,
+    refit_boards), then the estimate on every corner, alternated with re-fitting the
+    boards up to BOARD_PASSES times. Each pass weighs the corners by the noise the previous
+    one found. Returns (result, boards, the settings it used, passes)."""
     gauge = int(np.argmax(np.bincount(inp.board, minlength=len(T_world_board))))
     models = [c.model for c in inp.cams]
     T_wb = T_world_board.copy()
+    several = len(np.unique(inp.board)) > 1
+    if several:
+        T_wb = refit_boards(_gauge_pass(inp, T_wb, gauge, settings), inp, models, gauge, T_wb)
     k = 0
     while True:
         k += 1
         cams, obs = _with_boards(inp, T_wb)
         used = settings
         res = ic.calibrate_camera_imu(cams, obs, inp.imu, used)
+        settings = _settings_with(used, res)
         if k == BOARD_PASSES:
             return res, T_wb, used, k
-        reweighed = abs(res.normalised_rms["corners"] - 1.0) > 0.2
-        settings = _settings_with(used, res)
-        if len(np.unique(inp.board)) == 1:  # nothing to re-fit: again only for the weights
-            if not reweighed:
+        if not several:  # nothing to re-fit: again only for the weights
+            if abs(res.normalised_rms["corners"] - 1.0) < 0.2:
                 return res, T_wb, used, k
             continue
         new = refit_boards(res.state, inp, models, gauge, T_wb)
