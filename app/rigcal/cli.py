@@ -102,6 +102,8 @@ class ExportFormat(str, Enum):
     opencv = "opencv"
     ros = "ros"
     json = "json"
+    kalibr_imu = "kalibr-imu"
+    euroc = "euroc"
 
 
 class ImportFormat(str, Enum):
@@ -232,8 +234,8 @@ def project(
 @guarded
 def export(
     rig: Path = typer.Argument(..., help="calibrated rig YAML"),
-    format: ExportFormat = typer.Option(..., "--format", help="kalibr | opencv | ros | json"),
-    out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros)"),
+    format: ExportFormat = typer.Option(..., "--format", help="kalibr | opencv | ros | json | kalibr-imu | euroc"),
+    out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros, kalibr-imu, euroc)"),
 ):
     """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON."""
     from . import export as exp
