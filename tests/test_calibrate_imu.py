@@ -172,3 +172,37 @@ def test_clock_offset_outside_the_search_window(run, tmp_path):
     ds, _, _ = run
     # the true offsets are up to 10 ms from the declared 0: a 2 ms window cannot hold them
     _refused(_variant(ds, tmp_path), 1, "search window", "--offset-window", extra=("--offset-window", 0.002))
+
+
+# ----------------------------------------------------------------------------- exports of the golden IMU rig
+
+GOLDEN_IMU = Path(__file__).resolve().parent / "golden" / "drone-stereo-back-imu-calibrated.yaml"
+
+
+def test_golden_imu_rig_exports_map_points_as_the_rig_does(tmp_path):
+    """A point in the IMU frame lands at the same camera point through T_cam_imu (Kalibr) and
+    through T_BS (EuRoC) as through the rig; the rolling-shutter camera keeps its line delay."""
+    rig = load_rig(GOLDEN_IMU)
+    T_bi = rig.imu("imu0").T_body_imu
+    assert _cli("export", GOLDEN_IMU, "--format", "kalibr-imu", "--out", tmp_path / "k").exit_code == 0
+    assert _cli("export", GOLDEN_IMU, "--format", "euroc", "--out", tmp_path / "e").exit_code == 0
+    chain = yaml.safe_load((tmp_path / "k" / "camchain-imucam.yaml").read_text())
+    p_imu = np.random.default_rng(1).uniform(-3, 3, size=(50, 3))
+    for block in chain.values():
+        cam = rig.camera(block["rigcal_name"])
+        p_cam = geo.transform(geo.inv_T(cam.T_body_cam), geo.transform(T_bi, p_imu))
+        np.testing.assert_allclose(geo.transform(np.array(block["T_cam_imu"]), p_imu), p_cam, atol=1e-12)
+        T_BS = np.reshape(read_sensor_yaml(tmp_path / "e" / cam.name / "sensor.yaml")["T_BS"]["data"], (4, 4))
+        np.testing.assert_allclose(geo.transform(geo.inv_T(T_BS), p_imu), p_cam, atol=1e-12)
+        assert block.get("line_delay", 0.0) == pytest.approx(cam.line_delay_s or 0.0, abs=1e-18)
+
+
+@pytest.mark.parametrize("fmt", ["kalibr-imu", "euroc"])
+def test_imu_exports_refuse_a_rig_without_imu_and_unwritable_out(fmt, tmp_path):
+    plain = Path(__file__).resolve().parent / "golden" / "drone-stereo-back-calibrated.yaml"
+    r = _cli("export", plain, "--format", fmt, "--out", tmp_path / "x")
+    assert r.exit_code == 2 and "imus: missing" in r.output and not (tmp_path / "x").exists()
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    r = _cli("export", GOLDEN_IMU, "--format", fmt, "--out", blocker / "out")
+    assert r.exit_code == 2 and "a_file" in r.output, r.output

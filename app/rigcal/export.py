@@ -38,7 +38,8 @@ from .io import atomic_dir, atomic_write_text
 from .rig import NAME_RE, Camera, Rig, load_rig, rig_from_dict, rig_to_dict
 from .stereo import StereoRectification, rectify_pair
 
-FORMATS = ("kalibr", "opencv", "ros", "json", "kalibr-imu", "euroc")
+FORMATS = ("kalibr", "opencv", "ros", "json")
+IMU_FORMATS = ("kalibr-imu", "euroc")  # rigcal.export_imu: rigs with an IMU
 
 # Dropping coefficients a target format cannot hold is refused past this many pixels
 # of change anywhere in the image: a tenth of a typical 0.1 px reprojection RMS.
@@ -362,7 +363,7 @@ def build(rig: Rig, fmt: str, label: str = "<rig>") -> Export:
         from .export_imu import euroc_files, kalibr_imu_files
 
         return (kalibr_imu_files if fmt == "kalibr-imu" else euroc_files)(rig, label)
-    raise InputError(f"export: --format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
+    raise InputError(f"export: --format: expected one of {', '.join(FORMATS + IMU_FORMATS)}, got {fmt!r}")
 
 
 def _warn(message: str) -> None:
