@@ -183,7 +183,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     out_rig = calibrated_rig(cal, pairs, dataset=str(dataset))
     imu_res = None
     if imu_name is not None:
-        from .calibrate_imu import calibrate_with_imu
+        from .imu_outputs import calibrate_with_imu
 
         imu_res, out_rig = calibrate_with_imu(cal, out_rig, motion, imu_name, reference, target, imu_options or {})
     timings = dict(cal.timings, detection_s=det.seconds, total_s=time.perf_counter() - t0)

@@ -104,14 +104,23 @@ def imu_input(samples: ImuSamples, imu: Imu, t_base_ns: int) -> ic.ImuInput:
                        imu.accelerometer_random_walk, imu.T_body_imu.copy())
 
 
-def _pnp_poses(model, uv, p_board, view, board, faces):
-    """Per view with >= MIN_PNP_CORNERS corners: (view index, T_board_cam)."""
-    views = [v for v in np.unique(view) if np.sum(view == v) >= MIN_PNP_CORNERS]
-    sel = [view == v for v in views]
+def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One PnP pose per frame, on its view with most corners (>= MIN_PNP_CORNERS):
+    (frames (F,), boards (F,), T_board_cam (F, 4, 4)). Views are grouped by one sort."""
+    order = np.argsort(view, kind="stable")
+    _, first, count = np.unique(view[order], return_index=True, return_counts=True)
+    f, b = frame[order][first], board[order][first]
+    # per frame the largest view: sort by (frame, -count) and keep each frame's first
+    best = np.lexsort((-count, f))
+    best = best[np.concatenate([[True], np.diff(f[best]) != 0])] if len(best) else best
+    best = best[count[best] >= MIN_PNP_CORNERS]
+    groups = np.split(order, np.cumsum(count)[:-1])
     m = model
-    fits = pnp_views([p_board[s] for s in sel], [uv[s] for s in sel], np.array([m.fx, m.fy, m.cx, m.cy, *m.dist]),
-                     m.model, [faces[int(board[s][0])] for s in sel])
-    return [(v, geo.inv_T(f[0])) for v, f in zip(views, fits) if f is not None]
+    fits = pnp_views([p_board[groups[k]] for k in best], [uv[groups[k]] for k in best],
+                     np.array([m.fx, m.fy, m.cx, m.cy, *m.dist]), m.model, [faces[int(b[k])] for k in best])
+    ok = [j for j, fit in enumerate(fits) if fit is not None]
+    T = np.stack([geo.inv_T(fits[j][0]) for j in ok]) if ok else np.zeros((0, 4, 4))
+    return f[best[ok]], b[best[ok]], T
 
 
 def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
@@ -127,20 +136,12 @@ def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_decla
     for c, name in enumerate(cal.cam_names):
         m = cal.rig.camera(name).intrinsics
         s = ok & (o.cam == c)
-        poses = _pnp_poses(m, o.uv[s], o.p_board[s], o.view[s], o.board[s], faces)
-        # one pose per image: the view with most corners
-        best = {}
-        for v, T in poses:
-            f = int(o.frame[s][o.view[s] == v][0])
-            n = int(np.sum(o.view[s] == v))
-            if f not in best or n > best[f][0]:
-                best[f] = (n, int(o.board[s][o.view[s] == v][0]), T)
-        frames = np.array(sorted(best))
+        frames, b, T = _frame_poses(m, o.uv[s], o.p_board[s], o.view[s], o.frame[s], o.board[s], faces)
         if len(frames) < MIN_FRAMES:
             raise CalibrationError(f"camera {name}: a board pose in only {len(frames)} images; the clock offset "
                                    f"needs at least {MIN_FRAMES}")
-        b = np.array([best[f][1] for f in frames])
-        T = np.stack([best[f][2] for f in frames])
+        by_time = np.argsort(t_frame[frames], kind="stable")  # frame order is the camera-only step's
+        frames, b, T = frames[by_time], b[by_time], T[by_time]
         T_wc = cal.state.T_world_board[b] @ T
         cams.append(ic.CameraInput(m, cal.rig.camera(name).T_body_cam.copy(), t_frame[frames], T_wc,
                                    line_delays.get(name, 0.0), t_declared.get(name, 0.0)))
@@ -413,16 +414,3 @@ def plan(rig, imus_read: dict, reference: str | None) -> tuple[str | None, str]:
     first = rig.imus[0].name
     return first, reference or f"imu:{first}"
 
-
-def calibrate_with_imu(cal, out_rig, motion, imu_name: str, reference: str, target, opts: dict):
-    """calibrate.run's camera-IMU step: (ImuCalibration, the calibrated rig of imu.md).
-    `opts`: gravity, window_s, rolling_shutter (Options' fields; absent = default)."""
-    from .imu_outputs import calibrated_imu_rig
-
-    declared = cal.declared if cal.declared is not None else cal.rig
-    faces = {b.name: float(b.print_face) for b in target.boards}
-    options = Options(imu_name, **{k: v for k, v in opts.items() if v is not None})
-    res = calibrate_imu(cal, motion.imus[imu_name], declared.imu(imu_name), options, [faces[b] for b in cal.boards],
-                        {c.name: c.line_delay_s or 0.0 for c in declared.cameras},
-                        {c.name: c.time_offset_s or 0.0 for c in declared.cameras})
-    return res, calibrated_imu_rig(out_rig, declared, res, reference)

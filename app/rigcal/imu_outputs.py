@@ -15,7 +15,7 @@ import numpy as np
 from rich.table import Table
 
 from . import geometry as geo
-from .calibrate_imu import ImuCalibration
+from .calibrate_imu import ImuCalibration, Options, calibrate_imu
 from .errors import InputError
 from .rig import Rig
 
@@ -128,6 +128,20 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
                   f"{s['line_delay_us']:.3f}" if "line_delay_us" in s else "-",
                   " ".join(f"{x:.3f}" for x in s["position_mm"]), " ".join(f"{x:.4f}" for x in s["rotation_deg"]))
     return [t, c]
+
+
+def calibrate_with_imu(cal, out_rig: Rig, motion, imu_name: str, reference: str, target, opts: dict
+                       ) -> tuple[ImuCalibration, Rig]:
+    """calibrate.run's camera-IMU step after the camera-only calibration `cal` and its rig
+    `out_rig`: (the estimate, the calibrated rig of imu.md). `opts`: Options' gravity,
+    window_s, rolling_shutter (None = default)."""
+    declared = cal.declared if cal.declared is not None else cal.rig
+    faces = {b.name: float(b.print_face) for b in target.boards}
+    options = Options(imu_name, **{k: v for k, v in opts.items() if v is not None})
+    res = calibrate_imu(cal, motion.imus[imu_name], declared.imu(imu_name), options, [faces[b] for b in cal.boards],
+                        {c.name: c.line_delay_s or 0.0 for c in declared.cameras},
+                        {c.name: c.time_offset_s or 0.0 for c in declared.cameras})
+    return res, calibrated_imu_rig(out_rig, declared, res, reference)
 
 
 # ----------------------------------------------------------------------------- compare
