@@ -35,7 +35,7 @@ from .initialise import pnp_views
 from .motion import ImuSamples
 from .rig import Imu
 
-BOARD_PASSES = 3  # camera-IMU estimates, each after re-fitting the boards to the last
+BOARD_PASSES = 2  # camera-IMU estimates on every corner, each after re-fitting the boards to the last
 BOARD_CONVERGED_M = 1e-5  # a board move below this (and BOARD_CONVERGED_RAD) ends the passes
 BOARD_CONVERGED_RAD = 1e-5
 MIN_KNOTS = 20  # the images and IMU must share at least this many knot spacings
