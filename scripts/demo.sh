@@ -27,8 +27,8 @@ rm -rf "$OUT/export"; mkdir -p "$OUT/export"
 "$BIN/rigcal" export "$OUT/calibrated.yaml" --format kalibr --out "$OUT/export/camchain.yaml"
 "$BIN/rigcal" export "$OUT/calibrated.yaml" --format opencv --out "$OUT/export/opencv"
 echo
-echo "== 6. part 2: simulate rigs/drone-stereo-back-imu.yaml moving (--scene imu, 6 s) -> $OUT/imu-sim"
-"$BIN/rigcal" simulate rigs/drone-stereo-back-imu.yaml --out "$OUT/imu-sim" --scene imu --duration 6 \
+echo "== 6. part 2: simulate rigs/drone-stereo-back-imu.yaml moving (--scene imu, 5 s) -> $OUT/imu-sim"
+"$BIN/rigcal" simulate rigs/drone-stereo-back-imu.yaml --out "$OUT/imu-sim" --scene imu --duration 5 \
     --camera-rate 10 --seed 7 --force
 echo
 echo "== 7. calibrate it against the IMU -> $OUT/imu-calibrated.yaml"
