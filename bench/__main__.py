@@ -11,18 +11,27 @@ Sections (each also runs alone: python -m bench.<name>):
   dome         `rigcal calibrate` on a 60-camera dome's corners/ files, 100 / 300 / 1000 frames: time, memory
   long_recording  `rigcal calibrate` end to end on 4 cameras x 1,500 rendered frames (render cached)
   real         real photographs vs published references
+  holdout      caliscope's webcams: intrinsics and whole rigs scored on held-out frames (2-fold)
   indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
   imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds + 30 s rendered
+  imu_euroc    the camera-IMU estimator on EuRoC's real 72 s imu_april corners + IMU vs EuRoC's T_BS (Kalibr);
+               with EuRoC's intrinsics and on each half of the recording
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
 
-Not a section (a check run by hand, before and after a change to the pipeline):
+Not sections (checks run by hand, each also `python -m bench.<name>`):
 
   same_outputs `rigcal calibrate` on every benchmark dataset, calibrated YAMLs compared to 1e-9
+               (before and after a change to the pipeline)
+  faults       a messy capture (blur, truncated, black and missing images) calibrates within 1.5x of the
+               clean one's error (issue 7)
+
+Finished studies, whose conclusions the README records, are in bench/archive/ (its README
+says what each concluded and where); they are not run here and not smoke-tested.
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
@@ -41,8 +50,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, dome, imu_calib, indie, indie_noise, ingest, long_recording,
-               montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_euroc, indie, indie_noise, ingest,
+               intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu,
+               solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -75,12 +85,15 @@ TABLE = (
     Section("long_recording", "long_recording", lambda q, d: long_recording.run(300 if q else long_recording.FRAMES),
             _only(long_recording)),
     Section("real", "real", lambda q, d: real.run(), _only(real)),
+    Section("holdout", "intrinsics_holdout", lambda q, d: intrinsics_holdout.run(), _only(intrinsics_holdout)),
     Section("indie", "indie", lambda q, d: indie.run(), _only(indie)),
     Section("indie_noise", "indie_noise", lambda q, d: indie_noise.run(seeds=3 if q else 10), _only(indie_noise)),
     Section("simulate_imu", "simulate_imu", lambda q, d: simulate_imu.run(duration=5.0 if q else 30.0),
             _only(simulate_imu)),
     Section("imu_calib", "imu_calib", lambda q, d: imu_calib.run(duration=8.0 if q else 30.0, seeds=1 if q else 3,
                                                                  rendered=4.0 if q else 30.0), _only(imu_calib)),
+    Section("imu_euroc", "imu_euroc", lambda q, d: imu_euroc.run(halves=not q, euroc_intrinsics=not q),
+            _only(imu_euroc)),
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),

@@ -1,5 +1,5 @@
 """Why AprilGrid corners through the fisheye in the room scene are worse than ChArUco's
-(issue 19), and what the long-arm pass (detect._aprilgrid_mapped) does about it.
+(issue 19), and what the long-arm pass (corner_refine._aprilgrid_mapped) does about it.
 
     python -m bench.aprilgrid_excess [--frames 3] [--seed 1]
 
@@ -29,10 +29,13 @@ import numpy as np
 import yaml
 
 from rigcal import april
-from rigcal import detect as det
 from rigcal import geometry as geo
-from rigcal.detect import BoardDetector, read_gray
-from rigcal.rig import load_rig, rig_from_dict
+from rigcal.board_detectors import BoardDetector
+from rigcal.compare import load_truth
+from rigcal.corner_fit import STEP_PX, cross_offsets, image_gradients, refine_pairs
+from rigcal.corner_refine import MAX_PAIRS_PER_TAG_EDGE, aprilgrid_box_passes, refine_corners
+from rigcal.image_read import read_gray
+from rigcal.rig import load_rig
 from rigcal.simulate import simulate_dataset
 from rigcal.target import load_target, parse_target
 
@@ -54,16 +57,12 @@ def _rms(e: np.ndarray) -> float:
 
 def _views(ds: Path):
     """(gray, camera, board, T_cam_board) per image of a rendered dataset."""
-    truth = yaml.safe_load((ds / "truth.yaml").read_text())
-    rig = rig_from_dict(truth["rig"])
+    truth = load_truth(ds / "truth.yaml")
     target = load_target(ds / "target.yaml")
     board = target.boards[0]
-    for cam in rig.cameras:
+    for cam in truth.rig.cameras:
         for p in sorted((ds / "images" / cam.name).glob("*.png")):
-            fr = truth["frames"][p.stem]
-            pose = fr.get("boards", {}).get(board.name, truth["boards"][board.name])
-            T = (geo.inv_T(geo.make_T(np.array(fr["rotation"]), fr["position"]) @ cam.T_body_cam)
-                 @ geo.make_T(np.array(pose["rotation"]), pose["position"]))
+            T = geo.inv_T(truth.T_world_body[p.stem] @ cam.T_body_cam) @ truth.board_pose(p.stem, board.name)
             yield read_gray(p)[0], cam, target, board, T
 
 
@@ -79,12 +78,8 @@ def _exact_pass(stack, cam, T, board, ids, start, long_arms: bool):
     h = 1e-3 * board.tag_size
     ax, ay = ((_project(cam, T, xy + s) - c0) / 1e-3 for s in ([h, 0.0], [0.0, h]))
     size = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
-    delta = max(det.STEP_PX / float(np.median(size)), 1.0 / det.MAX_PAIRS_PER_TAG_EDGE)
-    t = np.arange(-int(np.ceil(1.0 / delta)), int(np.ceil(1.0 / delta)) + 1) * delta
-    U, V = (a.ravel() for a in np.meshgrid(t, t))
-    half = min(april.BORDER_FRACTION, board.tag_spacing)
-    keep = ((np.abs(U) <= half) | (np.abs(V) <= half)) & ((V > 0) | ((V == 0) & (U > 0)))
-    cross = np.column_stack([U[keep], V[keep]])
+    delta = max(STEP_PX / float(np.median(size)), 1.0 / MAX_PAIRS_PER_TAG_EDGE)
+    cross = cross_offsets(min(april.BORDER_FRACTION, board.tag_spacing), 1.0, delta)
     w, anti = april.junction_pattern(ids, board, cross, size)
     if not long_arms:
         w &= ~anti
@@ -94,17 +89,17 @@ def _exact_pass(stack, cam, T, board, ids, start, long_arms: bool):
     ends = _project(cam, T, np.concatenate([(xy[:, None] + off).reshape(-1, 2), (xy[:, None] - off).reshape(-1, 2)]))
     Dp, Dm = ends.reshape(2, n, k, 2) - c0[None, :, None]
     sign = np.where(anti, -1.0, 1.0).astype(np.float32)
-    q, ok, _ = det.refine_pairs(stack, start, cross, np.nan_to_num(Dp), np.nan_to_num(Dm), w.astype(np.float32), sign)
+    q, ok, _ = refine_pairs(stack, start, cross, np.nan_to_num(Dp), np.nan_to_num(Dm), w.astype(np.float32), sign)
     return q, ok & np.isfinite(Dp).all((1, 2))
 
 
 def _box_only(gray, board, ids, uv):
-    """The box passes of detect._refine_aprilgrid (with the neighbours' restart), on the
+    """The box passes of corner_refine.refine_aprilgrid (with the neighbours' restart), on the
     whole image: corners, ok, restarted, and the gradient stack."""
-    ax, ay = april.corner_axes(ids, uv, board)
-    stack = det.image_gradients(gray)
-    q, ok, _, restarted = det.aprilgrid_box_passes(gray, stack, board, ids, uv, ax, ay,
-                                                   april.symmetric_box(board, ax, ay))
+    ax, ay = april.corner_axes(ids, uv)
+    stack = image_gradients(gray)
+    q, ok, _, restarted = aprilgrid_box_passes(gray, stack, board, ids, uv, ax, ay,
+                                               april.symmetric_box(board, ax, ay))
     return q, ok, restarted, stack
 
 
@@ -112,7 +107,7 @@ def _refine_with(gray, board, ids, uv, long_arms: bool):
     saved = april.LONG_ARMS_BELOW_PX
     april.LONG_ARMS_BELOW_PX = np.inf if long_arms else 0.0
     try:
-        return det.refine_corners(gray, board, ids, uv, "symmetric")
+        return refine_corners(gray, board, ids, uv, "symmetric")
     finally:
         april.LONG_ARMS_BELOW_PX = saved
 
@@ -136,7 +131,7 @@ def aprilgrid_errors(ds: Path) -> dict[str, np.ndarray]:
                 continue
             qs, oks = _exact_pass(stack, cam, T, board, ids[keep], qb[keep], False)
             qx, okx = _exact_pass(stack, cam, T, board, ids[keep], qb[keep], True)
-            ax, ay = april.corner_axes(ids, qb, board)
+            ax, ay = april.corner_axes(ids, qb)
             size = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
             for name, q in (("box", qb), ("detector", qd), ("long arms", ql)):
                 cols[name].append(np.linalg.norm(q - truth, axis=1)[keep])
@@ -188,7 +183,7 @@ def euroc() -> list[dict]:
             got[name] = (q, ok)
         (qd, okd), (ql, okl) = got["detector"], got["long arms"]
         both = okd & okl
-        ax, ay = april.corner_axes(ids, qd, board)
+        ax, ay = april.corner_axes(ids, qd)
         s = np.linalg.solve(np.stack([ax, ay], -1)[both], (ql - qd)[both][..., None])[..., 0]  # tag sizes
         size = np.sqrt(np.abs(ax[both, 0] * ay[both, 1] - ax[both, 1] * ay[both, 0]))
         inwards = s * april.TOWARDS_TAG[ids[both] % 4] * size[:, None]  # px along each board axis

@@ -4,7 +4,7 @@ from rigcal.synthetic.
 
 Every random draw is seeded. Renders and detections are cached per (scenario, frames,
 seed) under bench/out/cache, keyed by a hash of the code that produces them
-(simulate, render, detect, target, camera), so reruns are fast and a change in that
+(CODE_FILES: the renderer and the detection stages), so reruns are fast and a change in that
 code re-renders instead of reusing stale corners.
 """
 
@@ -35,7 +35,9 @@ OUT = ROOT / "bench" / "out"
 CACHE = OUT / "cache"
 RIGS = ROOT / "rigs"
 JOBS = 2  # the machine the figures are quoted for has 2 cores
-CODE_FILES = ("simulate.py", "render.py", "detect.py", "target.py", "camera.py")
+# the code whose output the cache holds: the renderer and every detection stage
+CODE_FILES = ("simulate.py", "render.py", "target.py", "camera.py", "detect.py", "image_read.py",
+              "board_detectors.py", "april.py", "corner_refine.py", "corner_grid.py", "corner_fit.py")
 # what a cached detection holds: 2 = (camera, frame, board, ids, uv, ambiguous, sigma);
 # 1 had no sigma. Part of the cache key, so no old file is read as the new format.
 CACHE_FORMAT = 2
@@ -232,7 +234,7 @@ def truth_in_output_frame(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndar
 def pose_errors_body(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:
     """Per camera 6-vector [rotation error about body F, L, U (deg), position error along
     F, L, U (mm)], calibrated minus truth, both in the output body frame; the same
-    parameterisation as the solver's covariance (core._pose_error_vector)."""
+    parameterisation as the solver's covariance (body_frame._pose_error_vector)."""
     ref = truth_in_output_frame(cal, truth_rig)
     out = {}
     for c in cal.rig.cameras:

@@ -1,7 +1,7 @@
 """Fault-injection benchmark (issue 7): a messy capture still calibrates, says what it
 skipped, and loses little accuracy.
 
-    python bench/faults.py [--frames 60] [--seeds 3] [--blur-px 9] [--jobs N] [--keep DIR]
+    python -m bench.faults [--frames 60] [--seeds 3] [--blur-px 9] [--jobs N] [--keep DIR]
 
 Renders the drone-stereo-back room dataset (`rigcal simulate`, 60 frames, 180 images),
 copies it and plants, with a seeded choice:

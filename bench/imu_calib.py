@@ -45,7 +45,9 @@ def run_seed(seed: int, duration: float) -> dict:
             "rot_err_deg": err[:, 0].tolist(), "pos_err_m": err[:, 1].tolist(), "offset_err_s": err[:, 2].tolist(),
             "sigma_rot_deg": np.degrees(np.linalg.norm(res.sigma[:, :3], axis=1)).tolist(),
             "sigma_pos_m": np.linalg.norm(res.sigma[:, 3:6], axis=1).tolist(), "sigma_offset_s": res.sigma[:, 6].tolist(),
-            "start_rot_err_deg": [s[0] for s in start], "start_offset_err_s": [s[1] for s in start]}
+            "start_rot_err_deg": [s[0] for s in start], "start_offset_err_s": [s[1] for s in start],
+            "component_err": isyn.component_errors(rec, res.T_imu_cam, res.time_offset_s, rec.imu.T_body_imu).tolist(),
+            "component_sigma": res.sigma.tolist()}
 
 
 def run_rendered(duration: float, camera_rate: float = 20.0, seed: int = 0) -> dict:
@@ -81,8 +83,26 @@ def run_rendered(duration: float, camera_rate: float = 20.0, seed: int = 0) -> d
             "sigma_pos_m": np.linalg.norm(res.sigma[:, 3:6], axis=1).tolist(), "sigma_offset_s": res.sigma[:, 6].tolist()}
 
 
+GROUPS = {"rotation": slice(0, 3), "translation": slice(3, 6), "offset": slice(6, 7)}
+
+
+def coverage(results: list[dict]) -> dict:
+    """Per parameter group: the share of error components within 1 and 2 of their reported
+    sigma (a Gaussian: 68 / 95 %), the RMS of error / sigma (1 when the sigmas are honest),
+    the number of components, and the worst error (deg, mm, ms)."""
+    e = np.concatenate([np.array(x["component_err"]) for x in results])
+    s = np.concatenate([np.array(x["component_sigma"]) for x in results])
+    out = {}
+    for name, sl in GROUPS.items():
+        z = (e[:, sl] / s[:, sl]).ravel()
+        out[name] = {"within_1": float(np.mean(np.abs(z) <= 1)), "within_2": float(np.mean(np.abs(z) <= 2)),
+                     "rms_z": float(np.sqrt(np.mean(z ** 2))), "n": int(z.size)}
+    return out
+
+
 def run(duration: float = 30.0, seeds: int = 3, rendered: float = 30.0) -> dict:
     out = {"results": [run_seed(s, duration) for s in range(seeds)]}
+    out["coverage"] = coverage(out["results"])
     if rendered > 0:
         out["rendered"] = run_rendered(rendered)
     return out
@@ -107,6 +127,19 @@ def tables(r: dict) -> str:
         rms = r["results"][0]["normalised_rms"]
         t += ("\nresidual RMS / declared noise (seed 0): " + ", ".join(f"{k} {v:.2f}" for k, v in rms.items()) +
               " (corners are judged against sigma_px = 0.3; bias_walk is the random-walk prior)\n")
+    if r["results"]:
+        res = r["results"]
+        rot = np.concatenate([x["rot_err_deg"] for x in res])
+        pos = 1e3 * np.concatenate([x["pos_err_m"] for x in res])
+        off = 1e3 * np.abs(np.concatenate([x["offset_err_s"] for x in res]))
+        t += (f"\n{len(res)} seeds, {len(rot)} cameras: rotation median {np.median(rot):.4f} max {rot.max():.4f} deg "
+              f"({int(np.sum(rot > 0.01))} > 0.01); translation median {np.median(pos):.2f} max {pos.max():.2f} mm "
+              f"({int(np.sum(pos > 1))} > 1); offset median {np.median(off):.4f} max {off.max():.4f} ms "
+              f"({int(np.sum(off > 0.05))} > 0.05)\n")
+        rows = [[k, v["n"], f"{100 * v['within_1']:.0f} %", f"{100 * v['within_2']:.0f} %", f"{v['rms_z']:.2f}"]
+                for k, v in coverage(res).items()]
+        t += md_table(["parameter (per component)", "components", "within 1 sigma (68 %)", "within 2 sigma (95 %)",
+                       "RMS error / sigma (1)"], rows, title="reported sigmas against the true errors")
     if "rendered" in r:
         x = r["rendered"]
         rows = [[cam, f"{x['rot_err_deg'][k]:.4f} ({x['sigma_rot_deg'][k]:.4f})",

@@ -2,7 +2,7 @@
 
 This measures the DETECTOR's corners (`rigcal calibrate --guided off`): it was written to
 find where the fisheye excess came from, before the guided pass (rigcal.guided, the
-default for fisheye cameras) removed it; bench.noise_limit and bench.guided measure that.
+default for fisheye cameras) removed it; bench.noise_limit and bench.archive.guided measure that.
 
 bench.noise_limit finds the fisheye stereo pair's relative rotation 1.6x its Cramér-Rao
 bound on rigcal's own renders (pinhole rigs 0.7-1.3x). Is that rigcal's renderer

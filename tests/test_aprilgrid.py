@@ -11,7 +11,7 @@ import pytest
 import yaml
 
 from rigcal import geometry as geo
-from rigcal.detect import BoardDetector
+from rigcal.board_detectors import BoardDetector
 from rigcal.errors import TargetFileError
 from rigcal.target import Board, dump_target, load_target, parse_target
 

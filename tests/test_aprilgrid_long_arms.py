@@ -1,6 +1,6 @@
 """The AprilGrid long-arm pass (off by default: april.LONG_ARMS_BELOW_PX): the board map
 (homography + quartic), which pairs around a tag corner are point-symmetric or
-antisymmetric, the fit with antisymmetric pairs (detect.refine_pairs), and what it does on
+antisymmetric, the fit with antisymmetric pairs (corner_fit.refine_pairs), and what it does on
 the rendered fisheye room (issue 19; README, AprilGrid targets)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from rigcal import april, detect
+from rigcal import april, corner_fit
 from rigcal.target import Board
 
 
@@ -89,7 +89,7 @@ def _junction_image(q: np.ndarray, size: float = 24.0, blur: float = 0.6) -> np.
 def test_refine_pairs_with_antisymmetric_arms_finds_an_ideal_tag_corner():
     q_true = np.array([80.375, 79.625])  # on the fine raster's steps
     size = 24.0
-    stack = detect.image_gradients(_junction_image(q_true, size))
+    stack = corner_fit.image_gradients(_junction_image(q_true, size))
     b = _grid()
     ids = np.array([4 * 14])  # an inner tag's k=0: both collinear neighbours exist
     t = np.arange(-40, 41) / 40.0
@@ -101,7 +101,7 @@ def test_refine_pairs_with_antisymmetric_arms_finds_an_ideal_tag_corner():
     for use_anti in (False, True):
         sign = np.where(anti & use_anti, -1.0, 1.0).astype(np.float32)
         ww = (w & (use_anti | ~anti)).astype(np.float32)
-        q, ok, sigma = detect.refine_pairs(stack, q_true[None] + [0.4, -0.3], cross, D[None], -D[None], ww, sign)
+        q, ok, sigma = corner_fit.refine_pairs(stack, q_true[None] + [0.4, -0.3], cross, D[None], -D[None], ww, sign)
         assert ok[0]
         # measured 0.010 / 0.012 px (the blurred bits beside the border); a pair on the wrong
         # side of the pattern, or antisymmetric pairs past the grid's edge, are 0.1 px and more

@@ -122,7 +122,8 @@ def test_board_command_prints_an_aprilgrid(tmp_path):
     from typer.testing import CliRunner
 
     from rigcal.cli import app
-    from rigcal.detect import BoardDetector, read_gray
+    from rigcal.board_detectors import BoardDetector
+    from rigcal.image_read import read_gray
 
     (tmp_path / "grid.yaml").write_text(GRID)
     out = tmp_path / "grid.png"

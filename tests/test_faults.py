@@ -47,7 +47,7 @@ from rigcal.target import load_target
 ROOT = Path(__file__).resolve().parent.parent
 RIG = ROOT / "rigs" / "drone-stereo-back.yaml"
 CALIBRATED = ROOT / "tests" / "golden" / "drone-stereo-back-calibrated.yaml"
-BUMBLEBEE = ROOT.parent / "shared" / "data" / "real" / "boofcv_bumblebee2_stereo_chess"
+BUMBLEBEE = ROOT / "samples" / "real" / "bumblebee2"  # in the repository: needs nothing from ../shared
 CAMERAS = ("front_left", "front_right", "back")
 FRAMES = 12
 JOBS = 2
@@ -532,23 +532,12 @@ def test_outlier_detections_are_rejected_and_counted(sim, clean_det):
         assert e["rot_deg"] < 0.05 and e["trans_mm"] < 0.5, (pair, e)
 
 
-@pytest.mark.skipif(not BUMBLEBEE.is_dir(), reason="real data set ../shared/data/real not present")
 def test_symmetric_chessboard_order_is_resolved(tmp_path):
-    """BoofCV's Bumblebee2 set: a 5x7-square chessboard, the same turned by 180 degrees;
-    OpenCV returns pair 11's right corners in reverse. Calibrate must put them back in
-    order and use every frame: no outliers, the published 120.05 mm baseline."""
-    ds = tmp_path / "bb"
-    for cam in ("left", "right"):
-        (ds / "images" / cam).mkdir(parents=True)
-        for i in range(1, 12):
-            (ds / "images" / cam / f"{i:02d}.jpg").symlink_to(BUMBLEBEE / f"{cam}{i:02d}.jpg")
-    (ds / "rig.yaml").write_text("""rig: bumblebee2
-cameras:
-  left: {model: pinhole, resolution: [640, 480], intrinsics: {focal: 520.0}, position: [0, 0.06, 0], look: forward}
-  right: {model: pinhole, resolution: [640, 480], intrinsics: {focal: 520.0}, position: [0, -0.06, 0], look: forward}
-stereo_pairs: [[left, right]]
-""")
-    (ds / "target.yaml").write_text("boards:\n  - {type: chessboard, inner_corners: [6, 4], square_length: 0.03}\n")
+    """BoofCV's Bumblebee2 set (samples/real/bumblebee2): a 5x7-square chessboard, the same
+    turned by 180 degrees; OpenCV returns pair 11's right corners in reverse. Calibrate
+    must put them back in order and use every frame: no outliers, the published 120.05 mm
+    baseline."""
+    ds = BUMBLEBEE
     out = tmp_path / "bb.yaml"
     r = cli("calibrate", ds, "--out", out, "--jobs", 1)
     no_traceback(r.stdout, r.stderr)

@@ -11,9 +11,10 @@ import pytest
 from typer.testing import CliRunner
 
 from rigcal import load_rig, render
-from rigcal.cli import app
+from rigcal.board_detectors import BoardDetector
 from rigcal.camera import CameraModel
-from rigcal.detect import BoardDetector, refine_corners, symmetric_half_width
+from rigcal.cli import app
+from rigcal.corner_refine import refine_corners, symmetric_half_width
 from rigcal.guided import BoardCorners, ImageTask, cross_samples, guided_cameras, guided_uv, refine_image
 from rigcal.solve import Intrinsics, Observations, State
 from rigcal.target import Board, Target

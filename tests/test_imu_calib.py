@@ -57,12 +57,24 @@ def test_residuals_match_the_declared_noise_and_gravity_biases_are_found(solved)
     assert np.abs(ba.mean(0) - rec.accel_bias[keep].mean(0)).max() < 2e-2  # m/s^2, true ~5e-2
 
 
-def test_one_axis_recording_is_refused():
+@pytest.mark.parametrize("still", [False, True], ids=["yaw-only", "yaw-only-no-translation"])
+def test_one_axis_recording_is_refused(still):
+    """Issue 18's degenerate recording: turning about one axis (with or without translation)
+    is refused before any solve, naming the missing motion."""
     traj = imu_model.hand_held_trajectory(np.random.default_rng([0, 2]))
     amp = traj.ang_amp.copy()
     amp[1:] = 0.0  # yaw only
-    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=0, trajectory=replace(traj, ang_amp=amp))
+    traj = replace(traj, ang_amp=amp, pos_amp=np.zeros_like(traj.pos_amp) if still else traj.pos_amp)
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=0, trajectory=traj)
     with pytest.raises(CalibrationError, match="fewer than two axes"):
+        ic.calibrate_camera_imu(rec.cams, rec.obs, rec.imu)
+
+
+def test_translation_free_recording_is_refused():
+    traj = imu_model.hand_held_trajectory(np.random.default_rng([0, 2]))
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=0,
+                                   trajectory=replace(traj, pos_amp=np.zeros_like(traj.pos_amp)))
+    with pytest.raises(CalibrationError, match="hardly accelerates"):
         ic.calibrate_camera_imu(rec.cams, rec.obs, rec.imu)
 
 
@@ -115,3 +127,65 @@ def test_rendered_recording_end_to_end(tmp_path):
     assert np.all(err[:, 0] < 0.05) and np.all(err[:, 1] < 3e-3) and np.all(np.abs(err[:, 2]) < 3e-4), err
     for k in ("gyro", "accel"):
         assert 0.8 < res.normalised_rms[k] < 1.2, res.normalised_rms
+
+
+def test_band_order_factor_solves_as_a_general_sparse_solver():
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=2.0, seed=0)
+    state, _, use = ic.start_state(rec.cams, rec.imu, ic.Settings())
+    lay = ir.layout_for(state)
+    J, r = ir.assemble([ir.gyro_block(state, lay, rec.imu.t[use], rec.imu.gyro[use], 1e-2),
+                        ir.accel_block(state, lay, rec.imu.t[use], rec.imu.accel[use], 1e-1),
+                        ir.reprojection_block(state, lay, rec.obs, [c.model for c in rec.cams], 0.3),
+                        ir.bias_prior_block(state, lay, 1e-3, 1e-2)], lay.size)
+    H = (J.T @ J).tocsc()
+    order = ic.band_order(lay)
+    assert sorted(order) == list(range(lay.size))  # a permutation
+    solve, act = ic.factor(H, order)
+    H_act = H[act][:, act].tocsc()
+    x = solve((J.T @ r)[act])
+    x_ref = spla.spsolve(H_act, (J.T @ r)[act])
+    assert np.abs(x - x_ref).max() < 1e-6 * np.abs(x_ref).max()
+    assert np.abs(H_act @ x - (J.T @ r)[act]).max() < 1e-8 * np.abs(J.T @ r).max()
+    assert set(act) == set(np.flatnonzero(H.diagonal() > 0)) and not sp.issparse(x)
+
+
+def test_huber_loss_resists_gross_corner_outliers():
+    """2 % of the corners moved by 20 px: least squares is pulled off, the Huber loss is not."""
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=4.0, seed=3, sigma_px=SIGMA_PX)
+    rng = np.random.default_rng(7)
+    bad = rng.random(len(rec.obs.cam)) < 0.02
+    uv = rec.obs.uv.copy()
+    uv[bad] += rng.choice([-20.0, 20.0], size=(int(bad.sum()), 2))
+    obs = replace(rec.obs, uv=uv)
+    plain = ic.calibrate_camera_imu(rec.cams, obs, rec.imu, ic.Settings(sigma_px=SIGMA_PX))
+    robust = ic.calibrate_camera_imu(rec.cams, obs, rec.imu, ic.Settings(sigma_px=SIGMA_PX, huber=3.0))
+    e_plain = isyn.errors_against_truth(rec, plain.T_imu_cam, plain.time_offset_s)
+    e_robust = isyn.errors_against_truth(rec, robust.T_imu_cam, robust.time_offset_s)
+    assert np.all(e_robust[:, 0] < 0.05) and np.all(e_robust[:, 1] < 3e-3) and np.all(np.abs(e_robust[:, 2]) < 3e-4)
+    assert e_robust[:, 0].max() < 0.5 * e_plain[:, 0].max()
+
+
+def test_start_bridges_a_gap_in_the_frames_with_the_gyroscope():
+    """1.2 s without frames (the board out of view, as in EuRoC's recording): the start's
+    rotations across the gap follow the integrated gyroscope, not the last pose."""
+    from rigcal import spline as spl
+
+    traj = imu_model.hand_held_trajectory(np.random.default_rng([0, 2]))
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=5.0, seed=0, trajectory=traj)
+    lo, hi = 1.8, 3.0
+    cams = []
+    for c in rec.cams:
+        keep = (c.t_cam + c.time_offset_guess_s < lo) | (c.t_cam > hi)
+        cams.append(replace(c, t_cam=c.t_cam[keep], T_world_cam=c.T_world_cam[keep]))
+    state, starts, _ = ic.start_state(cams, rec.imu, ic.Settings())
+    t = np.linspace(lo + 0.2, hi - 0.2, 9)
+    R_est = spl.evaluate(state.spline, t).R_world_body
+    # the estimator's body is the declared IMU's frame; the truth's IMU is mounted off it
+    R_true = traj.at(t).R_world_body @ rec.truth.imus[0].T_body_imu[:3, :3] @ rec.imu.T_body_imu[:3, :3].T
+    err = [geo.rotation_angle_deg(a.T @ b) for a, b in zip(R_est, R_true)]
+    swing = max(geo.rotation_angle_deg(R_true[0].T @ b) for b in R_true)
+    assert swing > 5.0  # the rig does turn inside the gap: holding the last pose would be off by this
+    assert max(err) < 0.5, err

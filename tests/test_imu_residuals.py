@@ -125,3 +125,14 @@ def test_residuals_vanish_on_the_simulators_readings():
     # and a wrong lever arm is seen
     st2 = ir.State(**{**st.__dict__, "T_body_imu": geo.make_T(T_bi[:3, :3], [0.0, 0.0, 0.0])})
     assert np.abs(ir.accel_block(st2, lay, tq, a + ba, 1.0).r).max() > 5 * np.abs(ra).max()
+
+
+def test_huber_block_cost_and_weights():
+    b = ir.Block(np.array([[3.0, 4.0], [0.3, 0.4]]), np.ones((2, 2, 1)), np.zeros((2, 1), dtype=int))
+    h = ir.huber(b, 2.0)
+    # row 0: |r| = 5 > 2 -> cost 2 * 2 * 5 - 4 = 16, weight sqrt(2 / 5); row 1: |r| = 0.5 -> 0.25, unweighted
+    assert abs(h.cost - 16.25) < 1e-12 and abs(b.objective - 25.25) < 1e-12
+    assert np.allclose(h.r[0], b.r[0] * np.sqrt(0.4)) and np.allclose(h.r[1], b.r[1])
+    assert np.allclose(h.J[0], np.sqrt(0.4)) and np.allclose(h.J[1], 1.0)
+    # IRLS: J^T r is half the cost's gradient in s beyond k (d/ds (2 k s) / 2 = k = w s)
+    assert abs(np.linalg.norm(h.r[0]) ** 2 - 2.0 * 5.0) < 1e-12

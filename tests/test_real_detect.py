@@ -10,8 +10,10 @@ import cv2
 import numpy as np
 import pytest
 
+from rigcal.board_detectors import BoardDetector
 from rigcal.dataset import list_dataset
-from rigcal.detect import BoardDetector, detect_dataset, read_gray
+from rigcal.detect import detect_dataset
+from rigcal.image_read import read_gray
 from rigcal.rig import load_rig
 from rigcal.target import Target, load_target
 

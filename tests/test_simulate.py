@@ -1,6 +1,6 @@
 """rigcal.simulate / rigcal.render: exact rendering, truth, coverage, determinism, bad input.
 
-The renders here are small; bench/bench_simulate.py has the big ones (and --accuracy
+The renders here are small; bench/archive/bench_simulate.py has the big ones (and --accuracy
 prints the figures quoted in the README)."""
 
 from __future__ import annotations

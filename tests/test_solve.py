@@ -429,3 +429,47 @@ def test_chunked_normal_equations_equal_whole_jacobian(drone, monkeypatch, chunk
     dx, S = got.solve(1e-3)
     dx_ref, S_ref = ref.solve(1e-3)
     assert np.allclose(dx, dx_ref, rtol=1e-8, atol=1e-12 * np.abs(dx_ref).max())
+
+
+class _PositionPrior:
+    """A toy residual block plugged into the rig problem: camera c's position in the body
+    frame's inverse (the translation of T_cam_body) held near `t` with sigma (m)."""
+
+    dim, n_rows = 3, 1
+
+    def __init__(self, pb, c, t, sigma):
+        self.s, self.t, self.sigma = pb.layout.cam[c], t, sigma
+
+    def residuals(self, x):
+        return ((x[self.s][3:] - self.t) / self.sigma)[None]
+
+    def jacobian_chunks(self, x):
+        from rigcal.blocks import JacobianChunk
+
+        yield JacobianChunk(np.array([0]), np.eye(3)[None] / self.sigma, np.arange(self.s.start + 3, self.s.stop))
+
+
+def test_a_plugged_in_residual_block_joins_the_normal_equations_and_the_solve(drone):
+    """Problem.blocks takes a further residual kind without solver changes: its rows join
+    the chunked normal equations (equal to the whole Jacobian's) and LM honours it (a
+    tight prior moves camera 1 to the prior's position, the corners follow)."""
+    import rigcal.solve as solve
+
+    rng = np.random.default_rng(12)
+    obs, state = _small_problem(drone, rng)
+    pb = Problem(obs, state, gauge_cam=0, gauge_board=0)
+    t_prior = state.T_cam_body[1, :3, 3] + np.array([0.004, -0.003, 0.002])
+    pb.blocks.append(_PositionPrior(pb, 1, t_prior, 1e-7))
+    x = pb.x0() + rng.normal(0, 1e-4, pb.layout.size)
+    e = pb.residuals(x)
+    assert e.shape == (2 * len(obs) + 3,)
+    w = pb.sqrt_weights() ** 2
+    got = pb.normal_equations(x, e, w)
+    ref = solve.NormalEquations.from_jacobian(pb.jacobian(x), e, w, pb.layout.frame[0].start)
+    for name in ("g_a", "g_d", "H_aa", "H_ad", "H_dd"):
+        a, b = getattr(got, name), getattr(ref, name)
+        assert np.max(np.abs(a - b)) <= 1e-10 * np.max(np.abs(b)), name
+    x_hat, _, conv = levenberg_marquardt(pb)
+    assert conv
+    assert np.max(np.abs(x_hat[pb.layout.cam[1]][3:] - t_prior)) < 1e-5
+    assert np.max(np.abs(x_hat[pb.layout.cam[1]][3:] - state.T_cam_body[1, :3, 3])) > 3e-3

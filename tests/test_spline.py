@@ -101,3 +101,10 @@ def test_evaluation_is_vectorised_and_fast_enough_for_an_imu_stream():
     s = spl.Spline(0.0, 0.05, geo.R_from_rotvec(rng.normal(0, 1, (n, 3))), rng.normal(0, 1, (n, 3)))
     out = spl.evaluate(s, np.arange(0, 72, 0.005))
     assert out.omega_body.shape == (14400, 3) and np.isfinite(out.alpha_body).all()
+
+
+def test_a_nan_time_is_refused_not_indexed():
+    s = spl.Spline(0.0, 0.1, np.broadcast_to(np.eye(3), (6, 3, 3)).copy(), np.zeros((6, 3)))
+    assert spl.segment(s, np.array([0.1]))[0][0] == 1
+    with pytest.raises(ValueError):
+        spl.segment(s, np.array([0.1, np.nan]))

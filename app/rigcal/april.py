@@ -11,7 +11,7 @@ bottom-right, bottom-left of the code) are Kalibr's k = 1, 0, 3, 2.
 The corner squares make every tag corner an X-junction (tag border and corner square
 black, the two gaps white), point-symmetric in a box of min(0.2, tag_spacing) tag sizes
 (the 2-bit border is 0.2 of the tag) and, along the tag's edges, for a gap's length
-(`symmetric_box`, `symmetric_cross`). detect.refine_corners refines them with the same
+(`symmetric_box`, `symmetric_cross`). corner_refine.refine_corners refines them with the same
 point-symmetry estimator as ChArUco corners, along the axes `corner_axes` gives, checks
 them (`looks_like_a_tag_corner`), restarts the odd ones (`neighbour_predictions`) and
 bends the cross with the lens (`lattice_bends`).
@@ -52,7 +52,7 @@ PAIR_MARGIN_PX = 1.5
 # bends (0.017 px RMS), 5 followed the corners' noise (0.017), 4 gave 0.0095 (noise 2; fisheye
 # room, before the edge offset was fitted).
 MAP_DEGREE = 4
-# Tags smaller than this (px) take the long arms (detect._aprilgrid_mapped): OFF (0). On
+# Tags smaller than this (px) take the long arms (corner_refine._aprilgrid_mapped): OFF (0). On
 # renders they halve the small tags' error (fisheye room, ~22 px tags: 0.0215 -> 0.0098 px
 # RMS, ChArUco 0.0115), but on the real EuRoC print (28-34 px tags) they move every corner
 # 0.05 px per axis towards its own tag's inside and PnP with EuRoC's intrinsics gets worse
@@ -88,7 +88,7 @@ def detector_parameters(thresh_constant: float = THRESH_CONSTANTS[0]) -> "cv2.ar
     p.markerBorderBits = APRIL_BORDER_BITS
     p.errorCorrectionRate = 1.0
     p.adaptiveThreshConstant = float(thresh_constant)
-    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE  # rigcal refines (detect.refine_corners)
+    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE  # rigcal refines (corner_refine.refine_corners)
     return p
 
 
@@ -150,7 +150,7 @@ def tag_corners_to_ids(tag_index: np.ndarray, corners: np.ndarray) -> tuple[np.n
     return cid[order].astype(np.int64), uv[order]
 
 
-def corner_axes(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]:
+def corner_axes(ids: np.ndarray, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """ax, ay (N, 2): the image of one tag size along board x and y at each corner, from the
     homography of its own tag's four corners (NaN where the tag has fewer than four). The
     signs do not matter to the point-symmetry fit."""
@@ -197,7 +197,7 @@ def _quad_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 def symmetric_cross(board: Board, ax: np.ndarray, ay: np.ndarray) -> tuple[float, float]:
     """(half-width, arm) in tag sizes of the point-symmetric cross around a tag corner, for
-    detect.refine_symmetric: along a tag edge the corner square mirrors the border for a
+    corner_fit.refine_symmetric: along a tag edge the corner square mirrors the border for a
     gap's length (the arm, less ARM_MARGIN_PX), across it only as far as the 2-bit border
     reaches (the half-width; refine_symmetric takes its own blur margin off it)."""
     half = min(BORDER_FRACTION, board.tag_spacing)
@@ -345,7 +345,7 @@ def collinear_neighbours(ids: np.ndarray, board: Board) -> tuple[np.ndarray, np.
 
 def lattice_bends(ids: np.ndarray, uv: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How the board-x and board-y lines through each corner bend (lens distortion): bend_u,
-    bend_v (N,) px per tag size^2 along each line's normal, as detect.local_grid gives them
+    bend_v (N,) px per tag size^2 along each line's normal, as corner_grid.local_grid gives them
     for a uniform grid, here from the lattice of tag corners, whose spacing alternates
     between a tag and a gap (second divided differences on uneven steps). NaN where a
     neighbour along the line is missing."""

@@ -11,7 +11,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from rich.console import Console
+from rich.console import Console, Group
 
 from .core import MIN_FRAMES, calibrate_views
 from .observations import BoardView
@@ -42,8 +42,8 @@ def check_output_path(path: Path) -> None:
 
 
 def _diagnosis(paths: list[Path], target) -> str:
-    """': <why no board shows>' from the first few of these images (detect.diagnose_no_detection), or ''."""
-    from .detect import diagnose_no_detection
+    """': <why no board shows>' from the first few of these images (detect_diagnose.diagnose_no_detection), or ''."""
+    from .detect_diagnose import diagnose_no_detection
 
     hint = diagnose_no_detection(paths[:4], target) if paths else ""
     return f": {hint}" if hint else ""
@@ -76,12 +76,12 @@ def _same_file(a: Path, b: Path) -> bool:
 
 
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
-        report_path: Path | None = None, jobs: int | None = None, reference: str = "aligned",
+        report_path: Path | None = None, jobs: int | None = None, reference: str | None = None,
         distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False, guided: str = "auto",
-        intrinsics: str = "auto", scheduler: str | None = None):
+        intrinsics: str = "auto", scheduler: str | None = None, imu_options: dict | None = None):
     """`rigcal calibrate`: check the arguments, read and detect the dataset, calibrate
-    (core.calibrate_views), write the rig (and report) atomically, print warnings and notes;
-    returns the console summary."""
+    (core.calibrate_views, then calibrate_imu on a motion dataset with an IMU), write the
+    rig (and report) atomically, print warnings and notes; returns the console summary."""
     from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
     from .detect import detect_dataset
     from .target import load_target
@@ -98,7 +98,14 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
     check_shared_stems(images)
-    motion_notes = _motion_notes(dataset, rig, images)
+    motion_notes, motion = _motion_notes(dataset, rig, images)
+    from .calibrate_imu import plan
+
+    imu_name, reference = plan(rig, dict(motion.imus), reference)
+    cam_reference = "aligned" if reference.startswith("imu:") else reference
+    if imu_name is not None:
+        motion_notes.append(f"camera-IMU calibration against {imu_name} after the camera-only one; reference "
+                            f"{reference}")
     console = _err()
     given, images = _corner_views(images, target, console)
     det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True, scheduler=scheduler)
@@ -116,12 +123,17 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         if cam in images.corners:
             console.print(f"note: {cam}: the guided pass needs images; its corners from {images.corners[cam]} stand")
     cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
-                          reference=reference, rerefine=rerefine, intrinsics=intrinsics,
+                          reference=cam_reference, rerefine=rerefine, intrinsics=intrinsics,
                           faces={b.name: b.print_face for b in target.boards})
     from .checks import stereo_checks
 
     pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
     out_rig = calibrated_rig(cal, pairs, dataset=str(dataset))
+    imu_res = None
+    if imu_name is not None:
+        from .imu_outputs import calibrate_with_imu
+
+        imu_res, out_rig = calibrate_with_imu(cal, out_rig, motion, imu_name, reference, target, imu_options or {})
     timings = dict(cal.timings, detection_s=det.seconds, total_s=time.perf_counter() - t0)
     text = dump_rig(out_rig)
     report_html = None
@@ -131,11 +143,17 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         report_html = build_report(cal, out_rig, det, pairs, timings)
     # the rig and its report land together or not at all
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
-    for w in unseen + warnings_for(cal):
+    imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
+    for w in unseen + warnings_for(cal) + imu_warnings:
         console.print(f"warning: {w}")
-    for n in list(cal.notes) + motion_notes:
+    for n in list(cal.notes) + motion_notes + imu_notes:
         console.print(f"note: {n}")
-    return console_summary(cal, out_rig, det, timings, out_path, report_path)
+    summary = console_summary(cal, out_rig, det, timings, out_path, report_path)
+    if imu_res is None:
+        return summary
+    from .imu_outputs import console_tables
+
+    return Group(summary, *console_tables(out_rig, imu_res))
 
 
 def _check_arguments(dataset: Path, out_path: Path, report_path: Path | None, jobs: int | None) -> None:
@@ -179,18 +197,17 @@ def _check_detections(rig: Rig, det, views: list[BoardView], images, target, tar
             for b in target.boards if len(target.boards) > 1 and b.name not in found]
 
 
-def _motion_notes(dataset: Path, rig: Rig, images) -> list[str]:
-    """imu.md's checks of a motion dataset (DatasetError on bad input) and what to tell the user."""
+def _motion_notes(dataset: Path, rig: Rig, images):
+    """imu.md's checks of a motion dataset (DatasetError on bad input): (notes for the
+    user, the MotionCheck with the IMU samples read)."""
     from .motion import check_motion_dataset
 
     motion = check_motion_dataset(dataset, rig, images)
     notes = list(motion.notes)
     if motion.imus:
         n = ", ".join(f"{k} ({len(s.t_ns)} samples)" for k, s in motion.imus.items())
-        notes.append(f"imu/ checked: {n}; calibrating the IMU itself (time offsets, biases, T_body_cam relative to "
-                     f"the IMU) is not implemented yet: this is a camera-only calibration, the IMU blocks are carried "
-                     f"through unchanged and the image stems serve only as frame names")
-    return notes
+        notes.append(f"imu/ checked: {n}")
+    return notes, motion
 
 
 def _refuse_square_chessboard(target, rig: Rig, target_file) -> None:

@@ -102,6 +102,8 @@ class ExportFormat(str, Enum):
     opencv = "opencv"
     ros = "ros"
     json = "json"
+    kalibr_imu = "kalibr-imu"
+    euroc = "euroc"
 
 
 class ImportFormat(str, Enum):
@@ -164,7 +166,9 @@ def calibrate(
     target: Optional[Path] = typer.Option(None, help="target YAML (default DATASET/target.yaml)"),
     report: Optional[Path] = typer.Option(None, help="write a self-contained HTML report here"),
     jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
-    reference: str = typer.Option("aligned", help="body frame: 'aligned' (fit to the declared rig) or 'camera:NAME'"),
+    reference: Optional[str] = typer.Option(
+        None, help="body frame: 'aligned' (fit to the declared rig), 'camera:NAME', or 'imu:NAME' (that IMU keeps "
+                   "its declared pose; the default when the rig declares an IMU and the dataset has imu/)"),
     distortion: Distortion = typer.Option(
         Distortion.auto, help="pinhole distortion model; auto: radtan4, plus k3 or the rational terms when the data "
                               "show them"),
@@ -182,6 +186,12 @@ def calibrate(
         None, envvar="RIGCAL_SCHEDULER", help="a Dask scheduler's address (tcp://host:8786): its workers detect "
                                              "and re-measure the corners, reading the images at their absolute "
                                              "paths (needs rigcal[dask])"),
+    gravity: Optional[float] = typer.Option(None, help="with imu/: local gravity, m/s^2 (default 9.80665; EuRoC's "
+                                                       "site 9.81007); its direction is estimated"),
+    offset_window: Optional[float] = typer.Option(None, help="with imu/: clock offsets are searched within +-this "
+                                                             "many seconds of the declared time_offset_s (default 0.2)"),
+    rolling_shutter: bool = typer.Option(False, help="with imu/: estimate every camera's line_delay_s (default: "
+                                                     "only where the rig declares one non-zero)"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from . import calibrate as cal
@@ -189,7 +199,8 @@ def calibrate(
     out(cal.run(dataset=dataset, out_path=out_yaml, rig_path=rig, target_path=target, report_path=report, jobs=jobs,
                 reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
                 allow_resize=allow_resize, guided=guided.value, intrinsics=intrinsics.value,
-                scheduler=scheduler))
+                scheduler=scheduler, imu_options={"gravity": gravity, "window_s": offset_window,
+                                                  "rolling_shutter": True if rolling_shutter else None}))
 
 
 @app.command()
@@ -223,8 +234,8 @@ def project(
 @guarded
 def export(
     rig: Path = typer.Argument(..., help="calibrated rig YAML"),
-    format: ExportFormat = typer.Option(..., "--format", help="kalibr | opencv | ros | json"),
-    out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros)"),
+    format: ExportFormat = typer.Option(..., "--format", help="kalibr | opencv | ros | json | kalibr-imu | euroc"),
+    out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros, kalibr-imu, euroc)"),
 ):
     """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON."""
     from . import export as exp

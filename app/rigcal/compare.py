@@ -176,4 +176,9 @@ def run(calibrated: Path, truth_path: Path):
             t3.add_row(f"{l}/{r}", f"{1000 * e['baseline_m']:.3f}", f"{1000 * e['true_baseline_m']:.3f}",
                        f"{e['error_mm']:+.3f}")
         parts.append(t3)
+    if est.imus and truth.imus:
+        from .imu_outputs import compare_imu, compare_tables
+
+        doc = load_yaml(read_text(truth_path, InputError), str(truth_path), InputError)
+        parts += compare_tables(compare_imu(est, truth, doc if isinstance(doc, dict) else None, str(truth_path)))
     return Group(*parts)

@@ -4,7 +4,7 @@
 
 Images of different cameras with the same stem were taken at the same instant. A
 camera may lack a frame the others have. Images may be symbolic links. Nothing is
-decoded here (that is detect.py); this module only names files and refuses layouts
+decoded here (that is image_read.py); this module only names files and refuses layouts
 that break the contract, with one line naming the folder and the camera.
 """
 

@@ -34,9 +34,3 @@ class CalibrationError(RigcalError):
     """The work itself failed (e.g. a camera never linked to the rest). Exit 1."""
 
     exit_code = 1
-
-
-def key_error(cls: type[RigcalError], file: str, key: str, message: str) -> RigcalError:
-    """The one-line form every loader uses: `file: key: message`."""
-    where = f"{file}: {key}: " if key else f"{file}: "
-    return cls(where + message)

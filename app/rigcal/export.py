@@ -39,6 +39,7 @@ from .rig import NAME_RE, Camera, Rig, load_rig, rig_from_dict, rig_to_dict
 from .stereo import StereoRectification, rectify_pair
 
 FORMATS = ("kalibr", "opencv", "ros", "json")
+IMU_FORMATS = ("kalibr-imu", "euroc")  # rigcal.export_imu: rigs with an IMU
 
 # Dropping coefficients a target format cannot hold is refused past this many pixels
 # of change anywhere in the image: a tenth of a typical 0.1 px reprojection RMS.
@@ -287,10 +288,6 @@ def opencv_files(rig: Rig, label: str = "<rig>") -> Export:
 # ----------------------------------------------------------------------------- ros
 
 
-ROS_KEYS = ("image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",
-            "distortion_coefficients", "rectification_matrix", "projection_matrix")
-
-
 def _ros_distortion(cam: Camera, label: str) -> tuple[str, list[float], str | None]:
     m = cam.intrinsics
     d = list(m.dist)
@@ -358,7 +355,11 @@ def build(rig: Rig, fmt: str, label: str = "<rig>") -> Export:
         return ros_files(rig, label)
     if fmt == "json":
         return Export({"rig.json": json_text(rig)})
-    raise InputError(f"export: --format: expected one of {', '.join(FORMATS)}, got {fmt!r}")
+    if fmt in ("kalibr-imu", "euroc"):
+        from .export_imu import euroc_files, kalibr_imu_files
+
+        return (kalibr_imu_files if fmt == "kalibr-imu" else euroc_files)(rig, label)
+    raise InputError(f"export: --format: expected one of {', '.join(FORMATS + IMU_FORMATS)}, got {fmt!r}")
 
 
 def _warn(message: str) -> None:
@@ -379,6 +380,7 @@ def write_export(result: Export, fmt: str, out_path: Path) -> None:
                           "(choose another --out or remove this one)")
     with atomic_dir(out_path, force=True) as tmp:
         for name, text in result.files.items():
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)  # euroc: <sensor>/sensor.yaml
             atomic_write_text(tmp / name, text)
 
 
@@ -391,7 +393,8 @@ def run(rig_path: Path, fmt: str, out_path: Path) -> str:
         _warn(w)
     write_export(result, fmt, out_path)
     what = {"kalibr": "Kalibr camchain", "opencv": "OpenCV FileStorage folder",
-            "ros": "ROS camera_info folder", "json": "rig JSON"}[fmt]
+            "ros": "ROS camera_info folder", "json": "rig JSON", "kalibr-imu": "Kalibr camchain-imucam folder",
+            "euroc": "EuRoC sensor.yaml folder"}[fmt]
     lines = [f"wrote {what} {out_path} ({len(rig.cameras)} cameras, {len(rig.stereo_pairs)} stereo pairs)"]
     lines += [f"  {s}" for s in result.summary if fmt != "json"]
     return "\n".join(lines)
@@ -613,6 +616,13 @@ def run_import(source: Path, fmt: str, out_path: Path, rig_path: Path | None = N
     cams = parse_camchain(doc, label)
     declared = load_rig(rig_path) if rig_path is not None else None
     rig, notes, warnings = rig_from_camchain(cams, label, declared, str(rig_path) if rig_path else "", body_from)
+    if declared is not None and declared.imus and all(c.has_imu for c in cams):
+        from .export_imu import imucam_rig
+
+        rig = imucam_rig(rig, doc, _match_declared(cams, declared)[0], declared, label)
+        notes = [n for n in notes if "T_cam_imu" not in n and "body frame:" not in n]
+        notes.append(f"camchain-imucam: every camera placed by T_cam_imu against {declared.imus[0].name} at its "
+                     f"declared pose, timeshift_cam_imu as time_offset_s")
     for w in warnings:
         _warn(w)
     atomic_write_text(Path(out_path), dump_rig(rig))

@@ -1,6 +1,6 @@
 """Model-guided corner refinement: a second pass over the images once the rig is calibrated.
 
-The detector's point-symmetry fit (detect.refine_symmetric) places each corner's cross
+The detector's point-symmetry fit (corner_fit.refine_symmetric) places each corner's cross
 by axes and edge bends it estimates from the neighbouring detected corners. Where the
 lens bends the grid strongly (a fisheye's periphery) that local model is poor: the
 grid's finite differences span 1-2 squares where the cross spans 0.6, its arms are
@@ -16,9 +16,8 @@ corner's pixel (where the pattern's symmetry centre lies in this image) and a sh
 gradient. The model sets where the samples go, never where the corner is: a model
 error moves a corner only through the shape of its cross, a second-order effect.
 
-Measured on `rigcal simulate` fisheye-stereo renders (10 seeds, 20 frames; README,
-Accuracy): corner error 0.0106 -> 0.0062 px RMS against the exact projections, the
-pair's relative rotation error 0.0017 -> 0.0007 deg RMS, translation 0.011 -> 0.006 mm.
+What it gains on fisheye renders, and why it is on for fisheye cameras only by default,
+is measured in the README (Accuracy: the guided pass; `python -m bench.archive.guided`).
 """
 
 from __future__ import annotations
@@ -32,8 +31,10 @@ import cv2
 import numpy as np
 
 from .camera import CameraModel
-from .detect import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
-                     _cross_offsets, image_gradients, read_gray, refine_pairs, symmetric_half_width)
+from .corner_fit import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
+                         cross_offsets, image_gradients, refine_pairs)
+from .corner_refine import symmetric_half_width
+from .image_read import read_gray
 from .workers import interrupts_deferred, pool
 
 # A corner the guided fit moves further than this from the detector's is left as the
@@ -51,7 +52,7 @@ class BoardCorners:
     p_board: np.ndarray  # (N, 3) corners on the board, metres
     uv: np.ndarray  # (N, 2) the detector's pixels (the fit's start)
     square: float  # square length, metres
-    half: float  # cross half-width in squares (detect.symmetric_half_width)
+    half: float  # cross half-width in squares (corner_refine.symmetric_half_width)
 
 
 @dataclass(frozen=True)
@@ -70,10 +71,10 @@ def cross_samples(model: CameraModel, bc: BoardCorners, arm: float = ARM_SQUARES
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The cross of every corner as the model images it.
 
-    Returns offsets (P, 2) in squares (one of each +-d pair, detect._cross_offsets),
+    Returns offsets (P, 2) in squares (one of each +-d pair, corner_fit.cross_offsets),
     Dp and Dm (N, P, 2): the pixel offsets of P + d and P - d from P's own image, and
     w (N, P) float32: 1 for pairs inside the corner's cross (the white gap less the blur
-    margin, as detect.refine_symmetric sets it, with full-length arms) and imaged by the
+    margin, as corner_fit.refine_symmetric sets it, with full-length arms) and imaged by the
     model, else 0.
 
     The two samples of a pair are not at equal pixel distances from the edge between them
@@ -92,7 +93,7 @@ def cross_samples(model: CameraModel, bc: BoardCorners, arm: float = ARM_SQUARES
     half_k = bc.half - margin / sq
     med = float(np.nanmedian(sq)) if np.isfinite(sq).any() else 1.0
     delta = max(STEP_PX / med, arm / MAX_SAMPLES_PER_ARM)
-    cross = _cross_offsets(min(bc.half, arm), arm, delta)
+    cross = cross_offsets(min(bc.half, arm), arm, delta)
     m = len(cross)
     off = np.zeros((m, 3))
     off[:, :2] = cross * s
@@ -110,10 +111,10 @@ def refine_guided(stack: np.ndarray, uv: np.ndarray, cross: np.ndarray, Dp: np.n
                   w: np.ndarray, iters: int = 25, tol: float = 2e-3, max_move: float = MAX_MOVE_PX
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Corners q minimising sum_d w (I(q + Dp(d)) - I(q + Dm(d)) - shading)^2, Gauss-Newton
-    (detect.refine_pairs, every pair point-symmetric).
+    (corner_fit.refine_pairs, every pair point-symmetric).
 
-    stack: detect.image_gradients of the image; uv (N, 2) the starts; cross, Dp, Dm, w from
-    cross_samples. The shading term is detect.refine_symmetric's: I(q + d) ~ (1 + s.d) S(d).
+    stack: corner_fit.image_gradients of the image; uv (N, 2) the starts; cross, Dp, Dm, w from
+    cross_samples. The shading term is corner_fit.refine_symmetric's: I(q + d) ~ (1 + s.d) S(d).
     Returns (N, 2) corners, (N,) bool refined (False: the start is kept: too few samples,
     no convergence, under half the cross inside the image, or a move beyond max_move) and
     (N,) each refined corner's 1-sigma (px per axis; residual variance x (J^T W J)^-1)."""

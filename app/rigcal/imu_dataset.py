@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from . import geometry as geo
-from .detect import BoardDetector
+from .board_detectors import BoardDetector
 from .imu_calib import CameraInput, ImuInput
 from .imu_residuals import Corners
 from .initialise import pnp_views

@@ -125,11 +125,29 @@ def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", 
 
 @dataclass(frozen=True, eq=False)
 class Block:
-    """r (M, D) weighted residuals, J (M, D, K), cols (M, K) global columns (-1: held)."""
+    """r (M, D) weighted residuals, J (M, D, K), cols (M, K) global columns (-1: held);
+    cost: the block's share of the objective when it is not sum r^2 (a robust loss: r and J
+    are then the iteratively reweighted ones, whose gradient J^T r is half the cost's)."""
 
     r: np.ndarray
     J: np.ndarray
     cols: np.ndarray
+    cost: float | None = None
+
+    @property
+    def objective(self) -> float:
+        return float(np.sum(self.r ** 2)) if self.cost is None else self.cost
+
+
+def huber(block: Block, k: float) -> Block:
+    """The block under a Huber loss on each row's residual norm s (in sigma units): cost
+    s^2 up to k, 2 k s - k^2 beyond; rows beyond k weighted by sqrt(k / s) (IRLS)."""
+    s = np.linalg.norm(block.r.reshape(len(block.r), -1), axis=1)
+    far = s > k
+    w = np.ones_like(s)
+    w[far] = np.sqrt(k / s[far])
+    cost = float(np.sum(np.where(far, 2 * k * s - k * k, s * s)))
+    return Block(block.r * w[:, None], block.J * w[:, None, None], block.cols, cost)
 
 
 def local_jacobian(fun: Callable[[np.ndarray], np.ndarray], m: int, k: int, h: float = STEP

@@ -132,3 +132,18 @@ def errors_against_truth(rec, T_imu_cam: np.ndarray, time_offset_s: np.ndarray) 
         out.append([geo.rotation_angle_deg(T[:3, :3].T @ T_true[:3, :3]),
                     float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])), float(off - c.time_offset_s)])
     return np.array(out)
+
+
+def component_errors(rec, T_imu_cam: np.ndarray, time_offset_s: np.ndarray, T_body_imu: np.ndarray) -> np.ndarray:
+    """(C, 7) errors in the axes of CameraImuResult.sigma: rotation (rad, Log(R_est R_true^T)
+    in body axes), translation (m, body axes), offset (s), with the body frame the estimate's
+    (its IMU held at T_body_imu). Each component against its own 1-sigma is the honest test
+    of the reported sigmas; the angle against the norm of three sigmas mixes axes."""
+    T_bi_true = rec.truth.imus[0].T_body_imu
+    out = []
+    for c, T, off in zip(rec.truth.cameras, T_imu_cam, time_offset_s):
+        T_ic_true = geo.inv_T(T_bi_true) @ c.T_body_cam
+        R_bi = T_body_imu[:3, :3]
+        d_rot = geo.rotvecs_from_R((R_bi @ T[:3, :3] @ T_ic_true[:3, :3].T @ R_bi.T)[None])[0]
+        out.append([*d_rot, *(R_bi @ (T[:3, 3] - T_ic_true[:3, 3])), off - c.time_offset_s])
+    return np.array(out)

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 from collections import defaultdict
 from contextlib import contextmanager
+from dataclasses import dataclass, replace
 from typing import Callable
-from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -73,21 +73,6 @@ class PosedViews:
     board: tuple[int, ...]
     T_cam_board: tuple[np.ndarray, ...]
     rms_px: tuple[float, ...]
-
-
-@dataclass
-class InitResult:
-    intrinsics: list[np.ndarray]  # per camera [fx, fy, cx, cy, dist...]
-    models: list[str]
-    views: list[PosedView]
-    T_cam_body: np.ndarray  # (C, 4, 4); body = gauge camera during the solve
-    T_body_world: np.ndarray  # (F, 4, 4)
-    T_world_board: np.ndarray  # (B, 4, 4)
-    frame_posed: np.ndarray  # (F,) bool
-    gauge_cam: int
-    gauge_board: int
-    flips: int = 0
-    notes: list[str] = field(default_factory=list)
 
 
 # ----------------------------------------------------------------------------- intrinsics

@@ -14,11 +14,17 @@ Rotations are parameterised locally, R = exp(delta) @ R0, so every rotation can
 be anywhere on SO(3) while the optimiser only sees small vectors. The Jacobian is
 analytic in the poses (with the SO(3) left Jacobian, so it is exact away from
 delta = 0 too) and central-differenced only through the per-point projection,
-which costs a handful of vectorised projections. The solve never holds the whole
-Jacobian: Problem.normal_equations sums J^T W J and J^T W r chunk by chunk straight into
-the camera/board, frame and coupling blocks the Schur solve uses, so time and memory are
-linear in corners (a few hundred bytes each; issue 21). Problem.jacobian builds the whole
-sparse matrix for tests.
+which costs a handful of vectorised projections.
+
+The problem is written in rigcal.blocks' terms: RigParameters registers the parameter
+blocks (per camera its intrinsics and pose, the boards, the frames: the family the Schur
+step eliminates), and Reprojection is the corner residual block. Problem.blocks is the
+list of residual blocks; a further kind (gyroscope, accelerometer, clock offsets,
+rolling-shutter rows) appends its own block with its own Jacobian chunks. The solve
+never holds the whole Jacobian: blocks.sum_normal_equations sums J^T W J and J^T W r
+chunk by chunk straight into the kept, frame and coupling blocks the Schur solve uses, so
+time and memory are linear in corners (a few hundred bytes each; issue 21).
+Problem.jacobian builds the whole sparse matrix for tests.
 
 Corners may carry weights (Observations.weight: inverse variances, from the detector's
 own per-corner sigma calibrated by a NoiseModel); the solve is then least squares on
@@ -29,15 +35,18 @@ the plain RMS in px, and the covariance is variance_factor (J^T W J)^-1.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Iterator
 
 import numpy as np
 import scipy.sparse as sp
 
 from . import geometry as geo
+from .blocks import (JacobianChunk, NormalEquations, ParameterBlock, ParameterBlocks, register, sparse_jacobian,
+                     sum_normal_equations)
 from .camera import distort_fisheye, distort_pinhole
 
 POSE_DIM = 6
-# corners per chunk of Problem.normal_equations: bounds its temporaries (2-3 kB a corner
+# corners per chunk of Reprojection.jacobian_chunks: bounds its temporaries (2-3 kB a corner
 # in the chunk) whatever the problem's size, and is large enough for numpy to amortise
 NE_CHUNK = 8192
 
@@ -73,7 +82,7 @@ class Observations:
 
 # ----------------------------------------------------------------------------- corner noise model
 
-# The detector's own per-corner sigma (detect.View.sigma) ranks corners well but its
+# The detector's own per-corner sigma (BoardView.sigma) ranks corners well but its
 # spread is not to be trusted: on pinhole renders it spreads 2.2x where the true error
 # spreads 1.3x, on fisheye renders 3.2x against 2x (10 % to 90 % of corners). Each camera's
 # residuals calibrate it: s_eff = scale * s_det^gamma, fitted on quantile bins of s_det.
@@ -208,7 +217,8 @@ class State:
 
 @dataclass(frozen=True)
 class Layout:
-    """Where each unknown lives in the parameter vector. Fixed blocks have no slice."""
+    """Where each unknown lives in the parameter vector (ParameterBlocks.slices of the
+    rig's families). Fixed blocks have no slice."""
 
     intr: tuple  # per camera slice or None
     cam: tuple  # per camera slice or None (gauge camera)
@@ -217,49 +227,25 @@ class Layout:
     size: int
 
 
-def make_layout(state: State, gauge_cam: int, gauge_board: int, fix_intrinsics: np.ndarray) -> Layout:
-    """Order: camera blocks (intrinsics, extrinsics), boards, then frames last so the
-    frame block is trailing and block-diagonal (for the Schur complement)."""
-    k = 0
-    intr, cam = [], []
+def rig_parameter_blocks(state: State, gauge_cam: int, gauge_board: int, fix_intrinsics: np.ndarray) -> ParameterBlocks:
+    """The rig's parameter blocks: per camera its intrinsics then its pose (T_cam_body),
+    then the boards (T_world_board), then the frames (T_body_world), the family the Schur
+    step eliminates (6x6 blocks, trailing). Held: fixed intrinsics, the gauge camera's and
+    the gauge board's poses."""
+    blocks = []
     for c, it in enumerate(state.intrinsics):
-        if fix_intrinsics[c]:
-            intr.append(None)
-        else:
-            n = it.basis().shape[1]
-            intr.append(slice(k, k + n))
-            k += n
-        if c == gauge_cam:
-            cam.append(None)
-        else:
-            cam.append(slice(k, k + POSE_DIM))
-            k += POSE_DIM
-    board = []
-    for b in range(len(state.T_world_board)):
-        if b == gauge_board:
-            board.append(None)
-        else:
-            board.append(slice(k, k + POSE_DIM))
-            k += POSE_DIM
-    frame = []
-    for _ in range(len(state.T_body_world)):
-        frame.append(slice(k, k + POSE_DIM))
-        k += POSE_DIM
-    return Layout(tuple(intr), tuple(cam), tuple(frame), tuple(board), k)
+        blocks.append(ParameterBlock("intrinsics", c, it.basis().shape[1], bool(fix_intrinsics[c])))
+        blocks.append(ParameterBlock("camera", c, POSE_DIM, c == gauge_cam))
+    blocks += [ParameterBlock("board", b, POSE_DIM, b == gauge_board) for b in range(len(state.T_world_board))]
+    blocks += [ParameterBlock("frame", f, POSE_DIM) for f in range(len(state.T_body_world))]
+    return register(blocks, eliminated="frame")
 
 
-def _csr_structure(rows: np.ndarray, cols: np.ndarray, n_rows: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CSR layout of entries given as (rows, cols): the permutation that puts their data
-    in CSR order, the column indices and the row pointer. Each (row, col) occurs once."""
-    order = np.lexsort((cols, rows))
-    indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n_rows))])
-    return order, cols[order], indptr
-
-
-def _outer2(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """(m, i, j) A[m]^T B[m] for A (m, 2, i), B (m, 2, j): written out over the two rows,
-    because numpy's stacked matmul of tiny matrices took 10 us a corner (60-camera dome)."""
-    return A[:, 0, :, None] * B[:, 0, None, :] + A[:, 1, :, None] * B[:, 1, None, :]
+def make_layout(state: State, gauge_cam: int, gauge_board: int, fix_intrinsics: np.ndarray) -> Layout:
+    """The Layout of rig_parameter_blocks: camera blocks (intrinsics, extrinsics), boards,
+    then frames last so the frame block is trailing and block-diagonal (Schur complement)."""
+    pb = rig_parameter_blocks(state, gauge_cam, gauge_board, fix_intrinsics)
+    return Layout(pb.slices("intrinsics"), pb.slices("camera"), pb.slices("frame"), pb.slices("board"), pb.size)
 
 
 def _left_jacobian(phi: np.ndarray) -> np.ndarray:
@@ -274,38 +260,48 @@ def _left_jacobian(phi: np.ndarray) -> np.ndarray:
     return np.eye(3) + a * K + b * (K @ K)
 
 
-class Problem:
-    """Residuals and sparse Jacobian of the rig bundle adjustment around a reference state."""
+@dataclass(frozen=True)
+class PoseSet:
+    """One pose family at x: R (N, 3, 3), t (N, 3), the local rotation delta (N, 3) and its
+    SO(3) left Jacobian J_l (N, 3, 3)."""
 
-    def __init__(self, obs: Observations, state: State, gauge_cam: int = 0, gauge_board: int = 0,
-                 fix_intrinsics: np.ndarray | None = None):
-        self.obs = obs
+    R: np.ndarray
+    t: np.ndarray
+    delta: np.ndarray
+    J_l: np.ndarray
+
+
+class RigParameters:
+    """The rig's unknowns as a parameter vector around a reference state: intrinsics
+    through each camera's basis (Intrinsics.basis), poses as R = exp(delta) R0 with the
+    translation itself. x0() is the reference; state(x) the State at x."""
+
+    def __init__(self, state: State, gauge_cam: int, gauge_board: int, fix_intrinsics: np.ndarray):
         self.ref = state.copy()
-        C = len(state.intrinsics)
-        self.fix_intr = np.zeros(C, bool) if fix_intrinsics is None else np.asarray(fix_intrinsics, bool)
-        self.layout = make_layout(state, gauge_cam, gauge_board, self.fix_intr)
-        self.gauge_cam, self.gauge_board = gauge_cam, gauge_board
-        self._sparsity = None
-        self._csr_structure = None  # (order, indices, indptr) of the Jacobian, see jacobian()
-        self._order = None  # see _sorted()
-        self._bases = [it.basis() for it in state.intrinsics]
+        self.blocks = rig_parameter_blocks(state, gauge_cam, gauge_board, fix_intrinsics)
+        self.layout = Layout(self.blocks.slices("intrinsics"), self.blocks.slices("camera"),
+                             self.blocks.slices("frame"), self.blocks.slices("board"), self.blocks.size)
+        self.bases = [it.basis() for it in state.intrinsics]
+        self.models = [it.model for it in state.intrinsics]
 
-    # -- parameter vector <-> state
+    def _families(self) -> tuple:
+        L = self.layout
+        return ((self.ref.T_cam_body, L.cam), (self.ref.T_body_world, L.frame), (self.ref.T_world_board, L.board))
 
     def x0(self) -> np.ndarray:
         x = np.zeros(self.layout.size)
         for c, s in enumerate(self.layout.intr):
             if s is not None:
                 x[s] = self.ref.intrinsics[c].params()
-        for T, slices in ((self.ref.T_cam_body, self.layout.cam), (self.ref.T_body_world, self.layout.frame),
-                          (self.ref.T_world_board, self.layout.board)):
+        for T, slices in self._families():
             for i, s in enumerate(slices):
                 if s is not None:
                     x[s.start + 3:s.stop] = T[i, :3, 3]
         return x
 
-    def _poses(self, x: np.ndarray, T_ref: np.ndarray, slices) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """-> R (N,3,3), t (N,3), delta (N,3) for a pose group."""
+    @staticmethod
+    def _poses(x: np.ndarray, T_ref: np.ndarray, slices) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """-> R (N,3,3), t (N,3), delta (N,3) for a pose family."""
         n = len(T_ref)
         delta = np.zeros((n, 3))
         t = T_ref[:, :3, 3].copy()
@@ -317,147 +313,129 @@ class Problem:
         R = geo.R_from_rotvec(delta) @ T_ref[:, :3, :3]
         return R, t, delta
 
-    def state(self, x: np.ndarray) -> State:
-        intr = []
-        for c, s in enumerate(self.layout.intr):
-            it = self.ref.intrinsics[c]
-            intr.append(it.with_params(x[s]) if s is not None else replace(it, values=it.values.copy()))
+    def pose_sets(self, x: np.ndarray) -> tuple:
+        """(cameras, frames, boards) PoseSets at x: the left Jacobians once per x, not per chunk."""
         out = []
-        for T_ref, slices in ((self.ref.T_cam_body, self.layout.cam), (self.ref.T_body_world, self.layout.frame),
-                              (self.ref.T_world_board, self.layout.board)):
-            R, t, _ = self._poses(x, T_ref, slices)
-            T = np.tile(np.eye(4), (len(T_ref), 1, 1))
-            T[:, :3, :3], T[:, :3, 3] = R, t
-            out.append(T)
-        return State(intr, *out)
+        for T_ref, slices in self._families():
+            R, t, delta = self._poses(x, T_ref, slices)
+            out.append(PoseSet(R, t, delta, _left_jacobian(delta)))
+        return tuple(out)
 
-    # -- model
-
-    def _intrinsic_arrays(self, x: np.ndarray):
+    def intrinsic_values(self, x: np.ndarray) -> list[np.ndarray]:
+        """Per camera [fx, fy, cx, cy, dist...] at x."""
         vals = []
         for c, s in enumerate(self.layout.intr):
             it = self.ref.intrinsics[c]
             vals.append(it.with_params(x[s]).values if s is not None else it.values)
         return vals
 
-    def _pose_sets(self, x: np.ndarray) -> tuple:
-        """(R, t, delta, J_l(delta)) of the cameras, frames and boards at x (see _poses);
-        the left Jacobians once per x, not once per chunk."""
-        return tuple((*P, _left_jacobian(P[2])) for P in (self._poses(x, self.ref.T_cam_body, self.layout.cam),
-                                                          self._poses(x, self.ref.T_body_world, self.layout.frame),
-                                                          self._poses(x, self.ref.T_world_board, self.layout.board)))
+    def state(self, x: np.ndarray) -> State:
+        intr = []
+        for c, s in enumerate(self.layout.intr):
+            it = self.ref.intrinsics[c]
+            intr.append(it.with_params(x[s]) if s is not None else replace(it, values=it.values.copy()))
+        out = []
+        for T_ref, slices in self._families():
+            R, t, _ = self._poses(x, T_ref, slices)
+            T = np.tile(np.eye(4), (len(T_ref), 1, 1))
+            T[:, :3, :3], T[:, :3, 3] = R, t
+            out.append(T)
+        return State(intr, *out)
 
-    @staticmethod
-    def _chain(o: Observations, poses: tuple) -> dict:
-        """The pose chain of observations `o` (any subset of the problem's) at `poses`."""
-        (Rc, tc, dc, Jc), (Rf, tf, df, Jf), (Rb, tb, db, Jb) = poses
-        w_rot = np.einsum("mij,mj->mi", Rb[o.board], o.p_board)  # R_world_board p_board
-        q1 = w_rot + tb[o.board]  # world point
-        f_rot = np.einsum("mij,mj->mi", Rf[o.frame], q1)
-        q2 = f_rot + tf[o.frame]  # body point
-        c_rot = np.einsum("mij,mj->mi", Rc[o.cam], q2)
-        p = c_rot + tc[o.cam]  # camera point
-        return dict(Rc=Rc, Rf=Rf, Jc=Jc, Jf=Jf, Jb=Jb, w_rot=w_rot, f_rot=f_rot, c_rot=c_rot, p=p)
 
-    def _project(self, p: np.ndarray, vals: list[np.ndarray]) -> np.ndarray:
-        """Camera points (M, 3) of the observations -> pixels (M, 2)."""
-        return project_obs(p, self.obs.cam, vals, [it.model for it in self.ref.intrinsics])
+@dataclass(frozen=True)
+class PoseChain:
+    """p_cam = Rc (Rf (Rb p_board + tb) + tf) + tc for some observations, with the rotated
+    intermediates the Jacobian needs: w_rot = Rb p_board, f_rot = Rf q_world, c_rot = Rc q_body."""
+
+    w_rot: np.ndarray
+    f_rot: np.ndarray
+    c_rot: np.ndarray
+    p: np.ndarray
+
+
+def pose_chain(o: Observations, poses: tuple) -> PoseChain:
+    """The pose chain of observations `o` at `poses` (RigParameters.pose_sets)."""
+    cam, frame, board = poses
+    w_rot = np.einsum("mij,mj->mi", board.R[o.board], o.p_board)
+    q1 = w_rot + board.t[o.board]  # world point
+    f_rot = np.einsum("mij,mj->mi", frame.R[o.frame], q1)
+    q2 = f_rot + frame.t[o.frame]  # body point
+    c_rot = np.einsum("mij,mj->mi", cam.R[o.cam], q2)
+    return PoseChain(w_rot, f_rot, c_rot, c_rot + cam.t[o.cam])
+
+
+@dataclass(frozen=True)
+class CornerJacobians:
+    """d uv of some observations: intr {camera: (M_c, 2, n_params)} over each camera's
+    estimated intrinsics (rows of that camera's observations, in order), and
+    (M, 2, 6) over [rotation, translation] of the camera, frame and board poses (held
+    poses included: callers skip them)."""
+
+    intr: dict
+    cam: np.ndarray
+    frame: np.ndarray
+    board: np.ndarray
+
+
+class Reprojection:
+    """The corner reprojection residual block: per observation uv(x) - uv measured (px,
+    D = 2), over the intrinsics, camera, board and frame parameter blocks of
+    RigParameters. Its chunks are runs of one camera and one board, frames ascending,
+    so each is one dense product over shared columns (blocks.add_chunk)."""
+
+    dim = 2
+
+    def __init__(self, obs: Observations, params: RigParameters):
+        self.obs, self.params = obs, params
+        self.n_rows = len(obs)
+        self._order = None  # see _sorted()
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        ch = self._chain(self.obs, self._pose_sets(x))
-        uv = self._project(ch["p"], self._intrinsic_arrays(x))
-        return (uv - self.obs.uv).ravel()
+        """(M, 2) projected minus measured pixels at x."""
+        p = pose_chain(self.obs, self.params.pose_sets(x)).p
+        return project_obs(p, self.obs.cam, self.params.intrinsic_values(x), self.params.models) - self.obs.uv
 
-    def _blocks(self, o: Observations, poses: tuple, vals: list, cam: int | None = None) -> tuple:
-        """Jacobian blocks of the observations `o` at `poses` / `vals`: camera -> d uv /
-        d estimated intrinsics (M_c, 2, n_c) (rows of that camera's observations in `o`
-        order), and d uv / d [rotation, translation] (M, 2, 6) of the camera, frame and
-        board poses (gauge poses included: callers skip them). cam: every observation is
-        of this camera (skips the per-camera split)."""
-        ch = self._chain(o, poses)
-        models = [it.model for it in self.ref.intrinsics]
+    def jacobians(self, o: Observations, poses: tuple, vals: list, cam: int | None = None) -> CornerJacobians:
+        """The Jacobians of observations `o` (any subset of the problem's) at `poses` /
+        `vals`. cam: every observation is of this camera (skips the per-camera split)."""
+        ch = pose_chain(o, poses)
+        P_cam, P_frame, P_board = poses
+        models = self.params.models
         if cam is None:
-            J_p, J_list = projection_jacobians(ch["p"], o.cam, vals, models)
+            J_p, J_list = projection_jacobians(ch.p, o.cam, vals, models)
             J_intr = dict(enumerate(J_list))
         else:
-            J_p, Ji = _projection_jacobians_one(ch["p"], vals[cam], models[cam])
+            J_p, Ji = _projection_jacobians_one(ch.p, vals[cam], models[cam])
             J_intr = {cam: Ji}
         # d uv / d params = d uv / d values @ E: a tied focal's column is fx's + fy's
-        J_intr = {c: Ji @ self._bases[c] for c, Ji in J_intr.items()}
+        J_intr = {c: Ji @ self.params.bases[c] for c, Ji in J_intr.items()}
         # camera extrinsics: p = exp(dc) Rc0 q2 + tc
-        D_rot_c = -geo.skew(ch["c_rot"]) @ ch["Jc"][o.cam]
-        cam = np.concatenate([J_p @ D_rot_c, J_p], axis=2)
+        D_rot_c = -geo.skew(ch.c_rot) @ P_cam.J_l[o.cam]
+        cam_J = np.concatenate([J_p @ D_rot_c, J_p], axis=2)
         # frames: q2 = exp(df) Rf0 q1 + tf, p = Rc q2 + ...
-        Rc_o = ch["Rc"][o.cam]
-        D_rot_f = Rc_o @ (-geo.skew(ch["f_rot"])) @ ch["Jf"][o.frame]
+        Rc_o = P_cam.R[o.cam]
+        D_rot_f = Rc_o @ (-geo.skew(ch.f_rot)) @ P_frame.J_l[o.frame]
         frame = np.concatenate([J_p @ D_rot_f, J_p @ Rc_o], axis=2)
         # boards: q1 = exp(db) Rb0 P + tb
-        RcRf = Rc_o @ ch["Rf"][o.frame]
-        D_rot_b = RcRf @ (-geo.skew(ch["w_rot"])) @ ch["Jb"][o.board]
+        RcRf = Rc_o @ P_frame.R[o.frame]
+        D_rot_b = RcRf @ (-geo.skew(ch.w_rot)) @ P_board.J_l[o.board]
         board = np.concatenate([J_p @ D_rot_b, J_p @ RcRf], axis=2)
-        return J_intr, cam, frame, board
-
-    def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
-        """The whole sparse Jacobian (2M, size): for tests and small problems; the solve
-        itself sums the normal equations chunk by chunk (normal_equations)."""
-        o = self.obs
-        M = len(o)
-        J_intr, cam, frame, board = self._blocks(o, self._pose_sets(x), self._intrinsic_arrays(x))
-        rows, cols, data = [], [], []
-        row2 = np.arange(M) * 2
-        need_structure = self._csr_structure is None
-
-        def add_block(mask: np.ndarray, start: np.ndarray, D: np.ndarray):
-            """D (m, 2, k) for observations `mask` into columns start[m] + 0..k-1."""
-            m_idx = np.nonzero(mask)[0]
-            if len(m_idx) == 0:
-                return
-            data.append(D.ravel())
-            if need_structure:  # the pattern is the same at every x: built once
-                k = D.shape[2]
-                r = (row2[m_idx][:, None, None] + np.arange(2)[None, :, None]) + np.zeros((1, 1, k), int)
-                c = (start[:, None, None] + np.arange(k)[None, None, :]) + np.zeros((1, 2, 1), int)
-                rows.append(r.ravel())
-                cols.append(c.ravel())
-
-        for c, s in enumerate(self.layout.intr):
-            if s is not None:
-                mask = o.cam == c
-                add_block(mask, np.full(mask.sum(), s.start), J_intr[c])
-        for D, idx, slices in ((cam, o.cam, self.layout.cam), (frame, o.frame, self.layout.frame),
-                               (board, o.board, self.layout.board)):
-            starts = np.array([s.start if s is not None else -1 for s in slices])[idx]
-            mask = starts >= 0
-            add_block(mask, starts[mask], D[mask])
-        shape = (2 * M, self.layout.size)
-        if not data:
-            return sp.csr_matrix(shape)
-        if need_structure:
-            self._csr_structure = _csr_structure(np.concatenate(rows), np.concatenate(cols), shape[0])
-        order, indices, indptr = self._csr_structure
-        return sp.csr_matrix((np.concatenate(data)[order], indices, indptr), shape=shape)
+        return CornerJacobians(J_intr, cam_J, frame, board)
 
     def _sorted(self) -> np.ndarray:
-        """Observation indices sorted by (camera, board, frame), cached (8 bytes a corner):
-        normal_equations sums runs of one camera and board, frame by frame."""
+        """Observation indices sorted by (camera, board, frame), cached (8 bytes a corner)."""
         if self._order is None:
             o = self.obs
             self._order = np.lexsort((o.frame, o.board, o.cam))
         return self._order
 
-    def normal_equations(self, x: np.ndarray, e: np.ndarray, w: np.ndarray) -> "NormalEquations":
-        """J^T W J and J^T W e at x (e (2M,) residuals, w (2M,) row weights), summed over
-        chunks of NE_CHUNK corners, each split into runs of one camera and one board: the
-        Jacobian is never held whole, so memory per corner stays a few hundred bytes
-        (issue 21) and the time linear in corners."""
-        L = self.layout
-        n_a = _frame_split(L)
-        nF = len(L.frame)
-        ne = NormalEquations(np.zeros(n_a), np.zeros(6 * nF), np.zeros((n_a, n_a)), np.zeros((n_a, 6 * nF)),
-                             np.zeros((nF, 6, 6)))
-        poses, vals = self._pose_sets(x), self._intrinsic_arrays(x)
-        sw = np.sqrt(w).reshape(-1, 2)
-        rw = sw * e.reshape(-1, 2)
+    def jacobian_chunks(self, x: np.ndarray) -> Iterator[JacobianChunk]:
+        """Chunks of NE_CHUNK corners in (camera, board, frame) order, each cut into runs of
+        one camera and one board: a run's kept columns (the camera's intrinsics and pose,
+        the board's pose) are shared by all its rows."""
+        poses, vals = self.params.pose_sets(x), self.params.intrinsic_values(x)
+        L = self.params.layout
         order = self._sorted()
         o = self.obs
         for lo in range(0, len(order), NE_CHUNK):
@@ -465,36 +443,65 @@ class Problem:
             key = o.cam[idx] * len(L.board) + o.board[idx]
             cuts = np.concatenate([[0], np.flatnonzero(np.diff(key)) + 1, [len(idx)]])
             for a, b in zip(cuts[:-1], cuts[1:]):
-                g = idx[a:b]
-                self._accumulate(ne, o.subset(g), poses, vals, sw[g], rw[g])
-        return ne
+                yield self._run_chunk(idx[a:b], poses, vals)
 
-    def _accumulate(self, ne: "NormalEquations", o: Observations, poses: tuple, vals: list, sw: np.ndarray,
-                    rw: np.ndarray) -> None:
-        """Add the observations `o` (one camera, one board, frames ascending) to `ne`; sw
-        (m, 2) row sqrt-weights, rw (m, 2) weighted residuals."""
-        L = self.layout
+    def _run_chunk(self, g: np.ndarray, poses: tuple, vals: list) -> JacobianChunk:
+        """The chunk of observations g (one camera, one board, frames ascending)."""
+        L = self.params.layout
+        o = self.obs.subset(g)
         c, b = int(o.cam[0]), int(o.board[0])
-        J_intr, cam, frame, board = self._blocks(o, poses, vals, cam=c)
+        J = self.jacobians(o, poses, vals, cam=c)
         parts, cols = [], []
-        for D, s in ((J_intr[c], L.intr[c]), (cam, L.cam[c]), (board, L.board[b])):
+        for D, s in ((J.intr[c], L.intr[c]), (J.cam, L.cam[c]), (J.board, L.board[b])):
             if s is not None:
                 parts.append(D)
                 cols.append(np.arange(s.start, s.stop))
-        D = frame * sw[:, :, None]
-        starts = np.concatenate([[0], np.flatnonzero(np.diff(o.frame)) + 1])
-        uf = o.frame[starts]  # frame indices, in layout order (frames are the trailing block)
-        ne.H_dd[uf] += np.add.reduceat(_outer2(D, D), starts)
-        ne.g_d.reshape(-1, 6)[uf] += np.add.reduceat(np.einsum("mki,mk->mi", D, rw), starts)
         if not parts:
-            return
-        A = np.concatenate(parts, axis=2) * sw[:, :, None]
-        ca = np.concatenate(cols)
-        A2 = A.reshape(-1, len(ca))
-        ne.H_aa[np.ix_(ca, ca)] += A2.T @ A2
-        ne.g_a[ca] += A2.T @ rw.ravel()
-        X = np.add.reduceat(_outer2(A, D), starts)  # (frames, K, 6)
-        ne.H_ad.reshape(ne.H_ad.shape[0], -1, 6)[ca[:, None], uf[None, :]] += X.transpose(1, 0, 2)
+            return JacobianChunk(g, np.zeros((len(g), 2, 0)), np.zeros(0, int), J.frame, o.frame)
+        return JacobianChunk(g, np.concatenate(parts, axis=2), np.concatenate(cols), J.frame, o.frame)
+
+
+class Problem:
+    """The rig bundle adjustment around a reference state: RigParameters and its residual
+    blocks (corner reprojection today; further kinds append to `blocks`)."""
+
+    def __init__(self, obs: Observations, state: State, gauge_cam: int = 0, gauge_board: int = 0,
+                 fix_intrinsics: np.ndarray | None = None):
+        self.obs = obs
+        C = len(state.intrinsics)
+        self.fix_intr = np.zeros(C, bool) if fix_intrinsics is None else np.asarray(fix_intrinsics, bool)
+        self.params = RigParameters(state, gauge_cam, gauge_board, self.fix_intr)
+        self.ref, self.layout = self.params.ref, self.params.layout
+        self.gauge_cam, self.gauge_board = gauge_cam, gauge_board
+        self.blocks = [Reprojection(obs, self.params)]
+        self._sparsity = None
+
+    def x0(self) -> np.ndarray:
+        return self.params.x0()
+
+    def state(self, x: np.ndarray) -> State:
+        return self.params.state(x)
+
+    def residuals(self, x: np.ndarray) -> np.ndarray:
+        """Every block's residuals at x, concatenated (corners: u0, v0, u1, ...)."""
+        return np.concatenate([b.residuals(x).ravel() for b in self.blocks])
+
+    def sqrt_weights(self) -> np.ndarray:
+        """The square root of each residual's weight: the corners' noise weights, ones for
+        the blocks after them (a block other than the corners whitens its own residuals,
+        as the IMU blocks divide by their noise)."""
+        return np.concatenate([self.obs.sqrt_weights()] + [np.ones(b.n_rows * b.dim) for b in self.blocks[1:]])
+
+    def jacobian(self, x: np.ndarray) -> sp.csr_matrix:
+        """The whole sparse Jacobian (rows of residuals(), layout.size): for tests and small
+        problems; the solve itself sums the normal equations chunk by chunk."""
+        return sparse_jacobian(self.blocks, self.params.blocks, x)
+
+    def normal_equations(self, x: np.ndarray, e: np.ndarray, w: np.ndarray) -> NormalEquations:
+        """J^T W J and J^T W e at x (e residuals, w row weights), summed chunk by chunk
+        (blocks.sum_normal_equations): the Jacobian is never held whole, so memory per
+        corner stays a few hundred bytes (issue 21) and the time linear in corners."""
+        return sum_normal_equations(self.blocks, self.params.blocks, x, e, w)
 
     def sparsity(self) -> sp.csr_matrix:
         if self._sparsity is None:
@@ -588,74 +595,6 @@ class SolveResult:
     variance_factor: float | None = None
 
 
-def _frame_split(layout: Layout) -> int:
-    """Index of the first frame parameter: frames are the trailing 6x6 block-diagonal part."""
-    return layout.frame[0].start if layout.frame else layout.size
-
-
-@dataclass
-class NormalEquations:
-    """J^T W J and J^T W r split into the camera/board part (a) and the block-diagonal
-    frame part (d), built once per iteration (Problem.normal_equations, or from_jacobian
-    from a whole Jacobian); solve() then costs one small dense solve per damping value.
-    g_a (n_a,), g_d (6F,), H_aa (n_a, n_a), H_ad (n_a, 6F), H_dd (F, 6, 6)."""
-
-    g_a: np.ndarray
-    g_d: np.ndarray
-    H_aa: np.ndarray
-    H_ad: np.ndarray
-    H_dd: np.ndarray
-
-    @classmethod
-    def from_jacobian(cls, J: sp.csr_matrix, r: np.ndarray, w: np.ndarray, split: int) -> "NormalEquations":
-        """From the whole sparse Jacobian (2M, size), frames from column `split` on: the
-        plain construction, kept as the reference the chunked sums are tested against."""
-        sw = np.sqrt(w)
-        J = sp.csr_matrix(J)
-        # row scaling straight on the CSR values (a diagonal matrix product copies twice)
-        Jw = sp.csr_matrix((J.data * np.repeat(sw, np.diff(J.indptr)), J.indices, J.indptr), shape=J.shape).tocsc()
-        rw = sw * r
-        Ja = Jw[:, :split]
-        Jd = Jw[:, split:]
-        return cls(Ja.T @ rw, Jd.T @ rw, (Ja.T @ Ja).toarray(), (Ja.T @ Jd).toarray(), _frame_blocks(Jd.T @ Jd))
-
-    def solve(self, lam: float) -> tuple[np.ndarray, np.ndarray]:
-        """Solve (H + lam diag(H)) dx = -g; returns (dx, Schur complement S)."""
-        H_aa = self.H_aa.copy()
-        d = np.diag_indices_from(H_aa)
-        H_aa[d] = H_aa[d] * (1.0 + lam) + 1e-12
-        blocks = self.H_dd.copy()
-        diag = np.einsum("fii->fi", blocks)
-        diag *= 1.0 + lam
-        diag += 1e-12  # a frame left without observations stays put instead of blowing up
-        if lam > 0:
-            Hinv = np.linalg.inv(blocks)
-        else:
-            # Marginalising (covariance): a frame left with 1-3 corners is rank-deficient; its
-            # pseudo-inverse lets those corners inform nothing, instead of an inverse of noise.
-            Hinv = np.linalg.pinv(blocks, rcond=1e-10, hermitian=True)
-        nF = len(Hinv)
-        n_a = len(H_aa)
-        # batched matmul per frame block (einsum without BLAS was the slowest line here)
-        T = np.matmul(self.H_ad.reshape(n_a, nF, 6).transpose(1, 0, 2), Hinv).transpose(1, 0, 2).reshape(n_a, 6 * nF)
-        S = H_aa - T @ self.H_ad.T
-        rhs = -(self.g_a - T @ self.g_d)
-        dx_a = np.linalg.solve(S, rhs) if n_a else np.zeros(0)
-        g_d2 = -(self.g_d + self.H_ad.T @ dx_a)
-        dx_d = np.matmul(Hinv, g_d2.reshape(nF, 6, 1)).ravel()
-        return np.concatenate([dx_a, dx_d]), S
-
-
-def _frame_blocks(H_dd: sp.spmatrix) -> np.ndarray:
-    """(F, 6, 6) diagonal blocks of the frame-frame part of J^T J."""
-    nF = H_dd.shape[0] // 6
-    blocks = np.zeros((nF, 6, 6))
-    coo = H_dd.tocoo()
-    same = (coo.row // 6) == (coo.col // 6)
-    np.add.at(blocks, (coo.row[same] // 6, coo.row[same] % 6, coo.col[same] % 6), coo.data[same])
-    return blocks
-
-
 def _robust_weights(r: np.ndarray, scale: float | None) -> np.ndarray:
     """Per-residual IRLS weights for the Cauchy loss on each corner's 2D error (1 = plain LS)."""
     if scale is None:
@@ -686,7 +625,7 @@ def levenberg_marquardt(problem: Problem, scale: float | None = None, max_iter: 
     in units of the residual variance) by less than chi2_tol: past that, further digits
     are far below what the data can tell. Returns (x, iterations, converged)."""
     x = problem.x0()
-    sw = problem.obs.sqrt_weights()  # weighted least squares = plain LS on sw * e
+    sw = problem.sqrt_weights()  # weighted least squares = plain LS on sw * e
     e = problem.residuals(x)  # px
     r = sw * e
     cost = _cost(r, scale)

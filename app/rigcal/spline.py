@@ -82,11 +82,12 @@ class Motion:
 
 
 def segment(spline: Spline, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(i (M,) int, u (M,)) of times t (M,); raises ValueError for a time outside the spline."""
+    """(i (M,) int, u (M,)) of times t (M,); raises ValueError for a time outside the spline
+    (NaN included: it would pass the range test and index garbage)."""
     t = np.asarray(t, dtype=float)
     s = (t - spline.t0) / spline.dt
     n_seg = len(spline.p) - ORDER + 1
-    if np.any(s < -1e-9) or np.any(s > n_seg + 1e-9):
+    if not np.all(np.isfinite(s)) or np.any(s < -1e-9) or np.any(s > n_seg + 1e-9):
         raise ValueError(f"time outside the spline [{spline.t0}, {spline.t_end}]")
     i = np.clip(np.floor(s).astype(int), 0, n_seg - 1)
     return i, s - i

@@ -30,13 +30,17 @@ INPUTS = {
 }
 # Output name of each format inside one rig's folder.
 OUTPUTS = {"kalibr": "camchain.yaml", "json": "rig.json", "opencv": "opencv", "ros": "ros"}
+# The camera-IMU formats (rigcal.export_imu), of a calibrated rig with an IMU.
+IMU_INPUTS = {"drone-stereo-back-imu-calibrated": GOLDEN / "drone-stereo-back-imu-calibrated.yaml"}
+IMU_OUTPUTS = {"kalibr-imu": "kalibr-imu", "euroc": "euroc"}
 
 
 def write_goldens(dest: Path) -> list[Path]:
     """Write every export of every golden input under dest/<input>/<output>; returns the files."""
-    for stem, rig_path in INPUTS.items():
+    for stem, rig_path, outputs in ([(s, p, OUTPUTS) for s, p in INPUTS.items()]
+                                    + [(s, p, IMU_OUTPUTS) for s, p in IMU_INPUTS.items()]):
         rig = load_rig(rig_path)
-        for fmt, name in OUTPUTS.items():
+        for fmt, name in outputs.items():
             # A label without the machine's path keeps messages identical everywhere.
             result = export.build(rig, fmt, f"{stem}.yaml")
             export.write_export(result, fmt, dest / stem / name)

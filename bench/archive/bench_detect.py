@@ -1,8 +1,8 @@
 """Benchmark: board detection - throughput and corner accuracy.
 
-    python bench/bench_detect.py                 # throughput: real sets and a simulated set, jobs 1 and 2
-    python bench/bench_detect.py --accuracy      # corner error vs truth on rigcal simulate renders
-    python bench/bench_detect.py --real-rms      # mono calibration RMS on the real sets per refinement
+    python -m bench.archive.bench_detect                 # throughput: real sets and a simulated set, jobs 1 and 2
+    python -m bench.archive.bench_detect --accuracy      # corner error vs truth on rigcal simulate renders
+    python -m bench.archive.bench_detect --real-rms      # mono calibration RMS on the real sets per refinement
 
 Throughput is images per second of `detect_dataset` end to end (reading, detection,
 refinement; the process pool's start-up included), and for jobs 1 the CPU time per
@@ -36,12 +36,15 @@ import cv2
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "app"))
 
 from rigcal import geometry as geo  # noqa: E402
 from rigcal.dataset import list_dataset  # noqa: E402
-from rigcal.detect import BoardDetector, REFINE_MODES, detect_dataset, read_gray  # noqa: E402
+from rigcal.board_detectors import BoardDetector  # noqa: E402
+from rigcal.corner_refine import REFINE_MODES  # noqa: E402
+from rigcal.detect import detect_dataset  # noqa: E402
+from rigcal.image_read import read_gray  # noqa: E402
 from rigcal.rig import load_rig, rig_from_dict  # noqa: E402
 from rigcal.target import load_target  # noqa: E402
 

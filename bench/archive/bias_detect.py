@@ -1,10 +1,10 @@
 """Benchmark: systematic corner error (bias) of the refinement on oblique board views.
 
-    python bench/bias_detect.py                       # surround-6 room, 10 frames, seed 0
-    python bench/bias_detect.py --seeds 0 1 --modes symmetric none
-    python bench/bias_detect.py --dataset DIR         # an existing `rigcal simulate` folder
-    python bench/bias_detect.py --frames 30 --calibrate --margin-px 1 2   # before / after, with the rig's scale
-    python bench/bias_detect.py --rig fisheye-stereo --scene board --frames 20   # fisheye (PnP undistorts first)
+    python -m bench.archive.bias_detect                       # surround-6 room, 10 frames, seed 0
+    python -m bench.archive.bias_detect --seeds 0 1 --modes symmetric none
+    python -m bench.archive.bias_detect --dataset DIR         # an existing `rigcal simulate` folder
+    python -m bench.archive.bias_detect --frames 30 --calibrate --margin-px 1 2   # before / after, with the rig's scale
+    python -m bench.archive.bias_detect --rig fisheye-stereo --scene board --frames 20   # fisheye (PnP undistorts first)
 
 Renders `rigcal simulate` datasets (or reads one), detects every board with each
 refinement mode and compares each corner with its exact projection from truth.yaml.
@@ -27,7 +27,7 @@ side of the board). It reports
   e x 1.5 m along its axis, i.e. ~15 e ppm of a 0.1 m rig: corner biases of 0.001 px
   show up as hundreds of ppm.
 
---margin-px runs the refinement with that blur margin (detect.MARGIN_PX; 1.0 is the
+--margin-px runs the refinement with that blur margin (corner_fit.MARGIN_PX; 1.0 is the
 refinement before the bias fix), in this process (jobs 1).
 """
 
@@ -44,12 +44,13 @@ import cv2
 import numpy as np
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "app"))
 
 from rigcal import geometry as geo  # noqa: E402
 from rigcal.dataset import list_dataset  # noqa: E402
-from rigcal.detect import REFINE_MODES, detect_dataset  # noqa: E402
+from rigcal.corner_refine import REFINE_MODES  # noqa: E402
+from rigcal.detect import detect_dataset  # noqa: E402
 from rigcal.rig import load_rig, rig_from_dict  # noqa: E402
 from rigcal.target import load_target  # noqa: E402
 
@@ -235,7 +236,7 @@ def main() -> None:
         if not args.margin_px:
             analyse(path, args.modes, args.jobs, label, args.calibrate, args.brief)
             return
-        import rigcal.detect as det
+        import rigcal.corner_fit as det
 
         defaults = det.refine_symmetric.__defaults__
         names = det.refine_symmetric.__code__.co_varnames[det.refine_symmetric.__code__.co_argcount - len(defaults):

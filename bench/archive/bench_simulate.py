@@ -1,8 +1,8 @@
 """Benchmark: `rigcal simulate rigs/drone-stereo-back.yaml --scene room --frames 60`
 (180 images at 640x480, PNG writing included). Target: <= 6 s wall on 2 cores.
 
-    python bench/bench_simulate.py [--jobs N] [--frames N] [--rig rigs/X.yaml] [--repeat N]
-    python bench/bench_simulate.py --accuracy [--seeds 3]
+    python -m bench.archive.bench_simulate [--jobs N] [--frames N] [--rig rigs/X.yaml] [--repeat N]
+    python -m bench.archive.bench_simulate --accuracy [--seeds 3]
 
 Prints the wall time, CPU time of this process and its workers, and the machine's
 load average (other work on the machine inflates the wall time).
@@ -31,7 +31,7 @@ from rigcal.rig import load_rig, rig_from_dict
 from rigcal.simulate import simulate_dataset
 from rigcal.target import load_target
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def corner_errors(dataset: Path, windows=(2, 3, 4, 5)) -> dict[str, dict[str, np.ndarray]]:

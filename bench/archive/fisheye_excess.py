@@ -1,9 +1,9 @@
 """Which part of the detected corner error drives the fisheye pair's relative-rotation error?
 
 The DETECTOR's corners (`--guided off`), as bench.indie_noise: the study that led to the
-guided pass (rigcal.guided), which bench.noise_limit and bench.guided measure.
+guided pass (rigcal.guided), which bench.noise_limit and bench.archive.guided measure.
 
-    BENCH_REUSE_CACHE=1 python -m bench.fisheye_excess [--seeds 10] [--scenario fisheye-stereo]
+    BENCH_REUSE_CACHE=1 python -m bench.archive.fisheye_excess [--seeds 10] [--scenario fisheye-stereo]
 
 Per seed (bench.common's render + detect cache, bench.noise_limit's frame count) the
 detected corners' error e = detected - true projection is split into parts, and the same
@@ -46,9 +46,9 @@ from rigcal.bounds import _relative_pose_jacobian, measured_corner_noise, true_s
 from rigcal.target import load_target
 from rigcal.solve import Problem, SolveResult, camera_covariance
 
-from .common import (calibrate, gaussian_views, get_dataset, md_table, run_pool, say, scenario, true_projections,
+from bench.common import (calibrate, gaussian_views, get_dataset, md_table, run_pool, say, scenario, true_projections,
                      write_json)
-from .noise_limit import FRAMES
+from bench.noise_limit import FRAMES
 
 
 def rel_rot_error(cal, truth_rig) -> np.ndarray:

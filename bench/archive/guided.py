@@ -1,7 +1,7 @@
 """The guided corner pass (rigcal.guided), measured: the same detections calibrated with and
 without it, on rigcal's renders and on the independent renderer's (tests/indie_render.py).
 
-    python -m bench.guided [--seeds 6] [--scenes fisheye-rigcal fisheye-indie pinhole-indie stereo-forward]
+    python -m bench.archive.guided [--seeds 6] [--scenes fisheye-rigcal fisheye-indie pinhole-indie stereo-forward]
 
 Per scene and seed: the corners the calibration used against their exact projections
 (RMS px), each camera pair's relative rotation / translation error against truth, the
@@ -28,8 +28,8 @@ import numpy as np
 
 import rigcal
 
-from .common import OUT, ROOT, get_dataset, md_table, say, scenario, write_json
-from .noise_limit import _pair_stats
+from bench.common import OUT, ROOT, get_dataset, md_table, say, scenario, write_json
+from bench.noise_limit import _pair_stats
 
 SCENES = ("fisheye-indie", "pinhole-indie", "stereo-forward", "fisheye-rigcal")
 FRAMES = 20

@@ -1,0 +1,416 @@
+"""`rigcal calibrate` on a motion dataset with an IMU (../shared/spec/imu.md, issue 18):
+the camera-only calibration's corners, intrinsics and board poses in, every camera's
+T_imu_cam, clock offset (and line delay), the IMU's biases and gravity out, through the
+public API of rigcal.imu_calib.
+
+As Kalibr does, the intrinsics are held at the camera-only calibration's. The board poses
+relative to one another come from the camera-only calibration too, but that one treats
+images of different cameras with equal stems as the same instant: with clock offsets of
+milliseconds a board seen by only some cameras is placed off by the motion in between.
+So the boards are re-fitted to the camera-IMU trajectory and the estimate repeated
+(`BOARD_PASSES`), the gauge board (most corners) held: it is the world frame whose
+gravity direction the estimator finds.
+
+Times are seconds since the IMU's first sample, on each sensor's own clock, so the
+estimator's offsets are imu.md's `time_offset_s` (t_imu = t_cam + time_offset_s).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.optimize as so
+import scipy.sparse.linalg as spla
+
+from . import geometry as geo
+from . import imu_calib as ic
+from . import imu_residuals as ir
+from . import imu_start
+from . import spline as spl
+from .errors import CalibrationError, DatasetError, InputError
+from .initialise import pnp_views
+from .motion import ImuSamples
+from .rig import Imu
+
+BOARD_PASSES = 2  # camera-IMU estimates on every corner, each after re-fitting the boards to the last
+BOARD_CONVERGED_M = 1e-5  # a board move below this (and BOARD_CONVERGED_RAD) ends the passes
+BOARD_CONVERGED_RAD = 1e-5
+MIN_KNOTS = 20  # the images and IMU must share at least this many knot spacings
+MIN_FRAMES = 10  # per camera: the clock-offset search needs rates over ~10 frame intervals
+MIN_PNP_CORNERS = 8
+NOISE_WARN_RATIO = 3.0  # residual RMS vs what the declared density predicts, either way
+
+
+@dataclass(frozen=True)
+class Options:
+    """What the user chose: the IMU (name), gravity's magnitude, the clock-offset search
+    half-width, and whether every camera's line delay is estimated (None: where declared
+    non-zero)."""
+
+    imu: str
+    gravity: float = ir.GRAVITY
+    window_s: float = 0.2
+    rolling_shutter: bool | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Inputs:
+    """The estimator's inputs built from a camera-only calibration: per camera the PnP
+    poses as T_board_cam with their board, the corners in board coordinates, the IMU."""
+
+    cams: tuple  # imu_calib.CameraInput (T_world_cam from the current boards)
+    board_of_pose: tuple  # per camera (F,) board index of each PnP pose
+    T_board_cam: tuple  # per camera (F, 4, 4)
+    cam: np.ndarray  # (M,) per corner
+    board: np.ndarray
+    t_cam: np.ndarray
+    uv: np.ndarray
+    p_board: np.ndarray
+    imu: ic.ImuInput
+    t_base_ns: int  # the IMU's first sample: time 0
+
+
+@dataclass(frozen=True, eq=False)
+class ImuCalibration:
+    """The outcome: the estimator's result, the boards it ended with (T_world_board (B, 4, 4),
+    world = the gauge board's frame), the 1-sigma of every reported parameter
+    (parameter_sigmas, corners weighted by their measured noise), the mean biases over the
+    recording, the residual RMS of the IMU in units
+    (rad/s, m/s^2) and what the declared densities predict, warnings and notes."""
+
+    result: ic.CameraImuResult
+    imu: Imu
+    T_world_board: np.ndarray
+    sigma: dict  # parameter_sigmas
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    gyro_rms: float
+    accel_rms: float
+    gyro_predicted: float
+    accel_predicted: float
+    corner_rms_px: float
+    passes: int
+    seconds: float
+    warnings: tuple[str, ...]
+    notes: tuple[str, ...]
+
+
+def imu_input(samples: ImuSamples, imu: Imu, t_base_ns: int) -> ic.ImuInput:
+    return ic.ImuInput((samples.t_ns - t_base_ns) * 1e-9, samples.gyro, samples.accel, imu.update_rate,
+                       imu.gyroscope_noise_density, imu.gyroscope_random_walk, imu.accelerometer_noise_density,
+                       imu.accelerometer_random_walk, imu.T_body_imu.copy())
+
+
+def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One PnP pose per frame, on its view with most corners (>= MIN_PNP_CORNERS):
+    (frames (F,), boards (F,), T_board_cam (F, 4, 4)). Views are grouped by one sort."""
+    order = np.argsort(view, kind="stable")
+    _, first, count = np.unique(view[order], return_index=True, return_counts=True)
+    f, b = frame[order][first], board[order][first]
+    # per frame the largest view: sort by (frame, -count) and keep each frame's first
+    best = np.lexsort((-count, f))
+    best = best[np.concatenate([[True], np.diff(f[best]) != 0])] if len(best) else best
+    best = best[count[best] >= MIN_PNP_CORNERS]
+    groups = np.split(order, np.cumsum(count)[:-1])
+    m = model
+    fits = pnp_views([p_board[groups[k]] for k in best], [uv[groups[k]] for k in best],
+                     np.array([m.fx, m.fy, m.cx, m.cy, *m.dist]), m.model, [faces[int(b[k])] for k in best])
+    ok = [j for j, fit in enumerate(fits) if fit is not None]
+    T = np.stack([geo.inv_T(fits[j][0]) for j in ok]) if ok else np.zeros((0, 4, 4))
+    return f[best[ok]], b[best[ok]], T
+
+
+def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
+                 line_delays: dict[str, float]) -> Inputs:
+    """The inlier corners of the camera-only calibration `cal` (rigcal.core.Calibration) on
+    each camera's clock (frames are integer-ns stems), one PnP pose per image (its largest
+    board view) for the start, and the IMU."""
+    t_base = int(samples.t_ns[0])
+    ok = cal.inliers
+    o = cal.obs
+    t_frame = np.array([(int(f) - t_base) * 1e-9 for f in cal.frames])
+    cams, boards_of, T_bc = [], [], []
+    for c, name in enumerate(cal.cam_names):
+        m = cal.rig.camera(name).intrinsics
+        s = ok & (o.cam == c)
+        frames, b, T = _frame_poses(m, o.uv[s], o.p_board[s], o.view[s], o.frame[s], o.board[s], faces)
+        if len(frames) < MIN_FRAMES:
+            raise CalibrationError(f"camera {name}: a board pose in only {len(frames)} images; the clock offset "
+                                   f"needs at least {MIN_FRAMES}")
+        by_time = np.argsort(t_frame[frames], kind="stable")  # frame order is the camera-only step's
+        frames, b, T = frames[by_time], b[by_time], T[by_time]
+        T_wc = cal.state.T_world_board[b] @ T
+        cams.append(ic.CameraInput(m, cal.rig.camera(name).T_body_cam.copy(), t_frame[frames], T_wc,
+                                   line_delays.get(name, 0.0), t_declared.get(name, 0.0)))
+        boards_of.append(b)
+        T_bc.append(T)
+    return Inputs(tuple(cams), tuple(boards_of), tuple(T_bc), o.cam[ok], o.board[ok], t_frame[o.frame[ok]],
+                  o.uv[ok], o.p_board[ok], imu_input(samples, imu, t_base), t_base)
+
+
+def check_span(inp: Inputs, names: list[str], knot_dt: float) -> None:
+    """Refuse (DatasetError, exit 2) a recording whose images and IMU samples share fewer
+    than MIN_KNOTS knot spacings."""
+    t_imu = inp.imu.t
+    for c, name in zip(inp.cams, names):
+        lo = max(c.t_cam.min() + c.time_offset_guess_s, t_imu[0])
+        hi = min(c.t_cam.max() + c.time_offset_guess_s, t_imu[-1])
+        if hi - lo < MIN_KNOTS * knot_dt:
+            raise DatasetError(f"camera {name}: its images and the IMU samples share {max(hi - lo, 0.0):.2f} s; the "
+                               f"camera-IMU calibration needs at least {MIN_KNOTS * knot_dt:g} s ({MIN_KNOTS} knots "
+                               f"every {knot_dt:g} s): record longer")
+
+
+def _with_boards(inp: Inputs, T_world_board: np.ndarray) -> tuple[list, ir.Corners]:
+    cams = [replace(c, T_world_cam=T_world_board[b] @ T) for c, b, T in zip(inp.cams, inp.board_of_pose,
+                                                                           inp.T_board_cam)]
+    p_world = np.einsum("mij,mj->mi", T_world_board[inp.board, :3, :3], inp.p_board) + T_world_board[inp.board, :3, 3]
+    return cams, ir.Corners(inp.cam, inp.t_cam, inp.uv, p_world)
+
+
+def refit_boards(state: ir.State, inp: Inputs, models: list, gauge: int, T_world_board: np.ndarray) -> np.ndarray:
+    """Every board but the gauge re-fitted to the camera-IMU trajectory of `state`, jointly
+    with every camera's T_body_cam and clock offset (a board seen by one camera alone is
+    strongly correlated with that camera's pose: fitted alone it converges slowly). The
+    trajectory is held: the IMU and the gauge board's corners fix it. Returns the boards."""
+    others = [int(b) for b in np.unique(inp.board) if b != gauge]
+    C, nb = len(models), len(others)
+    obs = ir.Corners(inp.cam, inp.t_cam, inp.uv, inp.p_board)
+
+    def boards(x):
+        T_wb = T_world_board.copy()
+        for k, b in enumerate(others):
+            T_wb[b] = geo.T_from_rt(x[6 * k:6 * k + 6]) @ T_wb[b]
+        return T_wb
+
+    def residual(x):
+        T = boards(x)[inp.board]
+        dc = x[6 * nb:6 * nb + 6 * C].reshape(C, 6)
+        T_bc = state.T_body_cam.copy()
+        T_bc[:, :3, :3] = geo.R_from_rotvec(dc[:, :3]) @ T_bc[:, :3, :3]
+        T_bc[:, :3, 3] += dc[:, 3:]
+        st = replace(state, T_body_cam=T_bc, time_offset_s=state.time_offset_s + x[6 * nb + 6 * C:])
+        m = spl.evaluate(st.spline, np.clip(ir.corner_times(st, obs), st.spline.t0, st.spline.t_end))
+        p_world = np.einsum("mij,mj->mi", T[:, :3, :3], obs.p_world) + T[:, :3, 3]
+        p_body = np.einsum("mji,mj->mi", m.R_world_body, p_world - m.p_world)
+        T_cb = geo.inv_T(T_bc)[obs.cam]
+        p_cam = np.einsum("mij,mj->mi", T_cb[:, :3, :3], p_body) + T_cb[:, :3, 3]
+        uv = np.empty_like(obs.uv)
+        for c in range(C):  # a loop over cameras, not corners
+            k = obs.cam == c
+            uv[k] = models[c].project(p_cam[k])[0]
+        return (uv - obs.uv).ravel()
+
+    return boards(so.least_squares(residual, np.zeros(6 * nb + 7 * C), method="lm").x)
+
+
+def _settings_with(settings: ic.Settings, res: ic.CameraImuResult) -> ic.Settings:
+    """The corner noise the last estimate found: the next pass weighs the corners by it, so
+    the reported sigmas rest on the measured noise, not on a guess."""
+    return replace(settings, sigma_px=settings.sigma_px * max(res.normalised_rms["corners"], 1e-3))
+
+
+def _gauge_pass(inp: Inputs, T_wb: np.ndarray, gauge: int, settings: ic.Settings) -> ir.State:
+    """The trajectory from the IMU and the gauge board's corners alone (cameras that see it),
+    then every camera's T_body_cam and offset in it: those that see the gauge board from
+    this estimate, the others from their rate start (imu_start) and declared position. The
+    boards the camera-only step placed through unsynchronised frames do not enter."""
+    sees = np.zeros(len(inp.cams), bool)
+    sees[np.unique(inp.cam[inp.board == gauge])] = True
+    idx = np.flatnonzero(sees)
+    remap = np.full(len(inp.cams), -1)
+    remap[idx] = np.arange(len(idx))
+    cams, obs = _with_boards(inp, T_wb)
+    k = (inp.board == gauge) & sees[inp.cam]
+    sub = ir.Corners(remap[obs.cam[k]], obs.t_cam[k], obs.uv[k], obs.p_world[k])
+    res = ic.calibrate_camera_imu([cams[i] for i in idx], sub, inp.imu, settings)
+    st = res.state
+    T_bc = np.stack([c.T_body_cam for c in cams])
+    off = np.array([c.time_offset_guess_s for c in cams])
+    T_bi = inp.imu.T_body_imu
+    for c in np.flatnonzero(~sees):
+        s = imu_start.rate_start(cams[c].t_cam, cams[c].T_world_cam[:, :3, :3], inp.imu.t, inp.imu.gyro,
+                                 cams[c].time_offset_guess_s, settings.window_s, what=f"camera {c}")
+        T_bc[c, :3, :3] = T_bi[:3, :3] @ s.R_imu_cam
+        off[c] = s.time_offset_s
+    T_bc[idx], off[idx] = st.T_body_cam, st.time_offset_s
+    delay = np.array([c.line_delay_s for c in cams])
+    delay[idx] = st.line_delay_s
+    return replace(st, T_body_cam=T_bc, time_offset_s=off, line_delay_s=delay)
+
+
+def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
+             ) -> tuple[ic.CameraImuResult, np.ndarray, ic.Settings, int]:
+    """The camera-IMU estimate: with several boards, first the trajectory from the gauge
+    board (most corners) and the IMU, the other boards re-fitted to it (_gauge_pass,
+    refit_boards), then the estimate on every corner, alternated with re-fitting the
+    boards up to BOARD_PASSES times. Each pass weighs the corners by the noise the previous
+    one found. Returns (result, boards, the settings it used, passes)."""
+    gauge = int(np.argmax(np.bincount(inp.board, minlength=len(T_world_board))))
+    models = [c.model for c in inp.cams]
+    T_wb = T_world_board.copy()
+    several = len(np.unique(inp.board)) > 1
+    if several:
+        T_wb = refit_boards(_gauge_pass(inp, T_wb, gauge, settings), inp, models, gauge, T_wb)
+    k = 0
+    while True:
+        k += 1
+        cams, obs = _with_boards(inp, T_wb)
+        used = settings
+        res = ic.calibrate_camera_imu(cams, obs, inp.imu, used)
+        settings = _settings_with(used, res)
+        if k == BOARD_PASSES:
+            return res, T_wb, used, k
+        if not several:  # nothing to re-fit: again only for the weights
+            if abs(res.normalised_rms["corners"] - 1.0) < 0.2:
+                return res, T_wb, used, k
+            continue
+        new = refit_boards(res.state, inp, models, gauge, T_wb)
+        moved_m, moved_rad = 0.0, 0.0
+        for b in range(len(T_wb)):
+            d = new[b] @ geo.inv_T(T_wb[b])
+            moved_m = max(moved_m, float(np.linalg.norm(d[:3, 3])))
+            moved_rad = max(moved_rad, math.radians(geo.rotation_angle_deg(d[:3, :3])))
+        T_wb = new
+        if moved_m < BOARD_CONVERGED_M and moved_rad < BOARD_CONVERGED_RAD:
+            return res, T_wb, used, k
+
+
+def _imu_mask(state: ir.State, t: np.ndarray) -> np.ndarray:
+    # the IMU samples imu_calib.start_state keeps: inside the spline by half a knot
+    sp_ = state.spline
+    return (t >= sp_.t0 + 0.5 * sp_.dt) & (t <= sp_.t_end - 0.5 * sp_.dt)
+
+
+def jacobian(res: ic.CameraImuResult, inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings):
+    """(J, layout) of the final estimate: the residual blocks imu_calib minimises, rebuilt
+    from rigcal.imu_residuals' public functions (imu_calib keeps its list private)."""
+    state, imu = res.state, inp.imu
+    held = frozenset({"imu_rot", "imu_pos"} | (set() if settings.line_delay else {"line_delay"}))
+    lay = ir.layout_for(state, held)
+    _, obs = _with_boards(inp, T_world_board)
+    use = _imu_mask(state, imu.t)
+    r = math.sqrt(imu.update_rate)
+    mj = ir.motion_jacobian(state, imu.t[use])
+    blocks = [ir.reprojection_block(state, lay, obs, [c.model for c in inp.cams], settings.sigma_px),
+              ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], imu.gyroscope_noise_density * r, mj),
+              ir.accel_block(state, lay, imu.t[use], imu.accel[use], imu.accelerometer_noise_density * r, mj),
+              ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
+    return ir.assemble(blocks, lay.size)[0], lay
+
+
+def linear_sigmas(J, A: np.ndarray) -> np.ndarray:
+    """1-sigma of the linear combinations A (K, n) @ x under covariance (J^T J)^-1 (held
+    parameters have empty columns and are left out): one sparse LU, K solves."""
+    H = (J.T @ J).tocsc()
+    active = np.flatnonzero(H.diagonal() > 0)
+    lu = spla.splu(H[active][:, active].tocsc())
+    a = np.asarray(A[:, active].T, dtype=float)
+    return np.sqrt(np.maximum(np.einsum("ik,ik->k", a, lu.solve(a)), 0.0))
+
+
+def mean_weights(n: int) -> np.ndarray:
+    """Trapezoid weights (n,) of the mean of a piecewise-linear function over its knots."""
+    w = np.ones(n)
+    if n > 1:
+        w[[0, -1]] = 0.5
+    return w / w.sum()
+
+
+def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool) -> dict[str, np.ndarray]:
+    """1-sigma of each camera's pose (C, 6: rotation rad about body axes, position m) and
+    clock offset (C,), the mean gyroscope and accelerometer biases (3,) and, when estimated,
+    every camera's line delay (C,)."""
+    w = mean_weights(lay.n_bias)
+    C = lay.n_cam
+
+    def unit(cols):
+        A = np.zeros((len(cols), lay.size))
+        A[np.arange(len(cols)), cols] = 1.0
+        return A
+
+    mean = np.zeros((6, lay.size))
+    for k, start in enumerate((lay.bg, lay.ba)):
+        for axis in range(3):
+            mean[3 * k + axis, start + 3 * np.arange(lay.n_bias) + axis] = w
+    parts = [unit(lay.cam + np.arange(6 * C)), unit(lay.offset + np.arange(C)), mean]
+    if estimate_delay:
+        parts.append(unit(lay.line_delay + np.arange(C)))
+    sd = linear_sigmas(J, np.concatenate(parts))
+    out = {"pose": sd[:6 * C].reshape(C, 6), "offset": sd[6 * C:7 * C], "gyro_bias": sd[7 * C:7 * C + 3],
+           "accel_bias": sd[7 * C + 3:7 * C + 6]}
+    out["line_delay"] = sd[7 * C + 6:] if estimate_delay else None
+    return out
+
+
+def noise_warnings(imu: Imu, gyro: tuple[float, float], accel: tuple[float, float]) -> list[str]:
+    """A warning per sensor whose residual RMS differs from the declared density's
+    prediction by more than NOISE_WARN_RATIO either way: the figures look wrong."""
+    out = []
+    for what, key, (rms, pred), unit in (("gyroscope", "gyroscope_noise_density", gyro, "rad/s"),
+                                         ("accelerometer", "accelerometer_noise_density", accel, "m/s^2")):
+        ratio = rms / pred
+        if not 1 / NOISE_WARN_RATIO <= ratio <= NOISE_WARN_RATIO:
+            out.append(f"{imu.name}: {what} residual RMS {rms:.3g} {unit} is {ratio:.2g}x what {key} predicts "
+                       f"({pred:.3g} {unit} at {imu.update_rate:g} Hz); the declared noise figures look wrong "
+                       f"(the sigmas rest on them)")
+    return out
+
+
+def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: list[float],
+                  line_delays: dict[str, float], time_offsets: dict[str, float],
+                  settings: ic.Settings | None = None) -> ImuCalibration:
+    """The camera-IMU calibration after the camera-only one (`cal`): see the module text.
+    Raises CalibrationError (exit 1) when the recording cannot determine it, DatasetError
+    (exit 2) when it is too short."""
+    t0 = time.perf_counter()
+    estimate_delay = options.rolling_shutter if options.rolling_shutter is not None else any(
+        v > 0 for v in line_delays.values())
+    inp = build_inputs(cal, samples, imu, faces, time_offsets, line_delays)
+    base = settings or ic.Settings()
+    check_span(inp, list(cal.cam_names), base.knot_dt)
+    settings = replace(base, sigma_px=max(float(cal.rms_px), 0.01), gravity=options.gravity,
+                       window_s=options.window_s, line_delay=estimate_delay)
+    try:
+        res, T_wb, settings, passes = estimate(inp, cal.state.T_world_board, settings)
+    except CalibrationError as e:
+        if "search window" in str(e):
+            raise CalibrationError(f"{e} (calibrate --offset-window SECONDS; now {options.window_s:g} s)") from None
+        raise
+    # sigmas with the corners weighted by their measured noise (the variance factor)
+    J, lay = jacobian(res, inp, T_wb, _settings_with(settings, res))
+    sig = parameter_sigmas(J, lay, estimate_delay)
+    w = mean_weights(lay.n_bias)
+    rate = math.sqrt(imu.update_rate)
+    pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
+    rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
+    notes = [f"camera-IMU: {passes} estimate(s) with the boards re-fitted between them, {res.iterations} "
+             f"Levenberg-Marquardt iterations in the last, corners weighted at {settings.sigma_px:.3g} px"]
+    return ImuCalibration(res, imu, T_wb, sig, w @ res.state.gyro_bias, w @ res.state.accel_bias,
+                          rms[0], rms[1], pred[0], pred[1], settings.sigma_px * res.normalised_rms["corners"], passes,
+                          time.perf_counter() - t0, tuple(noise_warnings(imu, (rms[0], pred[0]), (rms[1], pred[1]))),
+                          tuple(notes))
+
+
+def plan(rig, imus_read: dict, reference: str | None) -> tuple[str | None, str]:
+    """(the IMU to calibrate against or None, the reference for the camera-only step and
+    the output). imu.md: with imu/ and an IMU declared the default reference is
+    `imu:<first>`; `imu:NAME` needs a declared IMU with data; `aligned` and `camera:NAME`
+    still calibrate against the first IMU and place it by those cameras."""
+    if reference is not None and reference.startswith("imu:"):
+        name = reference.split(":", 1)[1]
+        if name not in [i.name for i in rig.imus]:
+            have = ", ".join(i.name for i in rig.imus) or "none"
+            raise InputError(f"--reference {reference}: the rig declares no IMU {name!r} (IMUs: {have})")
+        if name not in imus_read:
+            raise InputError(f"--reference {reference}: the dataset has no imu/{name}.csv; without IMU data use "
+                             f"--reference aligned or camera:NAME")
+        return name, reference
+    if not imus_read:
+        return None, reference or "aligned"
+    first = rig.imus[0].name
+    return first, reference or f"imu:{first}"
+

@@ -1,0 +1,208 @@
+"""`rigcal calibrate` on a motion dataset with an IMU, end to end through the CLI
+(imu.md): simulate --scene imu -> calibrate -> compare against truth.yaml, the output
+keys, the kalibr-imu and euroc exports read back, and the bad inputs of issue 18."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from typer.testing import CliRunner
+
+from rigcal import geometry as geo
+from rigcal.cli import app
+from rigcal.compare import load_truth
+from rigcal.imu_outputs import compare_imu
+from rigcal.ingest.euroc import read_sensor_yaml
+from rigcal.rig import load_rig
+
+RIG = Path(__file__).resolve().parents[1] / "rigs" / "drone-stereo-back-imu.yaml"
+runner = CliRunner()
+
+
+def _small_rig(tmp: Path) -> Path:
+    """drone-stereo-back-imu at 480x360 (f = 225): renders 2x faster (at 320x240 too few boards are found)."""
+    text = RIG.read_text().replace("[640, 480]", "[480, 360]").replace(
+        "{fx: 300.0, fy: 300.0, cx: 320.0, cy: 240.0}", "{fx: 225.0, fy: 225.0, cx: 240.0, cy: 180.0}")
+    p = tmp / "rig.yaml"
+    p.write_text(text)
+    return p
+
+
+def _cli(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("calimu")
+    ds = tmp / "ds"
+    r = _cli("simulate", _small_rig(tmp), "--out", ds, "--scene", "imu", "--duration", 4, "--camera-rate", 10,
+             "--seed", 0, "--jobs", 1)
+    assert r.exit_code == 0, r.output
+    out = tmp / "cal.yaml"
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--guided", "off")
+    assert r.exit_code == 0, r.output
+    return ds, out, r.output
+
+
+def test_camera_imu_against_truth(run):
+    ds, out, text = run
+    est = load_rig(out)
+    truth = load_truth(ds / "truth.yaml").rig
+    doc = yaml.safe_load((ds / "truth.yaml").read_text())
+    res = compare_imu(est, truth, doc)
+    for name, e in res["cameras"].items():
+        # 4 s at 10 Hz and 320x240: the 30 s benchmark's targets (0.01 deg, 1 mm, 0.05 ms) x ~10
+        assert e["imu0_rot_deg"] < 0.1, (name, e)
+        assert e["imu0_pos_mm"] < 5.0, (name, e)
+        assert abs(e["offset_ms"]) < 0.3, (name, e)
+    g, a = res["imus"]["imu0"]["gyroscope_bias"], res["imus"]["imu0"]["accelerometer_bias"]
+    assert np.abs(g).max() < 2e-3 and np.abs(a).max() < 0.1, (g, a)
+    assert "IMU imu0" in text and "time offset ms" in text
+
+
+def test_output_keys_of_imu_md(run):
+    _, out, _ = run
+    doc = yaml.safe_load(out.read_text())
+    assert doc["calibration"]["reference"] == "imu:imu0"
+    declared = load_rig(RIG).imu("imu0")
+    est = load_rig(out)
+    # the reference IMU keeps its declared pose exactly
+    assert np.array_equal(est.imu("imu0").T_body_imu, declared.T_body_imu)
+    for name, cam in doc["cameras"].items():
+        assert isinstance(cam["time_offset_s"], float)
+        sig = cam["calibration"]["sigma"]
+        assert 0 < sig["time_offset_ms"] < 0.2 and len(sig["position_mm"]) == 3 and len(sig["rotation_deg"]) == 3
+    cal = doc["imus"]["imu0"]["calibration"]
+    for k in ("gyroscope_bias", "accelerometer_bias"):
+        assert len(cal[k]) == 3 and len(cal["sigma"][k]) == 3 and all(s > 0 for s in cal["sigma"][k])
+    for k in ("gyroscope", "accelerometer"):
+        ratio = cal[f"{k}_residual_rms"] / cal[f"{k}_residual_rms_declared"]
+        assert 0.7 < ratio < 1.5, (k, ratio)  # the simulator samples the declared noise
+
+
+def test_kalibr_imu_and_euroc_exports_read_back(run, tmp_path):
+    ds, out, _ = run
+    rig = load_rig(out)
+    T_bi = rig.imu("imu0").T_body_imu
+    r = _cli("export", out, "--format", "kalibr-imu", "--out", tmp_path / "k")
+    assert r.exit_code == 0, r.output
+    chain = yaml.safe_load((tmp_path / "k" / "camchain-imucam.yaml").read_text())
+    for block in chain.values():
+        cam = rig.camera(block["rigcal_name"])
+        T_cam_imu = np.array(block["T_cam_imu"])
+        p_imu = np.random.default_rng(0).normal(size=(20, 3))
+        # a point in the IMU frame, into the camera by the export and by the rig
+        np.testing.assert_allclose(geo.transform(T_cam_imu, p_imu),
+                                   geo.transform(geo.inv_T(cam.T_body_cam) @ T_bi, p_imu), atol=1e-12)
+        assert block["timeshift_cam_imu"] == pytest.approx(cam.time_offset_s, abs=1e-15)
+    imu = yaml.safe_load((tmp_path / "k" / "imu.yaml").read_text())["imu0"]
+    assert imu["update_rate"] == pytest.approx(200.0) and imu["gyroscope_noise_density"] == pytest.approx(1.7e-4)
+    # import reads it back onto the declared rig: the same poses and offsets
+    r = _cli("import", tmp_path / "k" / "camchain-imucam.yaml", "--rig", ds / "rig.yaml", "--out", tmp_path / "i.yaml")
+    assert r.exit_code == 0, r.output
+    back = load_rig(tmp_path / "i.yaml")
+    for c in rig.cameras:
+        b = back.camera(c.name)
+        np.testing.assert_allclose(b.T_body_cam, c.T_body_cam, atol=1e-12)
+        assert b.time_offset_s == pytest.approx(c.time_offset_s, abs=1e-15)
+    r = _cli("export", out, "--format", "euroc", "--out", tmp_path / "e")
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "e" / "front_left" / "sensor.yaml").read_text().startswith("%YAML:1.0")
+    s_imu = read_sensor_yaml(tmp_path / "e" / "imu0" / "sensor.yaml")
+    np.testing.assert_allclose(np.reshape(s_imu["T_BS"]["data"], (4, 4)), np.eye(4), atol=1e-12)
+    for c in rig.cameras:
+        s = read_sensor_yaml(tmp_path / "e" / c.name / "sensor.yaml")
+        T_BS = np.reshape(s["T_BS"]["data"], (4, 4))
+        np.testing.assert_allclose(T_BS, geo.inv_T(T_bi) @ c.T_body_cam, atol=1e-12)
+        m = c.intrinsics
+        np.testing.assert_allclose(s["intrinsics"], [m.fx, m.fy, m.cx, m.cy], rtol=1e-15)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def _variant(ds: Path, tmp: Path, rig_text: str | None = None, imu_rows=None) -> Path:
+    """A copy of dataset ds (images linked) with another rig.yaml or IMU rows."""
+    v = tmp / "v"
+    v.mkdir()
+    (v / "images").symlink_to(ds / "images")
+    shutil.copy(ds / "target.yaml", v / "target.yaml")
+    (v / "rig.yaml").write_text(rig_text if rig_text is not None else (ds / "rig.yaml").read_text())
+    (v / "imu").mkdir()
+    lines = (ds / "imu" / "imu0.csv").read_text().splitlines()
+    rows = imu_rows(lines[1:]) if imu_rows else lines[1:]
+    (v / "imu" / "imu0.csv").write_text("\n".join([lines[0]] + rows) + "\n")
+    return v
+
+
+def _refused(v: Path, code: int, *words, extra=()):
+    out = v.parent / "out.yaml"
+    r = _cli("calibrate", v, "--out", out, "--jobs", 1, "--guided", "off", *extra)
+    assert r.exit_code == code, r.output
+    line = r.output.strip().splitlines()[-1]
+    for w in words:
+        assert w in line, line
+    assert not out.exists()
+
+
+def test_missing_noise_figure_is_named(run, tmp_path):
+    ds, _, _ = run
+    text = "\n".join(ln for ln in (ds / "rig.yaml").read_text().splitlines() if "gyroscope_random_walk" not in ln)
+    _refused(_variant(ds, tmp_path, rig_text=text), 2, "imus.imu0.gyroscope_random_walk", "missing")
+
+
+def test_images_and_imu_not_overlapping(run, tmp_path):
+    ds, _, _ = run
+    shift = lambda rows: [str(int(r.split(",", 1)[0]) + 60 * 10**9) + "," + r.split(",", 1)[1] for r in rows]  # noqa: E731
+    _refused(_variant(ds, tmp_path, imu_rows=shift), 2, "do not overlap")
+
+
+def test_recording_too_short_for_the_knots(run, tmp_path):
+    ds, _, _ = run
+    # IMU samples for only 0.6 s of the 4 s of images: within imu.md's 1 s overlap slack
+    _refused(_variant(ds, tmp_path, imu_rows=lambda rows: rows[100:220]), 2, "record longer")
+
+
+def test_clock_offset_outside_the_search_window(run, tmp_path):
+    ds, _, _ = run
+    # the true offsets are up to 10 ms from the declared 0: a 2 ms window cannot hold them
+    _refused(_variant(ds, tmp_path), 1, "search window", "--offset-window", extra=("--offset-window", 0.002))
+
+
+# ----------------------------------------------------------------------------- exports of the golden IMU rig
+
+GOLDEN_IMU = Path(__file__).resolve().parent / "golden" / "drone-stereo-back-imu-calibrated.yaml"
+
+
+def test_golden_imu_rig_exports_map_points_as_the_rig_does(tmp_path):
+    """A point in the IMU frame lands at the same camera point through T_cam_imu (Kalibr) and
+    through T_BS (EuRoC) as through the rig; the rolling-shutter camera keeps its line delay."""
+    rig = load_rig(GOLDEN_IMU)
+    T_bi = rig.imu("imu0").T_body_imu
+    assert _cli("export", GOLDEN_IMU, "--format", "kalibr-imu", "--out", tmp_path / "k").exit_code == 0
+    assert _cli("export", GOLDEN_IMU, "--format", "euroc", "--out", tmp_path / "e").exit_code == 0
+    chain = yaml.safe_load((tmp_path / "k" / "camchain-imucam.yaml").read_text())
+    p_imu = np.random.default_rng(1).uniform(-3, 3, size=(50, 3))
+    for block in chain.values():
+        cam = rig.camera(block["rigcal_name"])
+        p_cam = geo.transform(geo.inv_T(cam.T_body_cam), geo.transform(T_bi, p_imu))
+        np.testing.assert_allclose(geo.transform(np.array(block["T_cam_imu"]), p_imu), p_cam, atol=1e-12)
+        T_BS = np.reshape(read_sensor_yaml(tmp_path / "e" / cam.name / "sensor.yaml")["T_BS"]["data"], (4, 4))
+        np.testing.assert_allclose(geo.transform(geo.inv_T(T_BS), p_imu), p_cam, atol=1e-12)
+        assert block.get("line_delay", 0.0) == pytest.approx(cam.line_delay_s or 0.0, abs=1e-18)
+
+
+@pytest.mark.parametrize("fmt", ["kalibr-imu", "euroc"])
+def test_imu_exports_refuse_a_rig_without_imu_and_unwritable_out(fmt, tmp_path):
+    plain = Path(__file__).resolve().parent / "golden" / "drone-stereo-back-calibrated.yaml"
+    r = _cli("export", plain, "--format", fmt, "--out", tmp_path / "x")
+    assert r.exit_code == 2 and "imus: missing" in r.output and not (tmp_path / "x").exists()
+    blocker = tmp_path / "a_file"
+    blocker.write_text("not a folder")
+    r = _cli("export", GOLDEN_IMU, "--format", fmt, "--out", blocker / "out")
+    assert r.exit_code == 2 and "a_file" in r.output, r.output
