@@ -98,7 +98,7 @@ class MonoFit:
     view_rms: np.ndarray
 
 
-def _select_views(n_corners: np.ndarray, limit: int, rng_seed: int = 0) -> np.ndarray:
+def _select_views(n_corners: np.ndarray, limit: int) -> np.ndarray:
     """Indices of at most `limit` views, favouring many corners, spread over the sequence."""
     n = len(n_corners)
     if n <= limit:
