@@ -54,7 +54,10 @@ def _stamped(sim_dir: Path, out: Path, drop: dict[str, int] | None = None) -> Pa
 
 
 def _calibrate(dataset: Path, out: Path, rig: Path | None = None):
-    args = ["calibrate", str(dataset), "--out", str(out), "--jobs", "1"] + (["--rig", str(rig)] if rig else [])
+    # camera-only: the recordings are 1 s long, too short for the camera-IMU step, and the
+    # comparison is with the simulated folder's camera calibration
+    args = (["calibrate", str(dataset), "--out", str(out), "--jobs", "1", "--camera-only"]
+            + (["--rig", str(rig)] if rig else []))
     res = runner.invoke(app, args)
     assert res.exit_code == 0, res.output
     return load_rig(out)

@@ -212,9 +212,9 @@ BAD_CSV = {
 }
 
 
-def _calibrate(d: Path, tmp_path: Path):
+def _calibrate(d: Path, tmp_path: Path, *extra: str):
     out = tmp_path / "cal.yaml"
-    r = CliRunner().invoke(app, ["calibrate", str(d), "--out", str(out), "--jobs", "1"])
+    r = CliRunner().invoke(app, ["calibrate", str(d), "--out", str(out), "--jobs", "1", *extra])
     return r, out
 
 
@@ -273,8 +273,9 @@ def test_read_imu_csv_accepts_euroc_text(tmp_path):
 
 
 def test_camera_only_calibration_runs_on_a_motion_dataset(tmp_path):
-    """Stems are frame names; the IMU blocks are carried through and a note says the IMU
-    calibration itself is not done."""
+    """--camera-only: stems are frame names, the IMU data are checked but not used, the IMU
+    blocks are carried through and a note says so; --reference imu:NAME with it is refused.
+    (Without the flag this 2 s recording is too short for the camera-IMU step: exit 1.)"""
     out = tmp_path / "ds"
     # a forward pair (the back camera of SMALL_RIG shares no view: linking it needs more motion)
     text = SMALL_RIG.replace("position: [-0.1, 0.0, 0.0]\n    axes: [L, -U, -F]", "position: [0.1, -0.1, 0.0]\n    "
@@ -282,8 +283,12 @@ def test_camera_only_calibration_runs_on_a_motion_dataset(tmp_path):
     assert text != SMALL_RIG
     simulate_motion_dataset(parse_rig(text), out, duration=2.0, camera_rate=4.0, seed=1, jobs=2, rig_text=text)
     r, cal = _calibrate(out, tmp_path)
+    assert r.exit_code == 1 and "clock offset" in r.stderr and not cal.exists(), r.stderr
+    r, cal = _calibrate(out, tmp_path, "--camera-only", "--reference", "imu:imu0")
+    assert r.exit_code == 2 and "--camera-only" in r.stderr and not cal.exists(), r.stderr
+    r, cal = _calibrate(out, tmp_path, "--camera-only")
     assert r.exit_code == 0, (r.stdout, r.stderr)
-    assert "not implemented yet" in r.stderr and "camera-only calibration" in r.stderr
+    assert "--camera-only: the IMU data are not used" in r.stderr and "reference is `aligned`" in r.stderr
     calibrated = yaml.safe_load(cal.read_text())
     assert list(calibrated["imus"]) == ["imu0"]
     declared = parse_rig(text)

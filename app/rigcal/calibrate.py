@@ -78,10 +78,12 @@ def _same_file(a: Path, b: Path) -> bool:
 def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
         report_path: Path | None = None, jobs: int | None = None, reference: str | None = None,
         distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False, guided: str = "auto",
-        intrinsics: str = "auto", scheduler: str | None = None, imu_options: dict | None = None):
+        intrinsics: str = "auto", scheduler: str | None = None, imu_options: dict | None = None,
+        camera_only: bool = False):
     """`rigcal calibrate`: check the arguments, read and detect the dataset, calibrate
-    (core.calibrate_views, then calibrate_imu on a motion dataset with an IMU), write the
-    rig (and report) atomically, print warnings and notes; returns the console summary."""
+    (core.calibrate_views, then calibrate_imu on a motion dataset with an IMU unless
+    camera_only), write the rig (and report) atomically, print warnings and notes; returns
+    the console summary."""
     from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
     from .detect import detect_dataset
     from .target import load_target
@@ -101,7 +103,10 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     motion_notes, motion = _motion_notes(dataset, rig, images)
     from .calibrate_imu import plan
 
-    imu_name, reference = plan(rig, dict(motion.imus), reference)
+    imu_name, reference = plan(rig, dict(motion.imus), reference, camera_only)
+    if camera_only and motion.imus:
+        motion_notes.append("--camera-only: the IMU data are not used; the IMU blocks are carried through "
+                            f"unchanged and the reference is `{reference}`")
     cam_reference = "aligned" if reference.startswith("imu:") else reference
     if imu_name is not None:
         motion_notes.append(f"camera-IMU calibration against {imu_name} after the camera-only one; reference "

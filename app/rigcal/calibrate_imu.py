@@ -395,11 +395,17 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
                           tuple(notes))
 
 
-def plan(rig, imus_read: dict, reference: str | None) -> tuple[str | None, str]:
+def plan(rig, imus_read: dict, reference: str | None, camera_only: bool = False) -> tuple[str | None, str]:
     """(the IMU to calibrate against or None, the reference for the camera-only step and
     the output). imu.md: with imu/ and an IMU declared the default reference is
     `imu:<first>`; `imu:NAME` needs a declared IMU with data; `aligned` and `camera:NAME`
-    still calibrate against the first IMU and place it by those cameras."""
+    still calibrate against the first IMU and place it by those cameras. camera_only
+    (`--camera-only`): the IMU data are checked but not used, as for a dataset without imu/."""
+    if camera_only:
+        if reference is not None and reference.startswith("imu:"):
+            raise InputError(f"--reference {reference} needs the camera-IMU calibration that --camera-only skips; "
+                             f"use --reference aligned or camera:NAME")
+        return None, reference or "aligned"
     if reference is not None and reference.startswith("imu:"):
         name = reference.split(":", 1)[1]
         if name not in [i.name for i in rig.imus]:
