@@ -8,17 +8,24 @@ from __future__ import annotations
 
 import os
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from rich.console import Console, Group
 
 from .core import MIN_FRAMES, calibrate_views
+from .errors import CalibrationError, DatasetError, InputError, OutputError, TargetFileError
+from .io import atomic_write_texts, output_target
 from .observations import BoardView
 from .outputs import calibrated_rig, console_summary, warnings_for
-from .errors import CalibrationError, DatasetError, InputError, OutputError, TargetFileError
 from .rig import Rig, dump_rig, load_rig
-from .io import atomic_write_texts, output_target
+
+if TYPE_CHECKING:  # annotations only: detection and the dataset readers load when run() needs them
+    from .dataset import DatasetImages
+    from .detect import DetectionResult
+    from .motion import MotionCheck
+    from .target import Target
 
 
 def _err() -> Console:
@@ -84,12 +91,71 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     (core.calibrate_views, then calibrate_imu on a motion dataset with an IMU unless
     camera_only), write the rig (and report) atomically, print warnings and notes; returns
     the console summary."""
-    from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
-    from .detect import detect_dataset
-    from .target import load_target
-
     t0 = time.perf_counter()
     dataset = Path(dataset)
+    inp = _read_inputs(dataset, out_path, report_path, rig_path, target_path, jobs)
+    imu_name, reference, plan_notes = _imu_plan(inp, reference, camera_only)
+    console = _err()
+    found = _detect_views(inp, jobs, scheduler, allow_resize, fix_intrinsics, console)
+    console.print(f"calibrating {len(found.rig.names)} cameras from {len(found.views)} board views ...")
+    from .guided import guided_cameras, rerefiner
+
+    rerefine = rerefiner(found.images, found.rig, inp.target, jobs=jobs or os.cpu_count() or 1, mode=guided,
+                         scheduler=scheduler)
+    for cam in guided_cameras(found.rig, guided):
+        if cam in found.images.corners:
+            console.print(f"note: {cam}: the guided pass needs images; its corners from "
+                          f"{found.images.corners[cam]} stand")
+    cal = calibrate_views(found.views, found.rig, {b.name: b.corners for b in inp.target.boards},
+                          distortion=distortion, fix_intrinsics=fix_intrinsics,
+                          reference="aligned" if reference.startswith("imu:") else reference, rerefine=rerefine,
+                          intrinsics=intrinsics, faces={b.name: b.print_face for b in inp.target.boards})
+    from .checks import stereo_checks
+
+    pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
+    out_rig = calibrated_rig(cal, pairs, dataset=str(dataset))
+    imu_res = None
+    if imu_name is not None:
+        from .imu_outputs import calibrate_with_imu
+
+        imu_res, out_rig = calibrate_with_imu(cal, out_rig, inp.motion, imu_name, reference, inp.target,
+                                              imu_options or {})
+    timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
+    _write_outputs(out_path, report_path, out_rig, cal, found.det, pairs, timings)
+    imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
+    for w in found.warnings + warnings_for(cal) + imu_warnings:
+        console.print(f"warning: {w}")
+    for n in list(cal.notes) + list(inp.motion_notes) + plan_notes + imu_notes:
+        console.print(f"note: {n}")
+    summary = console_summary(cal, out_rig, found.det, timings, out_path, report_path)
+    if imu_res is None:
+        return summary
+    from .imu_outputs import console_tables
+
+    return Group(summary, *console_tables(out_rig, imu_res))
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """What `rigcal calibrate` reads and checks before detection: the declared rig, the
+    target and its file, the dataset's images (dataset.list_dataset) and the motion check
+    (motion.check_motion_dataset, its IMU samples) with what to tell the user about it."""
+
+    rig: Rig
+    target: Target
+    target_file: Path
+    images: DatasetImages
+    motion: MotionCheck
+    motion_notes: tuple[str, ...]
+
+
+def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_path: Path | None,
+                 target_path: Path | None, jobs: int | None) -> _Inputs:
+    """The arguments checked, then the rig, target, images and IMU files read and checked
+    (one clear error on bad input, before any detection)."""
+    from .dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
+    from .target import load_target
+
     _check_arguments(dataset, out_path, report_path, jobs)
     rig = load_rig(dataset_rig_path(dataset, rig_path))
     target_file = dataset_target_path(dataset, target_path)
@@ -101,64 +167,64 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     images = list_dataset(dataset, rig)
     check_shared_stems(images)
     motion_notes, motion = _motion_notes(dataset, rig, images)
+    return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
+
+
+def _imu_plan(inp: _Inputs, reference: str | None, camera_only: bool) -> tuple[str | None, str, list[str]]:
+    """(the IMU to calibrate against or None, the output reference, notes): calibrate_imu.plan
+    with what it means for the user."""
     from .calibrate_imu import plan
 
-    imu_name, reference = plan(rig, dict(motion.imus), reference, camera_only)
-    if camera_only and motion.imus:
-        motion_notes.append("--camera-only: the IMU data are not used; the IMU blocks are carried through "
-                            f"unchanged and the reference is `{reference}`")
-    cam_reference = "aligned" if reference.startswith("imu:") else reference
+    imu_name, reference = plan(inp.rig, dict(inp.motion.imus), reference, camera_only)
+    notes = []
+    if camera_only and inp.motion.imus:
+        notes.append("--camera-only: the IMU data are not used; the IMU blocks are carried through "
+                     f"unchanged and the reference is `{reference}`")
     if imu_name is not None:
-        motion_notes.append(f"camera-IMU calibration against {imu_name} after the camera-only one; reference "
-                            f"{reference}")
-    console = _err()
-    given, images = _corner_views(images, target, console)
-    det = detect_dataset(images, target, rig=rig, jobs=jobs, progress=True, scheduler=scheduler)
+        notes.append(f"camera-IMU calibration against {imu_name} after the camera-only one; reference {reference}")
+    return imu_name, reference, notes
+
+
+@dataclass(frozen=True)
+class _Detected:
+    """Every board view of the dataset (detected, then those of corners/<camera>.csv), the
+    detection's record, the rig with its image sizes applied (--allow-resize), the images
+    detection read, and warnings for boards never seen."""
+
+    views: list[BoardView]
+    det: DetectionResult
+    rig: Rig
+    images: DatasetImages
+    warnings: list[str]
+
+
+def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_resize: bool, fix_intrinsics: bool,
+                  console: Console) -> _Detected:
+    """Detection over the dataset's images (detect.detect_dataset), plus the cameras given as
+    corner files; refuses cameras with (almost) no board (_check_detections)."""
+    from .detect import detect_dataset
+
+    given, images = _corner_views(inp.images, inp.target, console)
+    det = detect_dataset(images, inp.target, rig=inp.rig, jobs=jobs, progress=True, scheduler=scheduler)
     for path, reason in det.unreadable:
         console.print(f"warning: {path}: skipped ({reason})")
-    rig = _apply_image_sizes(rig, det, allow_resize)
+    rig = _apply_image_sizes(inp.rig, det, allow_resize)
     views = list(det.views) + given
-    unseen = _check_detections(rig, det, views, images, target, target_file, fix_intrinsics)
-    corners = {b.name: b.corners for b in target.boards}
-    console.print(f"calibrating {len(rig.names)} cameras from {len(views)} board views ...")
-    from .guided import guided_cameras, rerefiner
+    unseen = _check_detections(rig, det, views, images, inp.target, inp.target_file, fix_intrinsics)
+    return _Detected(views, det, rig, images, unseen)
 
-    rerefine = rerefiner(images, rig, target, jobs=jobs or os.cpu_count() or 1, mode=guided, scheduler=scheduler)
-    for cam in guided_cameras(rig, guided):
-        if cam in images.corners:
-            console.print(f"note: {cam}: the guided pass needs images; its corners from {images.corners[cam]} stand")
-    cal = calibrate_views(views, rig, corners, distortion=distortion, fix_intrinsics=fix_intrinsics,
-                          reference=cam_reference, rerefine=rerefine, intrinsics=intrinsics,
-                          faces={b.name: b.print_face for b in target.boards})
-    from .checks import stereo_checks
 
-    pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
-    out_rig = calibrated_rig(cal, pairs, dataset=str(dataset))
-    imu_res = None
-    if imu_name is not None:
-        from .imu_outputs import calibrate_with_imu
-
-        imu_res, out_rig = calibrate_with_imu(cal, out_rig, motion, imu_name, reference, target, imu_options or {})
-    timings = dict(cal.timings, detection_s=det.seconds, total_s=time.perf_counter() - t0)
+def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, det, pairs: dict,
+                   timings: dict) -> None:
+    """The calibrated rig YAML and the HTML report (when asked for), written together or not
+    at all."""
     text = dump_rig(out_rig)
     report_html = None
     if report_path is not None:
         from .report import build_report
 
         report_html = build_report(cal, out_rig, det, pairs, timings)
-    # the rig and its report land together or not at all
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
-    imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
-    for w in unseen + warnings_for(cal) + imu_warnings:
-        console.print(f"warning: {w}")
-    for n in list(cal.notes) + motion_notes + imu_notes:
-        console.print(f"note: {n}")
-    summary = console_summary(cal, out_rig, det, timings, out_path, report_path)
-    if imu_res is None:
-        return summary
-    from .imu_outputs import console_tables
-
-    return Group(summary, *console_tables(out_rig, imu_res))
 
 
 def _check_arguments(dataset: Path, out_path: Path, report_path: Path | None, jobs: int | None) -> None:
