@@ -33,12 +33,12 @@ def true_state(cal, truth) -> State | None:
     for stem in cal.frames:
         if stem not in truth.T_world_body:
             return None
-        T_wB = truth.T_world_body[stem]
+        T_world_body = truth.T_world_body[stem]
         if moving:
-            T_wb = truth.board_pose(stem, cal.boards[0])
-            T_body_world.append(geo.inv_T(T_wB) @ T_wb)
+            T_world_board_f = truth.board_pose(stem, cal.boards[0])  # the board moves: it is the world
+            T_body_world.append(geo.inv_T(T_world_body) @ T_world_board_f)
         else:
-            T_body_world.append(geo.inv_T(T_wB))
+            T_body_world.append(geo.inv_T(T_world_body))
     if moving:
         T_world_board = [np.eye(4)]
     else:

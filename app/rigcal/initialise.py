@@ -558,7 +558,7 @@ def _relative_orientations(posed: PosedViews, by_frame: dict, amb: list[int], n_
                 pair_cands[(a, c)].append((T[ka] @ geo.inv_T(T[kc]), T[ka] @ F @ geo.inv_T(T[kc])))
     consensus = {}
     for (a, c), cands in pair_cands.items():
-        allR = [T_ac[:3, :3] for pair in cands for T_ac in pair]
+        allR = [T_a_c[:3, :3] for pair in cands for T_a_c in pair]
         # the true relative rotation is supported by (nearly) every frame; its mirror by few
         scores = [sum(_angle_deg(R, s[:3, :3]) < CHESS_FLIP_DEG or _angle_deg(R, f[:3, :3]) < CHESS_FLIP_DEG
                       for s, f in cands) for R in allR]
