@@ -1,5 +1,5 @@
 """`--intrinsics`: tied and held intrinsics in the bundle adjustment (solve.Intrinsics.basis),
-their covariance, the per-camera choice (core.select_structure), the calibrated YAML's
+their covariance, the per-camera choice (model_selection.select_structure), the calibrated YAML's
 `calibration.intrinsics_model` and the warning for intrinsics the data leave open."""
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""`--distortion auto`: which pinhole model the joint solve keeps (core.keep_k3,
-core.select_rational) on synthetic corners whose true distortion is known."""
+"""`--distortion auto`: which pinhole model the joint solve keeps (model_selection.keep_k3,
+initialise.select_rational) on synthetic corners whose true distortion is known."""
 
 from __future__ import annotations
 
