@@ -241,7 +241,7 @@ def export(
     out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros, kalibr-imu, euroc)"),
 ):
     """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON."""
-    from . import export as exp
+    from . import export_command as exp
 
     out(exp.run(rig, format.value, out_path))
 
@@ -256,7 +256,7 @@ def import_(
     body_from: Optional[str] = typer.Option(None, help="use this camera (e.g. cam0) as the body frame instead"),
 ):
     """Read another tool's calibration into a rig YAML."""
-    from . import export as exp
+    from . import export_command as exp
 
     out(exp.run_import(source, format.value, out_path, rig_path=rig, body_from=body_from))
 
