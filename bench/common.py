@@ -26,7 +26,7 @@ import rigcal
 from rigcal import geometry as geo
 from rigcal.compare import Truth, compare_rigs, load_truth
 from rigcal.body_frame import reference_transform
-from rigcal.core import Calibration, calibrate_views
+from rigcal.pipeline import Calibration, calibrate_views
 from rigcal.observations import BoardView
 from rigcal.rig import Rig
 
@@ -186,7 +186,7 @@ def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, i
 
 def calibrate(views: list[BoardView], rig: Rig, corners: dict, distortion: str = "auto",
               weight_corners: bool = False, rerefine=None) -> Calibration:
-    """core.calibrate_views on detections alone: no guided pass unless `rerefine` (see
+    """pipeline.calibrate_views on detections alone: no guided pass unless `rerefine` (see
     calibrate_dataset, which does what `rigcal calibrate` does)."""
     return calibrate_views(views, rig, corners, distortion=distortion, weight_corners=weight_corners,
                            rerefine=rerefine)

@@ -82,7 +82,7 @@ def load(log=say) -> EurocData | None:
 
 def camera_only(data: EurocData):
     """rigcal's camera-only calibration of the corners: (models by camera, RMS px, seconds)."""
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
 
     b = data.target.boards[0]
     with Timer() as t:

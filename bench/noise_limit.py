@@ -22,7 +22,7 @@ with the bound for its own measured corner noise. The white-noise and restart di
 start from the default calibration; corner weighting and the hetero CRB are about the
 detector's own sigma, so they use the detector's corners.
 
-Corner weighting (rigcal.core.calibrate_views(weight_corners=True): each corner weighted
+Corner weighting (rigcal.pipeline.calibrate_views(weight_corners=True): each corner weighted
 by the detector's own sigma, calibrated per camera on the residuals, rigcal.solve's
 NoiseModel) runs on the same detections as a variant, with its own restart and the
 honesty of its reported sigmas. The 'hetero CRB' is the bound for corners whose noise
@@ -46,7 +46,7 @@ import numpy as np
 from rigcal import geometry as geo
 from rigcal.errors import RigcalError
 from rigcal.bounds import _relative_pose_jacobian, measured_corner_noise, true_state
-from rigcal.core import weighted_solve
+from rigcal.pipeline import weighted_solve
 from rigcal.solve import (Intrinsics, Problem, SolveResult, State, bundle_adjust, camera_covariance, fit_noise_model,
                           noise_weights)
 
@@ -158,8 +158,8 @@ def _relative(T_cam_body: np.ndarray, i: int, j: int) -> np.ndarray:
 
 def restart_from_truth(cal, truth) -> dict | None:
     """Bundle adjustment of the same detected corners started at the true state (the
-    calibrated distortion model, true values; corner weighting as rigcal.core does it,
-    core.weighted_solve): the largest difference from the
+    calibrated distortion model, true values; corner weighting as rigcal.pipeline does it,
+    pipeline.weighted_solve): the largest difference from the
     calibration's own relative poses (deg, mm) says whether the solver stopped short."""
     st = true_state(cal, truth)
     if st is None:

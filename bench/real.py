@@ -39,7 +39,7 @@ import numpy as np
 
 import rigcal
 from rigcal import geometry as geo
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 from rigcal.observations import BoardView
 
 from .common import (CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, folder_hook, md_table, say, view_tuples,

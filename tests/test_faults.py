@@ -34,7 +34,7 @@ from rigcal import geometry as geo
 from rigcal.outputs import warnings_for
 from rigcal.cli import app
 from rigcal.compare import compare_rigs, load_truth
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 from rigcal.observations import BoardView
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset

@@ -151,7 +151,7 @@ def test_guided_cameras_by_mode():
 def fisheye_pair(tmp_path_factory):
     """rigcal's own fisheye-stereo render (8 frames), detected, and calibrated without the pass."""
     from rigcal.compare import load_truth
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.dataset import list_dataset
     from rigcal.detect import detect_dataset
     from rigcal.simulate import simulate_dataset
@@ -173,7 +173,7 @@ def test_guided_pass_on_a_simulated_fisheye_pair_lowers_the_corner_error(fisheye
     the pair's rotation error 2.4x lower. The CLI says which cameras it re-measured;
     --guided off leaves the detector's corners."""
     from rigcal.bounds import measured_corner_noise
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.guided import rerefiner
 
     d, rig, target, truth, images, views, corners, plain = fisheye_pair
@@ -203,9 +203,9 @@ def _spoiled(hook, cams: set[int], sigma_px: float):
 
 
 def test_a_camera_whose_guided_corners_fit_worse_keeps_the_detectors(fisheye_pair):
-    """The guard (core.GUIDED_KEEP_RATIO): guided corners that the solved rig fits worse than
+    """The guard (pipeline.GUIDED_KEEP_RATIO): guided corners that the solved rig fits worse than
     the detector's are not used, per camera; the other camera keeps its guided corners."""
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.guided import rerefiner
 
     _, rig, target, truth, images, views, corners, plain = fisheye_pair

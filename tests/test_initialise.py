@@ -8,7 +8,7 @@ import pytest
 import rigcal
 from rigcal import geometry as geo
 from rigcal.compare import compare_rigs
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 from rigcal.observations import BoardView
 from rigcal.errors import CalibrationError
 from rigcal.pose_graph import hand_eye

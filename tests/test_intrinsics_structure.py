@@ -16,7 +16,7 @@ from rigcal import geometry as geo
 from rigcal.outputs import calibrated_rig, intrinsics_warnings
 from rigcal.cli import app
 from rigcal.compare import compare_rigs
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 from rigcal.model_selection import INTRINSICS_LEVEL, structure_tests
 from rigcal.errors import InputError
 from rigcal.rig import dump_rig, load_rig

@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import chi2
 
 import rigcal
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 from rigcal.model_selection import K3_LEVEL, keep_k3
 from rigcal.synthetic import room_scene, with_noise
 

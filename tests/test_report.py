@@ -17,7 +17,7 @@ import pytest
 
 import rigcal
 from rigcal import checks, geometry as geo, outputs, report
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 
 from synthetic_obs import noisy_room, perturb
 

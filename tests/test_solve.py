@@ -10,7 +10,7 @@ from scipy.optimize import least_squares
 import rigcal
 from rigcal import geometry as geo
 from rigcal.compare import compare_rigs
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 from rigcal.observations import BoardView
 from rigcal.errors import CalibrationError
 from rigcal.solve import Intrinsics, Observations, Problem, State, levenberg_marquardt
@@ -179,7 +179,7 @@ def _heteroscedastic_room(drone, seed, base=0.05, spread=0.8, n_frames=12):
 
 
 def test_corners_are_weighted_by_their_calibrated_sigma_and_the_covariance_stays_honest(drone):
-    """weight_corners: core weights each camera's corners by its NoiseModel fitted on
+    """weight_corners: the pipeline weights each camera's corners by its NoiseModel fitted on
     BoardView.sigma (gamma near 1: this sigma is right); without sigma, or by default,
     everything stays unweighted. Weighted,
     the pair errors come out smaller than unweighted (summed over seeds), and each
@@ -204,11 +204,11 @@ def test_corners_are_weighted_by_their_calibrated_sigma_and_the_covariance_stays
 
 
 def test_weighted_solve_does_not_depend_on_where_the_solve_started(drone):
-    """core.weighted_solve is a function of the unweighted solve's inlier set: from two
+    """pipeline.weighted_solve is a function of the unweighted solve's inlier set: from two
     different starts (the calibration's own and one nudged off it) the same corners and
     the same rig to 1e-9 (an iterated rejection on weighted residuals could settle either
     side of a corner near its threshold)."""
-    from rigcal.core import weighted_solve
+    from rigcal.pipeline import weighted_solve
     from rigcal.solve import bundle_adjust
 
     truth, views, corners = _heteroscedastic_room(drone, 23)

@@ -1,7 +1,7 @@
 """`rigcal calibrate`: dataset folder in, calibrated rig YAML (and optional HTML report) out.
 
 The command: reads and checks the dataset, detects the boards (detect.py), runs the
-calibration pipeline (core.calibrate_views) and writes what outputs.py and report.py make.
+calibration pipeline (pipeline.calibrate_views) and writes what outputs.py and report.py make.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from rich.console import Console, Group
 
-from .core import MIN_FRAMES, calibrate_views
+from .pipeline import MIN_FRAMES, calibrate_views
 from .errors import CalibrationError, DatasetError, InputError, OutputError, TargetFileError
 from .io import atomic_write_texts, output_target
 from .observations import BoardView
@@ -88,7 +88,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         intrinsics: str = "auto", scheduler: str | None = None, imu_options: dict | None = None,
         camera_only: bool = False):
     """`rigcal calibrate`: check the arguments, read and detect the dataset, calibrate
-    (core.calibrate_views, then calibrate_imu on a motion dataset with an IMU unless
+    (pipeline.calibrate_views, then calibrate_imu on a motion dataset with an IMU unless
     camera_only), write the rig (and report) atomically, print warnings and notes; returns
     the console summary."""
     t0 = time.perf_counter()

@@ -125,7 +125,7 @@ def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndar
 
 def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
                  line_delays: dict[str, float]) -> Inputs:
-    """The inlier corners of the camera-only calibration `cal` (rigcal.core.Calibration) on
+    """The inlier corners of the camera-only calibration `cal` (rigcal.pipeline.Calibration) on
     each camera's clock (frames are integer-ns stems), one PnP pose per image (its largest
     board view) for the start, and the IMU."""
     t_base = int(samples.t_ns[0])

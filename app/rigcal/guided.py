@@ -239,7 +239,7 @@ def guided_cameras(rig, mode: str) -> list[str]:
 
 
 def rerefiner(images, rig, target, jobs: int = 1, mode: str = "auto", scheduler: str | None = None):
-    """core.calibrate_views' `rerefine` hook for a dataset (dataset.DatasetImages), or None
+    """pipeline.calibrate_views' `rerefine` hook for a dataset (dataset.DatasetImages), or None
     when `mode` (guided_cameras) selects no camera; on the Dask cluster at `scheduler` if given."""
     chosen = set(guided_cameras(rig, mode))
     if not chosen or any(b.type == "aprilgrid" for b in target.boards):

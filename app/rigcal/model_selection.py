@@ -1,6 +1,6 @@
 """Which camera model the data support: distortion terms and intrinsics structure (a stage of the pipeline).
 
-After the joint solve (core.py), on its covariance: k3 is kept only when a Wald test at
+After the joint solve (pipeline.py), on its covariance: k3 is kept only when a Wald test at
 K3_LEVEL supports it (keep_k3), and with `--intrinsics auto` fx = fy and the principal
 point at its declared value are the model unless the data reject them (structure_tests
 screens by Wald, select_structure confirms by the likelihood ratio of a refit).

@@ -2,7 +2,7 @@
 
 One immutable type for "one board seen by one camera in one frame". The detector
 (detect.py), corner files (corners.py, via calibrate.py), the simulators and the tests
-all make BoardViews; the pipeline (core.py) and its stages read them. A stage that
+all make BoardViews; the pipeline (pipeline.py) and its stages read them. A stage that
 learns something about a view (its pose, a reversed corner order) returns it in its own
 result type instead of editing the view.
 """

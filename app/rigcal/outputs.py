@@ -1,7 +1,7 @@
 """What a calibration hands back: the calibrated rig in rig-yaml.md's schema, warnings, console tables.
 
 Used by `rigcal calibrate` (calibrate.py) and its HTML report (report.py): both read a
-core.Calibration and neither imports the other.
+pipeline.Calibration and neither imports the other.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from rich.console import Group
 from rich.table import Table
 
 from . import __version__
-from .core import Calibration
+from .pipeline import Calibration
 from .rig import Rig, StereoPair
 
 SIGMA_WARN_MM = 2.0

@@ -1,4 +1,4 @@
-"""Start poses of every camera, frame and board: the pose graph (a stage of the pipeline, core.py).
+"""Start poses of every camera, frame and board: the pose graph (a stage of pipeline.py).
 
 Each posed view links its camera, frame and board through
 T_cam_board = T_cam_body T_body_world T_world_board. Starting from one camera and one

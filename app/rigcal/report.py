@@ -25,7 +25,7 @@ from plotly.subplots import make_subplots
 from . import __version__
 from . import geometry as geo
 from .checks import depth_samples as checks_depth_samples
-from .core import Calibration
+from .pipeline import Calibration
 from .outputs import structure_text, warnings_for
 from .rig import Rig
 from .solve import Problem
@@ -194,7 +194,7 @@ def intrinsics_table(cal: Calibration, out_rig: Rig) -> str:
 
 
 def model_choice_html(cal: Calibration, out_rig: Rig) -> str:
-    """Why each camera has its distortion model and intrinsics structure: the tests core.py ran, per camera."""
+    """Why each camera has its distortion model and intrinsics structure: the tests pipeline.py ran, per camera."""
     items = [f"<li>{_e(cam.name)}: {_e(cal.stats[cam.name].distortion_model)}"
              + (f"; intrinsics {_e(structure_text(cal.stats[cam.name].intrinsics_model))}"
                 if cal.stats[cam.name].intrinsics_model else "")

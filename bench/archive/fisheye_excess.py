@@ -7,7 +7,7 @@ guided pass (rigcal.guided), which bench.noise_limit and bench.archive.guided me
 
 Per seed (bench.common's render + detect cache, bench.noise_limit's frame count) the
 detected corners' error e = detected - true projection is split into parts, and the same
-bundle adjustment (rigcal.core.calibrate_views) runs on true projections + each part:
+bundle adjustment (rigcal.pipeline.calibrate_views) runs on true projections + each part:
 
 - full: e itself (must reproduce the detected calibration)
 - radial / tangential: e's component along / across the ray from the principal point

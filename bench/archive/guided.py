@@ -54,7 +54,7 @@ def dataset(scene: str, seed: int) -> Path:
 def run_one(d: Path) -> dict:
     from rigcal.bounds import measured_corner_noise
     from rigcal.compare import load_truth
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.dataset import list_dataset
     from rigcal.detect import detect_dataset
     from rigcal.guided import rerefiner
