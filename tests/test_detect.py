@@ -321,7 +321,7 @@ def test_quadratic_axes_of_a_bent_grid_match_the_grid():
     assert np.allclose(bu, rbu[at], atol=1e-9) and np.allclose(bv, rbv[at], atol=1e-9)
 
 
-def _fisheye_view(model, rays, tex, board: Board, off_deg: float, az: float, tilt_deg: float, dist: float):
+def fisheye_view(model, rays, tex, board: Board, off_deg: float, az: float, tilt_deg: float, dist: float):
     """R, t of a board whose centre lies off_deg from a fisheye's axis at azimuth az,
     turned tilt_deg away from facing the camera."""
     d = np.array([math.sin(math.radians(off_deg)) * math.cos(az), math.sin(math.radians(off_deg)) * math.sin(az),
@@ -360,7 +360,7 @@ def test_corners_missing_a_neighbour_are_refined_as_well_through_a_fisheye():
     errs, lone, predicted = [], [], []
     for off, tilt, dist in ((60.0, 20.0, 0.3), (45.0, 30.0, 0.25)):
         for k in range(4):
-            R, t = _fisheye_view(model, rays, tex, CHARUCO, off, k * math.pi / 2 + 0.4, tilt, dist)
+            R, t = fisheye_view(model, rays, tex, CHARUCO, off, k * math.pi / 2 + 0.4, tilt, dist)
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R, t
             fg, alpha = render.render_boards(model, rays, [T], [tex], [(40.0, 200.0)])

@@ -18,7 +18,7 @@ from rigcal.corner_refine import refine_corners, symmetric_half_width
 from rigcal.guided import BoardCorners, ImageTask, cross_samples, guided_cameras, guided_uv, refine_image
 from rigcal.solve import Intrinsics, Observations, State
 from rigcal.target import Board, Target
-from test_detect import _fisheye_view
+from test_detect import fisheye_view
 
 CHARUCO = Board("front", "charuco", 0.04, (10, 7), "DICT_5X5_1000", 0.03)
 RIGS = Path(__file__).resolve().parents[1] / "rigs"
@@ -32,8 +32,8 @@ def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _facing(board: Board, off_deg: float, az: float, tilt_deg: float, dist: float) -> np.ndarray:
-    """T_cam_board of test_detect's oblique fisheye view (_fisheye_view)."""
-    return _pose(*_fisheye_view(None, None, None, board, off_deg, az, tilt_deg, dist))
+    """T_cam_board of test_detect's oblique fisheye view (fisheye_view)."""
+    return _pose(*fisheye_view(None, None, None, board, off_deg, az, tilt_deg, dist))
 
 
 def _render(model: CameraModel, T: np.ndarray, rng: np.random.Generator, rays=None) -> np.ndarray:

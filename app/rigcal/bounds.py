@@ -64,7 +64,7 @@ def pair_bounds(cal, truth, sigma_px: float) -> dict[tuple[str, str], dict]:
     out = {}
     for i in range(C):
         for j in range(i + 1, C):
-            G = _relative_pose_jacobian(st.T_cam_body, i, j, free)
+            G = relative_pose_jacobian(st.T_cam_body, i, j, free)
             S = G @ Ce @ G.T
             out[(cal.cam_names[i], cal.cam_names[j])] = {
                 "rot_deg": float(np.degrees(np.sqrt(np.trace(S[:3, :3])))),
@@ -73,7 +73,7 @@ def pair_bounds(cal, truth, sigma_px: float) -> dict[tuple[str, str], dict]:
     return out
 
 
-def _relative_pose_jacobian(T_cam_body: np.ndarray, i: int, j: int, free: list[int]) -> np.ndarray:
+def relative_pose_jacobian(T_cam_body: np.ndarray, i: int, j: int, free: list[int]) -> np.ndarray:
     """d [rotation error (rad), translation (m)] of T_i_j = T_cam_body_i inv(T_cam_body_j)
     with respect to each free camera's [delta, t] (central differences)."""
     def rel(T):

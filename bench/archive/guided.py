@@ -29,7 +29,7 @@ import numpy as np
 import rigcal
 
 from bench.common import OUT, ROOT, get_dataset, md_table, say, scenario, write_json
-from bench.noise_limit import _pair_stats
+from bench.noise_limit import pair_stats
 
 SCENES = ("fisheye-indie", "pinhole-indie", "stereo-forward", "fisheye-rigcal")
 FRAMES = 20
@@ -71,7 +71,7 @@ def run_one(d: Path) -> dict:
         t0 = time.perf_counter()
         cal = calibrate_views(views, rig, corners, rerefine=hook)
         sigma = measured_corner_noise(cal, truth)
-        out[name] = {"corner_rms_px": sigma, "pairs": _pair_stats(cal, truth, sigma),
+        out[name] = {"corner_rms_px": sigma, "pairs": pair_stats(cal, truth, sigma),
                      "calibrate_s": time.perf_counter() - t0, "guided_s": cal.timings.get("guided_s")}
     return out
 
