@@ -456,6 +456,18 @@ def match_declared(cams: list[KalibrCamera], declared: Rig) -> tuple[list[str], 
     return names, "by order (camN = the declared rig's N-th camera)"
 
 
+def _camera_entry(m: CameraModel, T_body_cam: np.ndarray) -> dict[str, Any]:
+    """One camera of the rig schema (rig-yaml.md) from imported intrinsics and pose."""
+    return {
+        "model": m.model, "resolution": [m.width, m.height],
+        "intrinsics": {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy},
+        "distortion": list(m.dist),
+        "position": [_plain_float(x) for x in T_body_cam[:3, 3]],
+        "rotation": _rows(T_body_cam[:3, :3]),
+        "quaternion": [_plain_float(x) for x in geo.quat_from_R(T_body_cam[:3, :3])],
+    }
+
+
 def rig_from_camchain(cams: list[KalibrCamera], source: str, declared: Rig | None = None,
                       declared_label: str = "", body_from: str | None = None) -> tuple[Rig, list[str], list[str]]:
     """Kalibr cameras -> (rig, notes for stdout, warnings for stderr).
@@ -497,18 +509,7 @@ def rig_from_camchain(cams: list[KalibrCamera], source: str, declared: Rig | Non
         notes.append("no stereo pairs (a camchain does not name them): add them under stereo_pairs, or import with --rig")
     if any(c.has_imu for c in cams):
         notes.append("T_cam_imu and the other IMU keys were not imported (a rig file has no IMU)")
-    cameras = {}
-    for c, n in zip(cams, names):
-        T = T_body_cam0 @ c.T_cam0_cam
-        m = c.intrinsics
-        cameras[n] = {
-            "model": m.model, "resolution": [m.width, m.height],
-            "intrinsics": {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy},
-            "distortion": list(m.dist),
-            "position": [_plain_float(x) for x in T[:3, 3]],
-            "rotation": _rows(T[:3, :3]),
-            "quaternion": [_plain_float(x) for x in geo.quat_from_R(T[:3, :3])],
-        }
+    cameras = {n: _camera_entry(c.intrinsics, T_body_cam0 @ c.T_cam0_cam) for c, n in zip(cams, names)}
     if declared is not None:
         cameras = {n: cameras[n] for n in declared.names}  # declared order
         warnings += _compare_declared(declared, cameras, declared_label)
