@@ -57,6 +57,8 @@ class BoardCorners:
 
 @dataclass(frozen=True)
 class ImageTask:
+    """One image for the guided pass: its file, the calibrated camera model and the boards it shows."""
+
     path: str
     model: CameraModel
     boards: tuple[BoardCorners, ...]

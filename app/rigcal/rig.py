@@ -122,6 +122,9 @@ class Projection:
 
 @dataclass(frozen=True)
 class StereoPair:
+    """Two cameras declared as a stereo pair, with the calibration's baseline and depth checks
+    (checks.py) when the file holds them."""
+
     left: str
     right: str
     baseline_m: float | None = None
@@ -131,6 +134,9 @@ class StereoPair:
 
 @dataclass(frozen=True, eq=False)
 class Rig:
+    """The rig: its cameras (T_body_cam, intrinsics), IMUs, stereo pairs, body frame and the
+    calibration block of a calibrated file (rig-yaml.md). load_rig / dump_rig read and write it."""
+
     name: str
     cameras: tuple[Camera, ...]
     stereo_pairs: tuple[StereoPair, ...] = ()

@@ -432,6 +432,9 @@ def plan_room_scene(rig: Rig, target: Target, n_frames: int, rng: np.random.Gene
 
 @dataclass(frozen=True)
 class CameraCoverage:
+    """How well one camera saw the simulated boards: frames with a board, views per board, and
+    the share of image cells that received corners."""
+
     frames_with_board: int  # frames in which the camera sees at least one board
     frames: int
     board_views: Mapping[str, int]  # board -> frames in which the camera sees it
@@ -461,6 +464,9 @@ def coverage(rig: Rig, scene: Scene) -> dict[str, CameraCoverage]:
 
 @dataclass(frozen=True)
 class RenderSettings:
+    """How images are rendered: the seed, pixel noise (grey levels), blur (px), supersampling
+    and the optics blur sigma (px)."""
+
     seed: int
     noise: float
     blur: float
@@ -564,6 +570,9 @@ def truth_dict(true_rig: Rig, scene: Scene, settings: RenderSettings, perturbati
 
 @dataclass(frozen=True)
 class SimResult:
+    """What `rigcal simulate` wrote: the dataset folder, its frames, the declared and true rigs,
+    the target, the scene poses, the image paths and per camera its coverage."""
+
     out_dir: Path
     scene: str
     frames: tuple[str, ...]

@@ -581,6 +581,9 @@ def _projection_jacobians_one(pc: np.ndarray, v: np.ndarray, model: str) -> tupl
 
 @dataclass
 class SolveResult:
+    """bundle_adjust's answer: the solved state, the problem linearised there, which
+    observations were kept, their residuals and sigma, and how the iterations went."""
+
     state: State
     problem: Problem  # linearised at the solution (reference = solution), inliers only
     inliers: np.ndarray  # (M_all,) bool over the observations given to bundle_adjust()

@@ -217,6 +217,8 @@ class Board:
 
 @dataclass(frozen=True)
 class Target:
+    """The calibration target: its boards (target.yaml, one or several)."""
+
     boards: tuple[Board, ...]
 
     def board(self, name: str) -> Board:

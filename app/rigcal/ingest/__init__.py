@@ -49,6 +49,9 @@ class IngestOptions:
 
 @dataclass(frozen=True)
 class IngestResult:
+    """What `rigcal ingest` wrote: the dataset folder, the source kind, per camera and IMU the
+    counts read, written and skipped, where rig.yaml and target.yaml came from, and warnings."""
+
     out_dir: Path
     kind: str
     cameras: dict[str, CameraCounts]

@@ -57,6 +57,8 @@ def open_bag(source: Path):
 
 @dataclass(frozen=True)
 class TopicInfo:
+    """One image or IMU topic of a bag: its message type, message count and mean rate (Hz)."""
+
     topic: str
     msgtype: str
     count: int
