@@ -25,7 +25,9 @@ import numpy as np
 import rigcal
 from rigcal import geometry as geo
 from rigcal.compare import Truth, compare_rigs, load_truth
-from rigcal.core import Calibration, ViewIn, calibrate_views, reference_transform
+from rigcal.body_frame import reference_transform
+from rigcal.pipeline import Calibration, calibrate_views
+from rigcal.observations import BoardView
 from rigcal.rig import Rig
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -86,7 +88,7 @@ class Dataset:
     rig: Rig  # declared
     truth: Truth
     corners: dict[str, np.ndarray]  # board name -> (N, 3)
-    views: list[ViewIn]
+    views: list[BoardView]
     n_images: int
     sim_s: float  # wall seconds to render (when it was made)
     det_s: float  # wall seconds to detect (when it was made)
@@ -164,7 +166,7 @@ def get_dataset(scn: Scenario, seed: int, keep_images: bool | None = None, log=N
 
 
 def view_tuples(views) -> list[tuple]:
-    """detect.View -> the cache's plain tuples (CACHE_FORMAT 2)."""
+    """BoardView -> the cache's plain tuples (CACHE_FORMAT 2)."""
     return [(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), bool(v.ambiguous),
              None if v.sigma is None else np.asarray(v.sigma, float)) for v in views]
 
@@ -174,7 +176,7 @@ def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, i
 
     rig = rigcal.load_rig(d / "rig.yaml")
     target = load_target(d / "target.yaml")
-    views = [ViewIn(*v) for v in meta["views"]]
+    views = [BoardView(*v) for v in meta["views"]]
     return Dataset(scn, seed, d, rig, load_truth(d / "truth.yaml"), {b.name: b.corners for b in target.boards},
                    views, meta["n_images"], meta["sim_s"], meta["det_s"], cached, images_kept)
 
@@ -182,9 +184,9 @@ def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, i
 # ----------------------------------------------------------------------------- calibration + errors
 
 
-def calibrate(views: list[ViewIn], rig: Rig, corners: dict, distortion: str = "auto",
+def calibrate(views: list[BoardView], rig: Rig, corners: dict, distortion: str = "auto",
               weight_corners: bool = False, rerefine=None) -> Calibration:
-    """core.calibrate_views on detections alone: no guided pass unless `rerefine` (see
+    """pipeline.calibrate_views on detections alone: no guided pass unless `rerefine` (see
     calibrate_dataset, which does what `rigcal calibrate` does)."""
     return calibrate_views(views, rig, corners, distortion=distortion, weight_corners=weight_corners,
                            rerefine=rerefine)
@@ -223,7 +225,7 @@ def calibrate_dataset(ds: Dataset, distortion: str = "auto", guided: str = "auto
 def truth_in_output_frame(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:
     """The true T_body_cam of every camera re-expressed in the frame the calibration
     reports in: the true rig aligned to the DECLARED rig by the same rule
-    (core.reference_transform), not truth.yaml's own body frame."""
+    (body_frame.reference_transform), not truth.yaml's own body frame."""
     T_true = np.array([truth_rig.camera(n).T_body_cam for n in cal.cam_names])
     T_out_true = reference_transform(T_true, cal.declared, cal.reference)
     return {n: T_out_true @ T for n, T in zip(cal.cam_names, T_true)}
@@ -232,7 +234,7 @@ def truth_in_output_frame(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndar
 def pose_errors_body(cal: Calibration, truth_rig: Rig) -> dict[str, np.ndarray]:
     """Per camera 6-vector [rotation error about body F, L, U (deg), position error along
     F, L, U (mm)], calibrated minus truth, both in the output body frame; the same
-    parameterisation as the solver's covariance (core._pose_error_vector)."""
+    parameterisation as the solver's covariance (body_frame._pose_error_vector)."""
     ref = truth_in_output_frame(cal, truth_rig)
     out = {}
     for c in cal.rig.cameras:
@@ -293,7 +295,7 @@ def true_projections(cal: Calibration, truth: Truth) -> np.ndarray | None:
 
 
 def gaussian_views(cal: Calibration, uv_true: np.ndarray, corners: dict, sigma: float,
-                   rng: np.random.Generator) -> list[ViewIn]:
+                   rng: np.random.Generator) -> list[BoardView]:
     """The calibration's views with the detected corners replaced by their true
     projections plus isotropic Gaussian noise of `sigma` px (ids recovered by matching
     board points, so the views are the same corners the detector found)."""
@@ -307,7 +309,7 @@ def gaussian_views(cal: Calibration, uv_true: np.ndarray, corners: dict, sigma: 
         # row of the board's corner table for each observation's board point
         d = np.linalg.norm(P[None, :, :] - o.p_board[m][:, None, :], axis=2)
         ids = np.argmin(d, axis=1)
-        out.append(ViewIn(cal.cam_names[int(o.cam[m[0]])], cal.frames[int(o.frame[m[0]])], board, ids, uv[m]))
+        out.append(BoardView(cal.cam_names[int(o.cam[m[0]])], cal.frames[int(o.frame[m[0]])], board, ids, uv[m]))
     return out
 
 

@@ -38,7 +38,7 @@ import rigcal
 from rigcal import geometry as geo
 from rigcal.io import atomic_write_texts
 from rigcal.synthetic import board_view, with_noise
-from rigcal.core import ViewIn
+from rigcal.observations import BoardView
 from rigcal.target import parse_target
 
 from .common import CACHE, OUT, Timer, md_table, perturbed_truth, rig_errors, run_sizes, say, sizes_main
@@ -110,7 +110,7 @@ def printed_side(T_cam_board: np.ndarray) -> bool:
     return bool(geo.inv_T(T_cam_board)[2, 3] < 0)
 
 
-def dome_views(truth: rigcal.Rig, p_board: np.ndarray, frames: int, rng: np.random.Generator) -> list[ViewIn]:
+def dome_views(truth: rigcal.Rig, p_board: np.ndarray, frames: int, rng: np.random.Generator) -> list[BoardView]:
     """Noise-free views of the box's boards through the true dome in `frames` box poses."""
     boards = box_boards(p_board)
     T_cam_body = {c.name: geo.inv_T(c.T_body_cam) for c in truth.cameras}
@@ -124,11 +124,11 @@ def dome_views(truth: rigcal.Rig, p_board: np.ndarray, frames: int, rng: np.rand
                     continue
                 seen = board_view(cam, T_cam_board, p_board, MIN_CORNERS)
                 if seen is not None:
-                    views.append(ViewIn(cam.name, f"{f:06d}", name, *seen))
+                    views.append(BoardView(cam.name, f"{f:06d}", name, *seen))
     return views
 
 
-def corners_csv(views: list[ViewIn]) -> str:
+def corners_csv(views: list[BoardView]) -> str:
     """One camera's views as corners/<camera>.csv text (dataset.md)."""
     lines = ["#frame,board,corner_id,x_px,y_px"]
     for v in views:
@@ -148,7 +148,7 @@ def make_dataset(frames: int, n_cameras: int = N_CAMERAS, root: Path = CACHE, lo
     p_board = parse_target(TARGET_YAML).boards[0].corners
     views = with_noise(dome_views(truth, p_board, frames, np.random.default_rng([frames, 21])), SIGMA_PX,
                        np.random.default_rng([frames, 22]))
-    by_cam: dict[str, list[ViewIn]] = {c.name: [] for c in truth.cameras}
+    by_cam: dict[str, list[BoardView]] = {c.name: [] for c in truth.cameras}
     for v in views:
         by_cam[v.camera].append(v)
     (d / "corners").mkdir(parents=True, exist_ok=True)

@@ -44,7 +44,7 @@ class EurocData:
     board_corners: np.ndarray
     imu: ic.ImuInput
     reference: dict
-    views: list  # core.ViewIn for the camera-only calibration
+    views: list  # BoardViews for the camera-only calibration
     rig: object
     target: object
     read_s: float
@@ -54,7 +54,7 @@ def load(log=say) -> EurocData | None:
     import yaml
 
     import rigcal
-    from rigcal.core import ViewIn
+    from rigcal.observations import BoardView
     from rigcal.corners import read_corners
     from rigcal.motion import read_imu_csv
     from rigcal.target import load_target
@@ -72,7 +72,7 @@ def load(log=say) -> EurocData | None:
         for cam in CAMERAS:
             rows = read_corners(d / "corners" / f"{cam}.csv", target)
             frames[cam] = [((int(f) - t_base) * 1e-9, ids, uv) for f, _, ids, uv in rows]
-            views += [ViewIn(cam, f, b, ids, uv) for f, b, ids, uv in rows]
+            views += [BoardView(cam, f, b, ids, uv) for f, b, ids, uv in rows]
         n = ref["imu0"]
         imu = ic.ImuInput((samples.t_ns - t_base) * 1e-9, samples.gyro, samples.accel, float(n["rate_hz"]),
                           n["gyroscope_noise_density"], n["gyroscope_random_walk"],
@@ -82,7 +82,7 @@ def load(log=say) -> EurocData | None:
 
 def camera_only(data: EurocData):
     """rigcal's camera-only calibration of the corners: (models by camera, RMS px, seconds)."""
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
 
     b = data.target.boards[0]
     with Timer() as t:

@@ -59,12 +59,11 @@ import numpy as np
 import rigcal
 from rigcal.bounds import measured_corner_noise
 from rigcal.compare import load_truth
-from rigcal.core import ViewIn
 from rigcal.errors import RigcalError
 
-from .common import (OUT, Timer, calibrate, gaussian_views, md_table, run_pool, say, true_projections, view_tuples,
+from .common import (OUT, Timer, calibrate, gaussian_views, md_table, run_pool, say, true_projections,
                      write_json)
-from .noise_limit import _pair_stats, _ratio, view_offsets
+from .noise_limit import error_to_bound, pair_stats, view_offsets
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 import indie_render as ir  # noqa: E402
@@ -107,7 +106,7 @@ def render_indie_scene_with_rigcal(scene, out: Path, seed: int) -> None:
     board-scene rendering with simulate_dataset's defaults: noise 2, no blur) instead of
     rigcal's planner: the scene's truth.yaml is read back as rigcal's truth and its poses
     become a simulate.Scene. rig.yaml, target.yaml and truth.yaml are indie_render's."""
-    from rigcal.simulate import RenderSettings, Scene, _render_all
+    from rigcal.simulate import RenderSettings, Scene, render_all
     from rigcal.target import load_target
 
     out.mkdir(parents=True)
@@ -121,7 +120,7 @@ def render_indie_scene_with_rigcal(scene, out: Path, seed: int) -> None:
                  T_world_body=np.stack([truth.T_world_body[s] for s in stems]),
                  T_world_board=np.stack([[truth.board_pose(s, b.name) for b in target.boards] for s in stems]),
                  moving_boards=True)
-    _render_all(truth.rig, plan, RenderSettings(seed=seed, noise=2.0, blur=0.0), out, jobs=1, progress=False)
+    render_all(truth.rig, plan, RenderSettings(seed=seed, noise=2.0, blur=0.0), out, jobs=1, progress=False)
 
 
 def _rigcal_dataset(seed: int) -> None:
@@ -155,7 +154,7 @@ def render_and_detect(kind: str, seed: int, S: int) -> tuple:
     target = load_target(d / "target.yaml")
     with Timer() as td:
         det = detect_dataset(list_dataset(d, rig), target, rig=rig, jobs=1, progress=False)
-    views = [ViewIn(*v) for v in view_tuples(det.views)]
+    views = list(det.views)
     truth = load_truth(d / "truth.yaml")
     shutil.rmtree(d, ignore_errors=True)
     return rig, truth, {b.name: b.corners for b in target.boards}, views, tr.wall, td.wall
@@ -206,7 +205,7 @@ def _run_seed(kind: str, seed: int, S: int) -> dict:
     return {"scene": kind, "seed": seed, "sigma_px": sigma, "render_s": render_s, "detect_s": detect_s,
             "calibration_s": tc.wall, "models": [cal.stats[n].distortion_model for n in cal.cam_names],
             "corners_used": len(cal.obs), "corners_detected": int(sum(len(v.ids) for v in views)),
-            "auto": _pair_stats(cal, truth, sigma), "gauss": _pair_stats(gcal, truth, sigma),
+            "auto": pair_stats(cal, truth, sigma), "gauss": pair_stats(gcal, truth, sigma),
             **view_offsets(cal, uv_true, sigma), **periphery(cal, truth)}
 
 
@@ -251,7 +250,7 @@ def summarise(runs: list[dict]) -> dict:
                      "view_offset_rms_px": float(np.sqrt(np.mean([r["view_offset_rms_px"] ** 2 for r in rs]))),
                      "white_expectation_px": float(np.sqrt(np.mean([r["white_expectation_px"] ** 2 for r in rs]))),
                      **{k: float(np.mean([r[k] for r in rs])) for k in ("share_theta_d_gt_1.0", "share_theta_d_gt_1.4")},
-                     **{v: {q: _ratio(rs, v, q) for q in ("rot_deg", "trans_mm")} for v in ("auto", "gauss")},
+                     **{v: {q: error_to_bound(rs, v, q) for q in ("rot_deg", "trans_mm")} for v in ("auto", "gauss")},
                      "spread": {q: per_seed_spread(rs, q) for q in ("rot_deg", "trans_mm")}}
     return out
 

@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 
 from rigcal import geometry as geo
-from rigcal.core import calibrate_views
+from rigcal.pipeline import calibrate_views
 
 from .common import md_table, say, write_json
 from .real import caliscope_centre_rig, caliscope_intrinsics_rig, caliscope_reference, detections, linked

@@ -7,7 +7,7 @@ true errors inside the predicted +-2 sigma should be about 95 % (goal 90-98 %) f
 extrinsic parameter, and RMS(error / sigma) about 1.
 
 Frame: the calibrated rig is expressed in the body frame fitted to the DECLARED rig
-(core.reference_transform, --reference aligned), so each calibrated pose is compared
+(body_frame.reference_transform, --reference aligned), so each calibrated pose is compared
 with the TRUE rig re-expressed by the same rule, not with truth.yaml's own body frame.
 
 Two sources:

@@ -22,7 +22,7 @@ with the bound for its own measured corner noise. The white-noise and restart di
 start from the default calibration; corner weighting and the hetero CRB are about the
 detector's own sigma, so they use the detector's corners.
 
-Corner weighting (rigcal.core.calibrate_views(weight_corners=True): each corner weighted
+Corner weighting (rigcal.pipeline.calibrate_views(weight_corners=True): each corner weighted
 by the detector's own sigma, calibrated per camera on the residuals, rigcal.solve's
 NoiseModel) runs on the same detections as a variant, with its own restart and the
 honesty of its reported sigmas. The 'hetero CRB' is the bound for corners whose noise
@@ -45,8 +45,8 @@ import numpy as np
 
 from rigcal import geometry as geo
 from rigcal.errors import RigcalError
-from rigcal.bounds import _relative_pose_jacobian, measured_corner_noise, true_state
-from rigcal.core import weighted_solve
+from rigcal.bounds import relative_pose_jacobian, measured_corner_noise, true_state
+from rigcal.pipeline import weighted_solve
 from rigcal.solve import (Intrinsics, Problem, SolveResult, State, bundle_adjust, camera_covariance, fit_noise_model,
                           noise_weights)
 
@@ -57,7 +57,7 @@ FRAMES = {"drone-stereo-back": 30, "stereo-forward": 20, "surround-6": 30, "fish
 AXES = ("F", "L", "U")
 
 
-def _pair_stats(cal, truth, sigma: float) -> dict:
+def pair_stats(cal, truth, sigma: float) -> dict:
     b, _ = crb_pairs(cal, truth, sigma)
     e = rig_errors(cal.rig, truth.rig)["pairs"]
     out = {}
@@ -99,7 +99,7 @@ def hetero_pair_bounds(cal, truth, weights: np.ndarray) -> dict:
     out = {}
     for i in range(len(cal.cam_names)):
         for j in range(i + 1, len(cal.cam_names)):
-            G = _relative_pose_jacobian(st.T_cam_body, i, j, free)
+            G = relative_pose_jacobian(st.T_cam_body, i, j, free)
             S = G @ cov[np.ix_(idx, idx)] @ G.T
             out[f"{cal.cam_names[i]}/{cal.cam_names[j]}"] = {
                 "rot_deg": float(np.degrees(np.sqrt(np.trace(S[:3, :3])))),
@@ -158,8 +158,8 @@ def _relative(T_cam_body: np.ndarray, i: int, j: int) -> np.ndarray:
 
 def restart_from_truth(cal, truth) -> dict | None:
     """Bundle adjustment of the same detected corners started at the true state (the
-    calibrated distortion model, true values; corner weighting as rigcal.core does it,
-    core.weighted_solve): the largest difference from the
+    calibrated distortion model, true values; corner weighting as rigcal.pipeline does it,
+    pipeline.weighted_solve): the largest difference from the
     calibration's own relative poses (deg, mm) says whether the solver stopped short."""
     st = true_state(cal, truth)
     if st is None:
@@ -219,31 +219,31 @@ def _run_seed(name: str, frames: int, seed: int, diagnostics: bool) -> dict:
         sigma_det, uv_true_det = measured_corner_noise(dcal, ds.truth), true_projections(dcal, ds.truth)
     out = {"scenario": name, "seed": seed, "frames": frames, "sigma_px": sigma, "calibration_s": t.wall,
            "models": [cal.stats[n].distortion_model for n in cal.cam_names],
-           "auto": _pair_stats(cal, ds.truth, sigma), "coverage": _coverage_samples(cal, ds.truth.rig),
+           "auto": pair_stats(cal, ds.truth, sigma), "coverage": _coverage_samples(cal, ds.truth.rig),
            "scale_ppm": rig_scale_ppm(cal, ds.truth.rig),
            "sigma_reported": all(st.sigma_position_mm is not None for st in cal.stats.values()),
            "corners_used": len(cal.obs), "corners_detected": int(sum(len(v.ids) for v in ds.views)),
            **view_offsets(cal, uv_true, sigma)}
     out["guided"] = guided
     out["sigma_px_detector"] = sigma_det
-    out["detector"] = _pair_stats(dcal, ds.truth, sigma_det)
+    out["detector"] = pair_stats(dcal, ds.truth, sigma_det)
     out["detector_coverage"] = _coverage_samples(dcal, ds.truth.rig)
     # weighting by the detector's sigma is about the detector's corners: hetero CRB and the
     # weighted variant both on them (the guided pass has no such sigma to weight by)
     out["hetero"] = _hetero_stats(dcal, ds.truth, uv_true_det, out["detector"])
     wcal = calibrate(ds.views, ds.rig, ds.corners, weight_corners=True)
     out["weighted_used"] = wcal.obs.weight is not None
-    out["weighted"] = _pair_stats(wcal, ds.truth, sigma_det)
+    out["weighted"] = pair_stats(wcal, ds.truth, sigma_det)
     out["weighted_coverage"] = _coverage_samples(wcal, ds.truth.rig)
     rng = np.random.default_rng([seed, 7])
     gcal = calibrate(gaussian_views(cal, uv_true, ds.corners, sigma, rng), ds.rig, ds.corners)
-    out["gauss"] = _pair_stats(gcal, ds.truth, sigma)
+    out["gauss"] = pair_stats(gcal, ds.truth, sigma)
     out["gauss_coverage"] = _coverage_samples(gcal, ds.truth.rig)
     out["gauss_scale_ppm"] = rig_scale_ppm(gcal, ds.truth.rig)
     if diagnostics:
         model = truth_model(ds.truth.rig)
         if model != "auto":
-            out["truth_model"] = _pair_stats(calibrate_dataset(ds, model), ds.truth, sigma)
+            out["truth_model"] = pair_stats(calibrate_dataset(ds, model), ds.truth, sigma)
             out["truth_model_name"] = model
         out["restart"] = restart_from_truth(cal, ds.truth)
         out["restart_weighted"] = restart_from_truth(wcal, ds.truth)
@@ -261,7 +261,7 @@ def run(names: list[str] | None = None, seeds: int = 10, diag_seeds: int = 3, fr
     return {"runs": runs, "summary": summarise(runs), "seconds": t.wall, "frames": frames, "seeds": seeds}
 
 
-def _ratio(runs: list[dict], variant: str, key: str) -> dict:
+def error_to_bound(runs: list[dict], variant: str, key: str) -> dict:
     """{pair: (rms err, rms bound, ratio, n)} over the runs that have the variant."""
     acc: dict[str, list] = {}
     for r in runs:
@@ -284,7 +284,7 @@ def summarise(runs: list[dict]) -> dict:
     for name, rs in by.items():
         s = {}
         for variant in ("auto", "detector", "gauss", "truth_model", "hetero", "weighted"):
-            s[variant] = {q: _ratio(rs, variant, q) for q in ("rot_deg", "trans_mm")}
+            s[variant] = {q: error_to_bound(rs, variant, q) for q in ("rot_deg", "trans_mm")}
         restarts = [r["restart"] for r in rs if r.get("restart")]
         s["restart_max_rot_diff_deg"] = max((x["max_rot_diff_deg"] for x in restarts), default=None)
         s["restart_max_trans_diff_mm"] = max((x["max_trans_diff_mm"] for x in restarts), default=None)

@@ -39,7 +39,8 @@ import numpy as np
 
 import rigcal
 from rigcal import geometry as geo
-from rigcal.core import ViewIn, calibrate_views
+from rigcal.pipeline import calibrate_views
+from rigcal.observations import BoardView
 
 from .common import (CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, folder_hook, md_table, say, view_tuples,
                      write_json)
@@ -77,7 +78,7 @@ def detections(dataset: Path, tag: str, log=say):
         with open(tmp, "wb") as f:
             pickle.dump(meta, f)
         os.replace(tmp, cache)
-    return rig, corners, [ViewIn(*v) for v in meta["views"]], meta["n_images"], meta["det_s"]
+    return rig, corners, [BoardView(*v) for v in meta["views"]], meta["n_images"], meta["det_s"]
 
 
 def calibrate_set(dataset: Path, rig, corners: dict, views: list, distortion: str = "auto"):
@@ -245,7 +246,8 @@ def centre_lr(rig, corners: dict, views: list, ref_rig) -> dict:
     likelihood ratio (chi-square, 2 degrees of freedom; 18.4 at rigcal's level 1e-4) of a
     one-camera bundle adjustment (radtan4) with cx, cy held at caliscope's values against
     cx, cy free, on the same corners."""
-    from rigcal.core import one_camera_solve, refit, with_structure
+    from rigcal.initialise import one_camera_solve
+    from rigcal.model_selection import refit, with_structure
     from rigcal.solve import Intrinsics
 
     out = {}
@@ -287,7 +289,7 @@ def euroc(log=say) -> dict | None:
     rig = rigcal.load_rig(d / "rig.yaml")
     target = load_target(d / "target.yaml")
     with Timer() as tr:
-        views = [ViewIn(cam, f, b, ids, uv) for cam in rig.names
+        views = [BoardView(cam, f, b, ids, uv) for cam in rig.names
                  for f, b, ids, uv in read_corners(d / "corners" / f"{cam}.csv", target)]
     with Timer() as t:
         cal = calibrate_views(views, rig, {b.name: b.corners for b in target.boards},

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from rigcal import geometry as geo
-from rigcal.core import ViewIn
+from rigcal.observations import BoardView
 from rigcal.rig import Camera, Rig
 from rigcal.synthetic import room_scene, with_noise
 
@@ -33,7 +33,7 @@ def perturb(rig: Rig, rng, mm=5.0, deg=1.0, focal=0.02, pp=5.0, dist=True) -> Ri
     return rig.with_cameras(cams)
 
 
-def noisy_room(truth: Rig, rng, noise_px: float, **scene) -> tuple[list[ViewIn], dict[str, np.ndarray]]:
+def noisy_room(truth: Rig, rng, noise_px: float, **scene) -> tuple[list[BoardView], dict[str, np.ndarray]]:
     """(views, corners by board) of rigcal.synthetic.room_scene(truth, rng, **scene) with
     noise_px Gaussian pixel noise drawn from the same rng after the scene."""
     sc = room_scene(truth, rng, **scene)

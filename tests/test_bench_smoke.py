@@ -83,7 +83,7 @@ def test_micro_scenario_calibrates_near_the_bound(micro):
     assert est["trans_mm"] < 6 * b["trans_mm"] and est["rot_deg"] < 6 * b["rot_deg"]
     assert declared["trans_mm"] > 20 * est["trans_mm"]
     # the noise-limit pieces on the same calibration
-    stats = noise_limit._pair_stats(cal, sc.truth, 0.05)
+    stats = noise_limit.pair_stats(cal, sc.truth, 0.05)
     assert stats["left/right"]["bound_trans_mm"] == pytest.approx(b["trans_mm"])
     cov = noise_limit._coverage_samples(cal, truth_rig)
     assert set(cov) == {"left", "right"} and all(np.all(np.isfinite(c["sigma"])) for c in cov.values())

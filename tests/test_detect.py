@@ -20,9 +20,10 @@ from rigcal.dataset import list_dataset
 from rigcal.board_detectors import BoardDetector, chessboard_order, find_chessboard, is_degenerate
 from rigcal.corner_grid import local_grid, quadratic_axes
 from rigcal.corner_refine import refine_corners
-from rigcal.detect import DetectionResult, View, detect_dataset, detect_image
+from rigcal.detect import DetectionResult, detect_dataset, detect_image
 from rigcal.detect_diagnose import diagnose_no_detection
 from rigcal.image_read import read_gray, to_gray8
+from rigcal.observations import BoardView
 from rigcal.target import Board, Target, parse_target
 
 CHARUCO = Board("front", "charuco", 0.04, (10, 7), "DICT_5X5_1000", 0.03)
@@ -320,7 +321,7 @@ def test_quadratic_axes_of_a_bent_grid_match_the_grid():
     assert np.allclose(bu, rbu[at], atol=1e-9) and np.allclose(bv, rbv[at], atol=1e-9)
 
 
-def _fisheye_view(model, rays, tex, board: Board, off_deg: float, az: float, tilt_deg: float, dist: float):
+def fisheye_view(model, rays, tex, board: Board, off_deg: float, az: float, tilt_deg: float, dist: float):
     """R, t of a board whose centre lies off_deg from a fisheye's axis at azimuth az,
     turned tilt_deg away from facing the camera."""
     d = np.array([math.sin(math.radians(off_deg)) * math.cos(az), math.sin(math.radians(off_deg)) * math.sin(az),
@@ -359,7 +360,7 @@ def test_corners_missing_a_neighbour_are_refined_as_well_through_a_fisheye():
     errs, lone, predicted = [], [], []
     for off, tilt, dist in ((60.0, 20.0, 0.3), (45.0, 30.0, 0.25)):
         for k in range(4):
-            R, t = _fisheye_view(model, rays, tex, CHARUCO, off, k * math.pi / 2 + 0.4, tilt, dist)
+            R, t = fisheye_view(model, rays, tex, CHARUCO, off, k * math.pi / 2 + 0.4, tilt, dist)
             T = np.eye(4)
             T[:3, :3], T[:3, 3] = R, t
             fg, alpha = render.render_boards(model, rays, [T], [tex], [(40.0, 200.0)])
@@ -387,7 +388,7 @@ def test_corners_missing_a_neighbour_are_refined_as_well_through_a_fisheye():
 
 
 def test_corner_sigma_follows_the_image_noise():
-    """The refinement's per-corner sigma (View.sigma) is on the scale of the true error at 2 and at 8 grey levels of noise, and a corner of a
+    """The refinement's per-corner sigma (BoardView.sigma) is on the scale of the true error at 2 and at 8 grey levels of noise, and a corner of a
     noisier image is predicted noisier than the same corner of a cleaner one."""
     det = BoardDetector(Target((CHARUCO,)))
     rng = np.random.default_rng(12)
@@ -531,9 +532,9 @@ def test_read_gray_takes_float64_colour_and_signed_tiffs(tmp_path):
 
 
 def test_view_equality_compares_arrays():
-    a = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
-    b = View("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
-    assert a == b and a != View("c", "f", "b", np.array([1, 3]), b.uv)
+    a = BoardView("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
+    b = BoardView("c", "f", "b", np.array([1, 2]), np.array([[1.0, 2.0], [3.0, 4.0]]))
+    assert a == b and a != BoardView("c", "f", "b", np.array([1, 3]), b.uv)
 
 
 # ----------------------------------------------------------------------------- wrong board description

@@ -31,10 +31,11 @@ import yaml
 from typer.testing import CliRunner
 
 from rigcal import geometry as geo
-from rigcal.calibrate import warnings_for
+from rigcal.outputs import warnings_for
 from rigcal.cli import app
 from rigcal.compare import compare_rigs, load_truth
-from rigcal.core import ViewIn, calibrate_views
+from rigcal.pipeline import calibrate_views
+from rigcal.observations import BoardView
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset
 from rigcal.errors import CalibrationError
@@ -325,7 +326,7 @@ def test_camera_with_boards_in_fewer_than_3_frames_exits_1(sim, clean_det, tmp_p
 # ----------------------------------------------------------------------------- the solve
 
 
-def _stereo_views(poses, rig_true, corners, rng, noise_px=0.1) -> list[ViewIn]:
+def _stereo_views(poses, rig_true, corners, rng, noise_px=0.1) -> list[BoardView]:
     views = []
     for f, T_body_board in enumerate(poses):
         for cam in rig_true.cameras:
@@ -334,7 +335,7 @@ def _stereo_views(poses, rig_true, corners, rng, noise_px=0.1) -> list[ViewIn]:
             ok = valid & cam.intrinsics.in_image(uv, margin=2)
             if ok.sum() >= 8:
                 ids = np.nonzero(ok)[0]
-                views.append(ViewIn(cam.name, f"{f:06d}", "b", ids, uv[ok] + rng.normal(0, noise_px, (len(ids), 2))))
+                views.append(BoardView(cam.name, f"{f:06d}", "b", ids, uv[ok] + rng.normal(0, noise_px, (len(ids), 2))))
     return views
 
 
@@ -390,7 +391,7 @@ def test_a_rig_that_contradicts_its_declaration_is_named():
     the aligned body frame hid both (exit 0, no word); the camera pairs show them."""
     from types import SimpleNamespace
 
-    from rigcal.calibrate import declared_disagreements
+    from rigcal.outputs import declared_disagreements
 
     declared = load_rig(RIG)
     assert declared_disagreements(SimpleNamespace(declared=declared, rig=declared)) == []
@@ -499,8 +500,7 @@ def test_outlier_detections_are_rejected_and_counted(sim, clean_det):
     them, and the rig comes out as accurate as it is without them."""
     rig = load_rig(sim / "rig.yaml")
     target = load_target(sim / "target.yaml")
-    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous)
-             for v in clean_det.views]
+    views = [replace(v, sigma=None) for v in clean_det.views]
     ki = max((k for k, v in enumerate(views) if v.camera == "front_left"), key=lambda k: len(views[k].ids))
     v = views[ki]
     a, b = int(np.argmin(v.ids)), int(np.argmax(v.ids))  # two corners far apart on the board

@@ -18,7 +18,7 @@ from rigcal.corner_refine import refine_corners, symmetric_half_width
 from rigcal.guided import BoardCorners, ImageTask, cross_samples, guided_cameras, guided_uv, refine_image
 from rigcal.solve import Intrinsics, Observations, State
 from rigcal.target import Board, Target
-from test_detect import _fisheye_view
+from test_detect import fisheye_view
 
 CHARUCO = Board("front", "charuco", 0.04, (10, 7), "DICT_5X5_1000", 0.03)
 RIGS = Path(__file__).resolve().parents[1] / "rigs"
@@ -32,8 +32,8 @@ def _pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def _facing(board: Board, off_deg: float, az: float, tilt_deg: float, dist: float) -> np.ndarray:
-    """T_cam_board of test_detect's oblique fisheye view (_fisheye_view)."""
-    return _pose(*_fisheye_view(None, None, None, board, off_deg, az, tilt_deg, dist))
+    """T_cam_board of test_detect's oblique fisheye view (fisheye_view)."""
+    return _pose(*fisheye_view(None, None, None, board, off_deg, az, tilt_deg, dist))
 
 
 def _render(model: CameraModel, T: np.ndarray, rng: np.random.Generator, rays=None) -> np.ndarray:
@@ -151,7 +151,7 @@ def test_guided_cameras_by_mode():
 def fisheye_pair(tmp_path_factory):
     """rigcal's own fisheye-stereo render (8 frames), detected, and calibrated without the pass."""
     from rigcal.compare import load_truth
-    from rigcal.core import ViewIn, calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.dataset import list_dataset
     from rigcal.detect import detect_dataset
     from rigcal.simulate import simulate_dataset
@@ -162,7 +162,7 @@ def fisheye_pair(tmp_path_factory):
     rig, target, truth = load_rig(d / "rig.yaml"), load_target(d / "target.yaml"), load_truth(d / "truth.yaml")
     images = list_dataset(d, rig)
     det = detect_dataset(images, target, rig=rig, jobs=2, progress=False)
-    views = [ViewIn(v.camera, v.frame, v.board, v.ids, v.uv, v.ambiguous, v.sigma) for v in det.views]
+    views = list(det.views)
     corners = {b.name: b.corners for b in target.boards}
     return d, rig, target, truth, images, views, corners, calibrate_views(views, rig, corners)
 
@@ -173,7 +173,7 @@ def test_guided_pass_on_a_simulated_fisheye_pair_lowers_the_corner_error(fisheye
     the pair's rotation error 2.4x lower. The CLI says which cameras it re-measured;
     --guided off leaves the detector's corners."""
     from rigcal.bounds import measured_corner_noise
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.guided import rerefiner
 
     d, rig, target, truth, images, views, corners, plain = fisheye_pair
@@ -203,9 +203,9 @@ def _spoiled(hook, cams: set[int], sigma_px: float):
 
 
 def test_a_camera_whose_guided_corners_fit_worse_keeps_the_detectors(fisheye_pair):
-    """The guard (core.GUIDED_KEEP_RATIO): guided corners that the solved rig fits worse than
+    """The guard (pipeline.GUIDED_KEEP_RATIO): guided corners that the solved rig fits worse than
     the detector's are not used, per camera; the other camera keeps its guided corners."""
-    from rigcal.core import calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.guided import rerefiner
 
     _, rig, target, truth, images, views, corners, plain = fisheye_pair

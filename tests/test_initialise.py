@@ -8,9 +8,10 @@ import pytest
 import rigcal
 from rigcal import geometry as geo
 from rigcal.compare import compare_rigs
-from rigcal.core import ViewIn, calibrate_views
+from rigcal.pipeline import calibrate_views
+from rigcal.observations import BoardView
 from rigcal.errors import CalibrationError
-from rigcal.initialise import hand_eye
+from rigcal.pose_graph import hand_eye
 
 from synthetic_obs import noisy_room, perturb
 
@@ -94,7 +95,7 @@ def test_camera_sharing_no_board_calibrates_from_the_rig_motion():
     rng = np.random.default_rng(21)
     truth = perturb(drone, rng)
     views, corners = noisy_room(truth, rng, 0.05, n_frames=30)
-    lonely = [ViewIn(v.camera, v.frame, "back_" + v.board, v.ids, v.uv) if v.camera == "back" else v
+    lonely = [BoardView(v.camera, v.frame, "back_" + v.board, v.ids, v.uv) if v.camera == "back" else v
               for v in views]
     corners = dict(corners, **{"back_" + b: p for b, p in corners.items()})
     cal_shared, cal_alone = calibrate_views(views, drone, corners), calibrate_views(lonely, drone, corners)
@@ -121,7 +122,7 @@ def test_camera_whose_views_contradict_the_rig_motion_is_named():
     back = [v for v in views if v.camera == "back"]
     one = back[0]
     lonely = [v for v in views if v.camera != "back"] + [
-        ViewIn("back", f, "back_" + one.board, one.ids, one.uv + rng.normal(0, 0.05, one.uv.shape))
+        BoardView("back", f, "back_" + one.board, one.ids, one.uv + rng.normal(0, 0.05, one.uv.shape))
         for f in frames[:6]]
     corners = dict(corners, **{"back_" + b: p for b, p in corners.items()})
     with pytest.raises(CalibrationError, match=r"back: .*never linked to the rest of the rig"):

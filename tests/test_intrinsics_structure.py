@@ -1,5 +1,5 @@
 """`--intrinsics`: tied and held intrinsics in the bundle adjustment (solve.Intrinsics.basis),
-their covariance, the per-camera choice (core.select_structure), the calibrated YAML's
+their covariance, the per-camera choice (model_selection.select_structure), the calibrated YAML's
 `calibration.intrinsics_model` and the warning for intrinsics the data leave open."""
 
 from __future__ import annotations
@@ -13,10 +13,11 @@ from typer.testing import CliRunner
 
 import rigcal
 from rigcal import geometry as geo
-from rigcal.calibrate import calibrated_rig, intrinsics_warnings
+from rigcal.outputs import calibrated_rig, intrinsics_warnings
 from rigcal.cli import app
 from rigcal.compare import compare_rigs
-from rigcal.core import INTRINSICS_LEVEL, calibrate_views, structure_tests
+from rigcal.pipeline import calibrate_views
+from rigcal.model_selection import INTRINSICS_LEVEL, structure_tests
 from rigcal.errors import InputError
 from rigcal.rig import dump_rig, load_rig
 from rigcal.solve import (Intrinsics, Observations, Problem, State, bundle_adjust, camera_covariance,

@@ -1,5 +1,5 @@
-"""`--distortion auto`: which pinhole model the joint solve keeps (core.keep_k3,
-core.select_rational) on synthetic corners whose true distortion is known."""
+"""`--distortion auto`: which pinhole model the joint solve keeps (model_selection.keep_k3,
+initialise.select_rational) on synthetic corners whose true distortion is known."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import pytest
 from scipy.stats import chi2
 
 import rigcal
-from rigcal.core import K3_LEVEL, calibrate_views, keep_k3
+from rigcal.pipeline import calibrate_views
+from rigcal.model_selection import K3_LEVEL, keep_k3
 from rigcal.synthetic import room_scene, with_noise
 
 
@@ -79,7 +80,7 @@ def _unsynchronised_scene(truth, rng, n_frames, jitter_deg, jitter_mm):
     the frame moved by a random jitter per camera, as when cameras triggered in
     software see a moving rig (or board) at different instants."""
     from rigcal import geometry as geo
-    from rigcal.core import ViewIn
+    from rigcal.observations import BoardView
     from rigcal.synthetic import BOARD, board_view, grid_corners, random_body_pose, wall_boards
 
     p_board = grid_corners(*BOARD)
@@ -94,7 +95,7 @@ def _unsynchronised_scene(truth, rng, n_frames, jitter_deg, jitter_mm):
             for name, T in T_world_board.items():
                 seen = board_view(cam, T_cam_world @ T, p_board, 8)
                 if seen is not None:
-                    views.append(ViewIn(cam.name, f"{f:06d}", name, seen[0], seen[1] + rng.normal(0, 0.1, seen[1].shape)))
+                    views.append(BoardView(cam.name, f"{f:06d}", name, seen[0], seen[1] + rng.normal(0, 0.1, seen[1].shape)))
     return views, {n: p_board for n in T_world_board}
 
 

@@ -14,6 +14,7 @@ try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10: tomllib is 3.11+
     import tomli as tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -23,7 +24,7 @@ import yaml
 
 import rigcal
 from rigcal import geometry as geo
-from rigcal.core import ViewIn, calibrate_views
+from rigcal.pipeline import calibrate_views
 from rigcal.dataset import list_dataset
 from rigcal.detect import detect_dataset
 from rigcal.target import load_target
@@ -37,8 +38,7 @@ def _detect(ds: Path, rig=None):
     rig = rig or rigcal.load_rig(ds / "rig.yaml")
     target = load_target(ds / "target.yaml")
     det = detect_dataset(list_dataset(ds, rig), target, rig=rig, jobs=1, progress=False)
-    views = [ViewIn(v.camera, v.frame, v.board, np.asarray(v.ids), np.asarray(v.uv, float), v.ambiguous)
-             for v in det.views]
+    views = [replace(v, sigma=None) for v in det.views]
     return rig, target, views
 
 
@@ -56,7 +56,7 @@ def test_bumblebee2_baseline_against_boofcv(bumblebee):
     """BoofCV's reference (radial2 model): 120.05 mm; issue 4's target is 0.2 mm. With the
     same model rigcal is 0.10 mm away.
 
-    `auto` estimates decentering (radtan4, the floor of auto; core.py says why) and must
+    `auto` estimates decentering (radtan4, the floor of auto; pipeline.py says why) and must
     not take k3, the term that overfits this 11-pair set (issue 4: 120.48 mm). Its
     baseline, 120.27 mm, is 0.22 mm from BoofCV's radial2 figure: the joint solve finds
     both cameras' decentering significant (Wald 9 and 35 against 6 at 5 %), so the 0.11 mm
@@ -162,7 +162,7 @@ def test_caliscope_four_cameras_with_reference_intrinsics(caliscope):
 def test_caliscope_four_cameras_from_the_images_alone(caliscope):
     """From these images alone (a 12-corner board, 26-45 views per camera, software sync):
     the joint solve fits 0.9 px against 0.04-0.08 px per camera alone, so rigcal takes the
-    intrinsics from each camera's own views (core.rigidity_check), with fx = fy and the
+    intrinsics from each camera's own views (pipeline.rigidity_check), with fx = fy and the
     principal point at the image centre unless its own views reject them (issue 22). They
     land within 1.6 % of caliscope's focal lengths (the joint solve had bent them 10-16 %),
     and the pairs 0.7-4.2 cm and 1.4-3.2 deg from caliscope's solution: the issue's

@@ -16,8 +16,8 @@ import plotly.offline
 import pytest
 
 import rigcal
-from rigcal import calibrate, checks, geometry as geo, report
-from rigcal.core import calibrate_views
+from rigcal import checks, geometry as geo, outputs, report
+from rigcal.pipeline import calibrate_views
 
 from synthetic_obs import noisy_room, perturb
 
@@ -43,7 +43,7 @@ def synthetic_calibration():
         views[k] = dataclasses.replace(views[k], uv=uv)
     cal = calibrate_views(views, rig, corners)
     pairs = checks.stereo_checks(cal)
-    return cal, calibrate.calibrated_rig(cal, pairs, dataset="synthetic"), pairs, len(spoiled)
+    return cal, outputs.calibrated_rig(cal, pairs, dataset="synthetic"), pairs, len(spoiled)
 
 
 def synthetic_report_html() -> str:

@@ -224,7 +224,7 @@ def test_perturb_rig_keeps_lens_errors_when_the_distortion_draw_is_refused():
     That once dropped the focal and principal-point errors too (the true lens equalled the
     declared one); now every camera's truth has its own fx, cx, cy, and a refused draw
     leaves exactly the declared distortion."""
-    from rigcal.simulate import _field_border
+    from rigcal.simulate import field_border
 
     rig = load_rig(RIGS / "fisheye-stereo.yaml")
     kept, refused = 0, 0
@@ -236,7 +236,7 @@ def test_perturb_rig_keeps_lens_errors_when_the_distortion_draw_is_refused():
             if m.dist == md.dist:
                 refused += 1
             else:  # a kept distortion error never costs a border pixel the ray the declared lens has there
-                assert np.all(_field_border(m) | ~_field_border(md)), (seed, cd.name)
+                assert np.all(field_border(m) | ~field_border(md)), (seed, cd.name)
                 kept += 1
     assert kept > 0 and refused > 0  # these seeds exercise both branches
 

@@ -10,7 +10,8 @@ from scipy.optimize import least_squares
 import rigcal
 from rigcal import geometry as geo
 from rigcal.compare import compare_rigs
-from rigcal.core import ViewIn, calibrate_views
+from rigcal.pipeline import calibrate_views
+from rigcal.observations import BoardView
 from rigcal.errors import CalibrationError
 from rigcal.solve import Intrinsics, Observations, Problem, State, levenberg_marquardt
 from rigcal.synthetic import grid_corners, room_scene, with_noise
@@ -165,21 +166,21 @@ def test_noise_model_does_not_follow_a_detector_sigma_that_tells_nothing():
 def _heteroscedastic_room(drone, seed, base=0.05, spread=0.8, n_frames=12):
     """Room views of a perturbed drone rig whose corners each have their own noise
     (log-normal about `base` px, `spread` in log) and the detector's sigma says so
-    (ViewIn.sigma)."""
+    (BoardView.sigma)."""
     rng = np.random.default_rng(seed)
     truth = perturb(drone, rng)
     views, corners = noisy_room(truth, rng, 0.0, n_frames=n_frames)
     out = []
     for v in views:
         s = base * np.exp(rng.normal(0.0, spread, len(v.ids)))
-        out.append(ViewIn(v.camera, v.frame, v.board, v.ids, v.uv + rng.normal(0, 1, v.uv.shape) * s[:, None],
+        out.append(BoardView(v.camera, v.frame, v.board, v.ids, v.uv + rng.normal(0, 1, v.uv.shape) * s[:, None],
                           sigma=s))
     return truth, out, corners
 
 
 def test_corners_are_weighted_by_their_calibrated_sigma_and_the_covariance_stays_honest(drone):
-    """weight_corners: core weights each camera's corners by its NoiseModel fitted on
-    ViewIn.sigma (gamma near 1: this sigma is right); without sigma, or by default,
+    """weight_corners: the pipeline weights each camera's corners by its NoiseModel fitted on
+    BoardView.sigma (gamma near 1: this sigma is right); without sigma, or by default,
     everything stays unweighted. Weighted,
     the pair errors come out smaller than unweighted (summed over seeds), and each
     camera's reported sigma still explains its errors."""
@@ -203,11 +204,11 @@ def test_corners_are_weighted_by_their_calibrated_sigma_and_the_covariance_stays
 
 
 def test_weighted_solve_does_not_depend_on_where_the_solve_started(drone):
-    """core.weighted_solve is a function of the unweighted solve's inlier set: from two
+    """pipeline.weighted_solve is a function of the unweighted solve's inlier set: from two
     different starts (the calibration's own and one nudged off it) the same corners and
     the same rig to 1e-9 (an iterated rejection on weighted residuals could settle either
     side of a corner near its threshold)."""
-    from rigcal.core import weighted_solve
+    from rigcal.pipeline import weighted_solve
     from rigcal.solve import bundle_adjust
 
     truth, views, corners = _heteroscedastic_room(drone, 23)
@@ -266,13 +267,13 @@ def test_planted_outliers_are_rejected(drone):
         uv = v.uv.copy()
         i = rng.integers(len(uv))
         uv[i] += rng.choice([-1, 1], 2) * rng.uniform(3, 15, 2)  # a wrong corner
-        views[k] = ViewIn(v.camera, v.frame, v.board, v.ids, uv)
+        views[k] = BoardView(v.camera, v.frame, v.board, v.ids, uv)
         bad.append(k)
     # one view with its ids mirrored left-right: a whole wrong board
     v = views[0]
     nx = 10
     mirrored = (v.ids // nx) * nx + (nx - 1 - v.ids % nx)
-    views[0] = ViewIn(v.camera, v.frame, v.board, mirrored, v.uv)
+    views[0] = BoardView(v.camera, v.frame, v.board, mirrored, v.uv)
     cal = calibrate_views(views, drone, corners)
     assert sum(s.outliers for s in cal.stats.values()) >= 25 + len(v.ids)  # corners and the mirrored view
     for (a, b), e in _pair_errors(cal.rig, truth).items():
@@ -284,7 +285,7 @@ def test_disconnected_camera_is_named(drone):
     truth = perturb(drone, rng)
     views, corners = noisy_room(truth, rng, 0.05, n_frames=20)
     # the back camera only ever sees a board no front camera sees, in frames of its own
-    back = [ViewIn(v.camera, "x" + v.frame, "lonely", v.ids, v.uv) for v in views if v.camera == "back"]
+    back = [BoardView(v.camera, "x" + v.frame, "lonely", v.ids, v.uv) for v in views if v.camera == "back"]
     front = [v for v in views if v.camera != "back"]
     corners = dict(corners, lonely=corners["b0"])
     with pytest.raises(CalibrationError, match=r"back: never in a frame with another camera"):
@@ -296,14 +297,14 @@ def test_disconnected_message_names_the_stray_group_whoever_is_the_gauge():
     reaches only it; the message must still blame it, not the pair that is linked."""
     from types import SimpleNamespace as V
 
-    from rigcal.initialise import _disconnected_message, camera_groups
+    from rigcal.pose_graph import camera_groups, disconnected_message
 
     views = ([V(cam=c, frame=f, board=0) for f in range(5) for c in (0, 1)]
              + [V(cam=2, frame=10 + f, board=1) for f in range(9)])
     assert sorted(map(sorted, camera_groups(views, 4))) == [[0, 1], [2], [3]]
     names, boards = ["front_left", "front_right", "back", "down"], ["b0", "lonely"]
     for missing in ([0, 1, 3], [2, 3]):  # gauge = back, then gauge = front_left
-        msg = _disconnected_message(views, missing, names, boards)
+        msg = disconnected_message(views, missing, names, boards)
         assert "back: never in a frame with another camera that sees a board" in msg
         assert "(lonely)" in msg and "down: no usable board views" in msg
         assert "front_left:" not in msg and "front_right:" not in msg
@@ -312,7 +313,7 @@ def test_disconnected_message_names_the_stray_group_whoever_is_the_gauge():
     # a pair split from the main group is named as a pair
     pair = [V(cam=c, frame=f, board=0) for f in range(5) for c in (0, 1)] + \
            [V(cam=c, frame=10 + f, board=1) for f in range(5) for c in (2, 3)] + [V(cam=4, frame=1, board=0)]
-    msg = _disconnected_message(pair, [2, 3], names + ["up"], boards)
+    msg = disconnected_message(pair, [2, 3], names + ["up"], boards)
     assert "back: linked only to down; no frame or board is shared with front_left, front_right, up" in msg
 
 
@@ -365,7 +366,7 @@ def _stereo_chessboard_views(rig, truth, rng, n_frames, corners, nx, ny, noise=0
             uv, valid = cam.intrinsics.project(p)
             if not (valid & cam.intrinsics.in_image(uv)).all():
                 continue
-            views.append(ViewIn(cam.name, f"{f:03d}", "chess", np.arange(len(corners)),
+            views.append(BoardView(cam.name, f"{f:03d}", "chess", np.arange(len(corners)),
                                 uv + rng.normal(0, noise, uv.shape), ambiguous=True))
     return views
 
@@ -380,7 +381,7 @@ def test_symmetric_chessboard_order_resolved_against_other_camera():
     flipped = 0
     for k, v in enumerate(views):
         if v.camera == rig.names[1] and k % 3 == 0:  # detector returned the reverse order
-            views[k] = ViewIn(v.camera, v.frame, v.board, v.ids, v.uv[::-1].copy(), ambiguous=True)
+            views[k] = BoardView(v.camera, v.frame, v.board, v.ids, v.uv[::-1].copy(), ambiguous=True)
             flipped += 1
     assert flipped >= 3
     cal = calibrate_views(views, rig, {"chess": corners})

@@ -33,12 +33,12 @@ def true_state(cal, truth) -> State | None:
     for stem in cal.frames:
         if stem not in truth.T_world_body:
             return None
-        T_wB = truth.T_world_body[stem]
+        T_world_body = truth.T_world_body[stem]
         if moving:
-            T_wb = truth.board_pose(stem, cal.boards[0])
-            T_body_world.append(geo.inv_T(T_wB) @ T_wb)
+            T_world_board_f = truth.board_pose(stem, cal.boards[0])  # the board moves: it is the world
+            T_body_world.append(geo.inv_T(T_world_body) @ T_world_board_f)
         else:
-            T_body_world.append(geo.inv_T(T_wB))
+            T_body_world.append(geo.inv_T(T_world_body))
     if moving:
         T_world_board = [np.eye(4)]
     else:
@@ -64,7 +64,7 @@ def pair_bounds(cal, truth, sigma_px: float) -> dict[tuple[str, str], dict]:
     out = {}
     for i in range(C):
         for j in range(i + 1, C):
-            G = _relative_pose_jacobian(st.T_cam_body, i, j, free)
+            G = relative_pose_jacobian(st.T_cam_body, i, j, free)
             S = G @ Ce @ G.T
             out[(cal.cam_names[i], cal.cam_names[j])] = {
                 "rot_deg": float(np.degrees(np.sqrt(np.trace(S[:3, :3])))),
@@ -73,7 +73,7 @@ def pair_bounds(cal, truth, sigma_px: float) -> dict[tuple[str, str], dict]:
     return out
 
 
-def _relative_pose_jacobian(T_cam_body: np.ndarray, i: int, j: int, free: list[int]) -> np.ndarray:
+def relative_pose_jacobian(T_cam_body: np.ndarray, i: int, j: int, free: list[int]) -> np.ndarray:
     """d [rotation error (rad), translation (m)] of T_i_j = T_cam_body_i inv(T_cam_body_j)
     with respect to each free camera's [delta, t] (central differences)."""
     def rel(T):

@@ -125,14 +125,14 @@ def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndar
 
 def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
                  line_delays: dict[str, float]) -> Inputs:
-    """The inlier corners of the camera-only calibration `cal` (rigcal.core.Calibration) on
+    """The inlier corners of the camera-only calibration `cal` (rigcal.pipeline.Calibration) on
     each camera's clock (frames are integer-ns stems), one PnP pose per image (its largest
     board view) for the start, and the IMU."""
     t_base = int(samples.t_ns[0])
     ok = cal.inliers
     o = cal.obs
     t_frame = np.array([(int(f) - t_base) * 1e-9 for f in cal.frames])
-    cams, boards_of, T_bc = [], [], []
+    cams, boards_of, T_board_cam = [], [], []
     for c, name in enumerate(cal.cam_names):
         m = cal.rig.camera(name).intrinsics
         s = ok & (o.cam == c)
@@ -142,12 +142,12 @@ def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_decla
                                    f"needs at least {MIN_FRAMES}")
         by_time = np.argsort(t_frame[frames], kind="stable")  # frame order is the camera-only step's
         frames, b, T = frames[by_time], b[by_time], T[by_time]
-        T_wc = cal.state.T_world_board[b] @ T
-        cams.append(ic.CameraInput(m, cal.rig.camera(name).T_body_cam.copy(), t_frame[frames], T_wc,
+        T_world_cam = cal.state.T_world_board[b] @ T
+        cams.append(ic.CameraInput(m, cal.rig.camera(name).T_body_cam.copy(), t_frame[frames], T_world_cam,
                                    line_delays.get(name, 0.0), t_declared.get(name, 0.0)))
         boards_of.append(b)
-        T_bc.append(T)
-    return Inputs(tuple(cams), tuple(boards_of), tuple(T_bc), o.cam[ok], o.board[ok], t_frame[o.frame[ok]],
+        T_board_cam.append(T)
+    return Inputs(tuple(cams), tuple(boards_of), tuple(T_board_cam), o.cam[ok], o.board[ok], t_frame[o.frame[ok]],
                   o.uv[ok], o.p_board[ok], imu_input(samples, imu, t_base), t_base)
 
 
@@ -181,23 +181,23 @@ def refit_boards(state: ir.State, inp: Inputs, models: list, gauge: int, T_world
     obs = ir.Corners(inp.cam, inp.t_cam, inp.uv, inp.p_board)
 
     def boards(x):
-        T_wb = T_world_board.copy()
+        T_world_board_x = T_world_board.copy()
         for k, b in enumerate(others):
-            T_wb[b] = geo.T_from_rt(x[6 * k:6 * k + 6]) @ T_wb[b]
-        return T_wb
+            T_world_board_x[b] = geo.T_from_rt(x[6 * k:6 * k + 6]) @ T_world_board_x[b]
+        return T_world_board_x
 
     def residual(x):
         T = boards(x)[inp.board]
         dc = x[6 * nb:6 * nb + 6 * C].reshape(C, 6)
-        T_bc = state.T_body_cam.copy()
-        T_bc[:, :3, :3] = geo.R_from_rotvec(dc[:, :3]) @ T_bc[:, :3, :3]
-        T_bc[:, :3, 3] += dc[:, 3:]
-        st = replace(state, T_body_cam=T_bc, time_offset_s=state.time_offset_s + x[6 * nb + 6 * C:])
+        T_body_cam = state.T_body_cam.copy()
+        T_body_cam[:, :3, :3] = geo.R_from_rotvec(dc[:, :3]) @ T_body_cam[:, :3, :3]
+        T_body_cam[:, :3, 3] += dc[:, 3:]
+        st = replace(state, T_body_cam=T_body_cam, time_offset_s=state.time_offset_s + x[6 * nb + 6 * C:])
         m = spl.evaluate(st.spline, np.clip(ir.corner_times(st, obs), st.spline.t0, st.spline.t_end))
         p_world = np.einsum("mij,mj->mi", T[:, :3, :3], obs.p_world) + T[:, :3, 3]
         p_body = np.einsum("mji,mj->mi", m.R_world_body, p_world - m.p_world)
-        T_cb = geo.inv_T(T_bc)[obs.cam]
-        p_cam = np.einsum("mij,mj->mi", T_cb[:, :3, :3], p_body) + T_cb[:, :3, 3]
+        T_cam_body = geo.inv_T(T_body_cam)[obs.cam]
+        p_cam = np.einsum("mij,mj->mi", T_cam_body[:, :3, :3], p_body) + T_cam_body[:, :3, 3]
         uv = np.empty_like(obs.uv)
         for c in range(C):  # a loop over cameras, not corners
             k = obs.cam == c
@@ -213,7 +213,7 @@ def _settings_with(settings: ic.Settings, res: ic.CameraImuResult) -> ic.Setting
     return replace(settings, sigma_px=settings.sigma_px * max(res.normalised_rms["corners"], 1e-3))
 
 
-def _gauge_pass(inp: Inputs, T_wb: np.ndarray, gauge: int, settings: ic.Settings) -> ir.State:
+def _gauge_pass(inp: Inputs, T_world_board: np.ndarray, gauge: int, settings: ic.Settings) -> ir.State:
     """The trajectory from the IMU and the gauge board's corners alone (cameras that see it),
     then every camera's T_body_cam and offset in it: those that see the gauge board from
     this estimate, the others from their rate start (imu_start) and declared position. The
@@ -223,23 +223,23 @@ def _gauge_pass(inp: Inputs, T_wb: np.ndarray, gauge: int, settings: ic.Settings
     idx = np.flatnonzero(sees)
     remap = np.full(len(inp.cams), -1)
     remap[idx] = np.arange(len(idx))
-    cams, obs = _with_boards(inp, T_wb)
+    cams, obs = _with_boards(inp, T_world_board)
     k = (inp.board == gauge) & sees[inp.cam]
     sub = ir.Corners(remap[obs.cam[k]], obs.t_cam[k], obs.uv[k], obs.p_world[k])
     res = ic.calibrate_camera_imu([cams[i] for i in idx], sub, inp.imu, settings)
     st = res.state
-    T_bc = np.stack([c.T_body_cam for c in cams])
+    T_body_cam = np.stack([c.T_body_cam for c in cams])
     off = np.array([c.time_offset_guess_s for c in cams])
-    T_bi = inp.imu.T_body_imu
+    T_body_imu = inp.imu.T_body_imu
     for c in np.flatnonzero(~sees):
         s = imu_start.rate_start(cams[c].t_cam, cams[c].T_world_cam[:, :3, :3], inp.imu.t, inp.imu.gyro,
                                  cams[c].time_offset_guess_s, settings.window_s, what=f"camera {c}")
-        T_bc[c, :3, :3] = T_bi[:3, :3] @ s.R_imu_cam
+        T_body_cam[c, :3, :3] = T_body_imu[:3, :3] @ s.R_imu_cam
         off[c] = s.time_offset_s
-    T_bc[idx], off[idx] = st.T_body_cam, st.time_offset_s
+    T_body_cam[idx], off[idx] = st.T_body_cam, st.time_offset_s
     delay = np.array([c.line_delay_s for c in cams])
     delay[idx] = st.line_delay_s
-    return replace(st, T_body_cam=T_bc, time_offset_s=off, line_delay_s=delay)
+    return replace(st, T_body_cam=T_body_cam, time_offset_s=off, line_delay_s=delay)
 
 
 def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
@@ -251,32 +251,33 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
     one found. Returns (result, boards, the settings it used, passes)."""
     gauge = int(np.argmax(np.bincount(inp.board, minlength=len(T_world_board))))
     models = [c.model for c in inp.cams]
-    T_wb = T_world_board.copy()
+    T_world_board = T_world_board.copy()
     several = len(np.unique(inp.board)) > 1
     if several:
-        T_wb = refit_boards(_gauge_pass(inp, T_wb, gauge, settings), inp, models, gauge, T_wb)
+        T_world_board = refit_boards(_gauge_pass(inp, T_world_board, gauge, settings), inp, models, gauge,
+                                     T_world_board)
     k = 0
     while True:
         k += 1
-        cams, obs = _with_boards(inp, T_wb)
+        cams, obs = _with_boards(inp, T_world_board)
         used = settings
         res = ic.calibrate_camera_imu(cams, obs, inp.imu, used)
         settings = _settings_with(used, res)
         if k == BOARD_PASSES:
-            return res, T_wb, used, k
+            return res, T_world_board, used, k
         if not several:  # nothing to re-fit: again only for the weights
             if abs(res.normalised_rms["corners"] - 1.0) < 0.2:
-                return res, T_wb, used, k
+                return res, T_world_board, used, k
             continue
-        new = refit_boards(res.state, inp, models, gauge, T_wb)
+        new = refit_boards(res.state, inp, models, gauge, T_world_board)
         moved_m, moved_rad = 0.0, 0.0
-        for b in range(len(T_wb)):
-            d = new[b] @ geo.inv_T(T_wb[b])
+        for b in range(len(T_world_board)):
+            d = new[b] @ geo.inv_T(T_world_board[b])
             moved_m = max(moved_m, float(np.linalg.norm(d[:3, 3])))
             moved_rad = max(moved_rad, math.radians(geo.rotation_angle_deg(d[:3, :3])))
-        T_wb = new
+        T_world_board = new
         if moved_m < BOARD_CONVERGED_M and moved_rad < BOARD_CONVERGED_RAD:
-            return res, T_wb, used, k
+            return res, T_world_board, used, k
 
 
 def _imu_mask(state: ir.State, t: np.ndarray) -> np.ndarray:
@@ -375,13 +376,13 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     settings = replace(base, sigma_px=max(float(cal.rms_px), 0.01), gravity=options.gravity,
                        window_s=options.window_s, line_delay=estimate_delay)
     try:
-        res, T_wb, settings, passes = estimate(inp, cal.state.T_world_board, settings)
+        res, T_world_board, settings, passes = estimate(inp, cal.state.T_world_board, settings)
     except CalibrationError as e:
         if "search window" in str(e):
             raise CalibrationError(f"{e} (calibrate --offset-window SECONDS; now {options.window_s:g} s)") from None
         raise
     # sigmas with the corners weighted by their measured noise (the variance factor)
-    J, lay = jacobian(res, inp, T_wb, _settings_with(settings, res))
+    J, lay = jacobian(res, inp, T_world_board, _settings_with(settings, res))
     sig = parameter_sigmas(J, lay, estimate_delay)
     w = mean_weights(lay.n_bias)
     rate = math.sqrt(imu.update_rate)
@@ -389,7 +390,7 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
     notes = [f"camera-IMU: {passes} estimate(s) with the boards re-fitted between them, {res.iterations} "
              f"Levenberg-Marquardt iterations in the last, corners weighted at {settings.sigma_px:.3g} px"]
-    return ImuCalibration(res, imu, T_wb, sig, w @ res.state.gyro_bias, w @ res.state.accel_bias,
+    return ImuCalibration(res, imu, T_world_board, sig, w @ res.state.gyro_bias, w @ res.state.accel_bias,
                           rms[0], rms[1], pred[0], pred[1], settings.sigma_px * res.normalised_rms["corners"], passes,
                           time.perf_counter() - t0, tuple(noise_warnings(imu, (rms[0], pred[0]), (rms[1], pred[1]))),
                           tuple(notes))

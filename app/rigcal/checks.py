@@ -111,6 +111,8 @@ def depth_samples(cal, left: str, right: str) -> DepthSamples | None:
 
 
 def depth_check(cal, left: str, right: str, truth=None) -> dict:
+    """One stereo pair's entry of the calibrated YAML: baseline, the 10 m sanity figures and
+    (where the cameras share corners) the depth check, against the truth too when given."""
     rig = cal.rig
     rect = rectify_pair(rig.camera(left), rig.camera(right))
     out = {"baseline_m": rect.baseline_m, "sanity_10m": sanity_10m(rig, left, right, rect)}
@@ -149,11 +151,11 @@ def _true_rectified_depth(cal, truth, left, rect, frames, boards, p_board):
             continue
         for b in np.unique(boards[frames == f]):
             name = cal.boards[b]
-            T_wb = truth.board_pose(stem, name)
-            if T_wb is None:
+            T_world_board = truth.board_pose(stem, name)
+            if T_world_board is None:
                 continue
             m = (frames == f) & (boards == b)
-            T = geo.inv_T(T_body_left) @ geo.inv_T(truth.T_world_body[stem]) @ T_wb
+            T = geo.inv_T(T_body_left) @ geo.inv_T(truth.T_world_body[stem]) @ T_world_board
             p = geo.transform(T, p_board[m])
             z[m] = (p @ rect.R1.T)[:, 2]
     return z
@@ -162,10 +164,10 @@ def _true_rectified_depth(cal, truth, left, rect, frames, boards, p_board):
 def sanity_10m(rig, left: str, right: str, rect) -> dict:
     """The textbook figure: a point 10 m straight ahead of the pair (along the rectified
     optical axis from the left camera) -> disparity and depth through the raw cameras."""
-    T_bl = rig.camera(left).T_body_cam
+    T_body_left = rig.camera(left).T_body_cam
     p_rect = np.array([0.0, 0.0, 10.0])
     p_left = rect.R1.T @ p_rect
-    p_body = geo.transform(T_bl, p_left)
+    p_body = geo.transform(T_body_left, p_left)
     uv = {}
     for side in (left, right):
         pr = rig.camera(side).project_body(p_body[None])

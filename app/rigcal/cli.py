@@ -70,12 +70,17 @@ def out(text) -> None:
 
 
 class Scene(str, Enum):
+    """`simulate --scene`: room (wall boards around a turning rig), board (one board in front
+    of the rig) or imu (a hand-held recording with IMU streams, simulate_imu)."""
+
     room = "room"
     board = "board"
     imu = "imu"
 
 
 class Distortion(str, Enum):
+    """`calibrate --distortion`: the distortion model, or auto (chosen per camera, model_selection)."""
+
     auto = "auto"
     radial2 = "radial2"
     radtan4 = "radtan4"
@@ -84,6 +89,8 @@ class Distortion(str, Enum):
 
 
 class IntrinsicsChoice(str, Enum):
+    """`calibrate --intrinsics`: which of fx, fy, cx, cy are estimated, or auto (model_selection)."""
+
     auto = "auto"
     free = "free"
     square = "square"
@@ -92,12 +99,16 @@ class IntrinsicsChoice(str, Enum):
 
 
 class Guided(str, Enum):
+    """`calibrate --guided`: the guided corner pass (guided.py); auto runs it on fisheye cameras."""
+
     auto = "auto"
     on = "on"
     off = "off"
 
 
 class ExportFormat(str, Enum):
+    """`export --format`: the formats of export.py and export_imu.py."""
+
     kalibr = "kalibr"
     opencv = "opencv"
     ros = "ros"
@@ -107,6 +118,8 @@ class ExportFormat(str, Enum):
 
 
 class ImportFormat(str, Enum):
+    """`import --format`: the formats `rigcal import` reads."""
+
     kalibr = "kalibr"
 
 
@@ -241,7 +254,7 @@ def export(
     out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros, kalibr-imu, euroc)"),
 ):
     """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON."""
-    from . import export as exp
+    from . import export_command as exp
 
     out(exp.run(rig, format.value, out_path))
 
@@ -256,7 +269,7 @@ def import_(
     body_from: Optional[str] = typer.Option(None, help="use this camera (e.g. cam0) as the body frame instead"),
 ):
     """Read another tool's calibration into a rig YAML."""
-    from . import export as exp
+    from . import export_command as exp
 
     out(exp.run_import(source, format.value, out_path, rig_path=rig, body_from=body_from))
 

@@ -112,9 +112,7 @@ def compare_rigs(est: Rig, truth: Rig) -> dict:
     # rigid fit of the estimate onto the truth, what is left is the rig's own error.
     posed = [n for n in names if est.camera(n).T_body_cam is not None and truth.camera(n).T_body_cam is not None]
     if posed:
-        from .core import fit_rigid_to
-
-        T_fit = fit_rigid_to(np.array([est.camera(n).T_body_cam for n in posed]),
+        T_fit = geo.fit_rigid_to(np.array([est.camera(n).T_body_cam for n in posed]),
                              np.array([truth.camera(n).T_body_cam for n in posed]))
         for n in posed:
             Ta = T_fit @ est.camera(n).T_body_cam

@@ -13,14 +13,15 @@ Per image, each step in its own module:
    markers, AprilGrid by its tags, chessboards), corners in Board.corners' order.
 3. corner_refine: each corner re-estimated as the centre of point symmetry of the
    image around it (corner_fit, along the grid's local axes and bends from
-   corner_grid), with its own 1-sigma error (View.sigma); a corner that cannot be
+   corner_grid), with its own 1-sigma error (BoardView.sigma); a corner that cannot be
    placed is left out.
 4. board_detectors: views with too few or collinear corners are dropped and counted.
 
-Here: the View and DetectionResult types, detect_image for one image and
-detect_dataset for a dataset, spread over processes (`jobs`, forkserver workers, or a
-Dask cluster); each worker builds its OpenCV detectors once from the plain Target.
-Output order does not depend on scheduling. detect_diagnose says why no board showed.
+Here: the DetectionResult type (its views are observations.BoardView), detect_image
+for one image and detect_dataset for a dataset, spread over processes (`jobs`,
+forkserver workers, or a Dask cluster); each worker builds its OpenCV detectors once
+from the plain Target. Output order does not depend on scheduling. detect_diagnose
+says why no board showed.
 """
 
 from __future__ import annotations
@@ -35,31 +36,9 @@ import numpy as np
 from .board_detectors import BoardDetector
 from .corner_refine import REFINE_MODES
 from .image_read import read_gray, to_gray8
+from .observations import BoardView
 from .target import Target
 from .workers import interrupts_deferred, pool
-
-
-@dataclass(frozen=True, eq=False)
-class View:
-    """One board seen by one camera in one frame."""
-
-    camera: str
-    frame: str
-    board: str
-    ids: np.ndarray  # (N,) int64 corner ids, rows of Board.corners
-    uv: np.ndarray  # (N, 2) float64 pixels, OpenCV pixel-centre convention
-    ambiguous: bool = False  # 180-degree-symmetric chessboard: the order may be reversed
-    # (N,) each corner's own 1-sigma error in px as the refinement estimates it (NaN: unknown)
-    sigma: np.ndarray | None = None
-
-    def __eq__(self, other: object) -> bool:
-        if not isinstance(other, View):
-            return NotImplemented
-        return ((self.camera, self.frame, self.board, self.ambiguous)
-                == (other.camera, other.frame, other.board, other.ambiguous)
-                and np.array_equal(self.ids, other.ids) and np.array_equal(self.uv, other.uv)
-                and ((self.sigma is None) == (other.sigma is None))
-                and (self.sigma is None or np.array_equal(self.sigma, other.sigma, equal_nan=True)))
 
 
 @dataclass
@@ -67,7 +46,7 @@ class DetectionResult:
     """What detect_dataset found in a dataset: the views, and per camera what was read,
     skipped or dropped (for the console summary and the calibration's warnings)."""
 
-    views: list[View]
+    views: list[BoardView]
     cameras: tuple[str, ...]
     frames: tuple[str, ...]
     image_size: dict[str, tuple[int, int]]  # per camera (w, h) as read (the first readable image)
@@ -80,7 +59,7 @@ class DetectionResult:
     jobs: int = 1  # worker processes actually used
     unreadable_by_camera: dict[str, int] = field(default_factory=dict)
 
-    def views_of(self, camera: str) -> list[View]:
+    def views_of(self, camera: str) -> list[BoardView]:
         return [v for v in self.views if v.camera == camera]
 
     def summary(self) -> str:
@@ -258,6 +237,6 @@ def detect_dataset(images, target: Target, rig=None, jobs: int | None = None, pr
         if not o.views:
             res.no_board[cam] += 1
         for name, ids, uv, amb, sigma in o.views:
-            res.views.append(View(cam, frame, name, ids, uv, amb, sigma))
+            res.views.append(BoardView(cam, frame, name, ids, uv, amb, sigma))
     res.seconds = time.perf_counter() - t0
     return res

@@ -1,4 +1,4 @@
-"""`rigcal export` and `rigcal import`: the rig in the formats other tools read.
+"""The rig in the formats other tools read, and Kalibr's camchain read back.
 
 Formats (README "Exports"):
 
@@ -14,15 +14,15 @@ Formats (README "Exports"):
   camera_calibration_parsers (parse_yml.cpp).
 * ``json`` — the rig schema (rig-yaml.md) as JSON.
 
-The builders are pure (rig in, file texts and warnings out); ``run`` and
-``run_import`` do the reading, printing and whole-or-nothing writing.
+The builders are pure (rig in, file texts and warnings out), as is the camchain reader;
+export_command does the reading, printing and whole-or-nothing writing (and adds the IMU
+formats of export_imu, which builds on the camchain here).
 """
 
 from __future__ import annotations
 
 import json
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -33,13 +33,11 @@ import yaml
 
 from . import geometry as geo
 from .camera import CameraModel
-from .errors import InputError, OutputError
-from .io import atomic_dir, atomic_write_text
-from .rig import NAME_RE, Camera, Rig, load_rig, rig_from_dict, rig_to_dict
+from .errors import InputError
+from .rig import NAME_RE, Camera, Rig, rig_from_dict, rig_to_dict
 from .stereo import StereoRectification, rectify_pair
 
 FORMATS = ("kalibr", "opencv", "ros", "json")
-IMU_FORMATS = ("kalibr-imu", "euroc")  # rigcal.export_imu: rigs with an IMU
 
 # Dropping coefficients a target format cannot hold is refused past this many pixels
 # of change anywhere in the image: a tenth of a typical 0.1 px reprojection RMS.
@@ -342,64 +340,6 @@ def json_text(rig: Rig) -> str:
     return json.dumps(rig_to_dict(rig), indent=2) + "\n"
 
 
-# ----------------------------------------------------------------------------- export driver
-
-
-def build(rig: Rig, fmt: str, label: str = "<rig>") -> Export:
-    """Every file one export writes, without writing anything."""
-    if fmt == "kalibr":
-        return kalibr_camchain(rig, label)
-    if fmt == "opencv":
-        return opencv_files(rig, label)
-    if fmt == "ros":
-        return ros_files(rig, label)
-    if fmt == "json":
-        return Export({"rig.json": json_text(rig)})
-    if fmt in ("kalibr-imu", "euroc"):
-        from .export_imu import euroc_files, kalibr_imu_files
-
-        return (kalibr_imu_files if fmt == "kalibr-imu" else euroc_files)(rig, label)
-    raise InputError(f"export: --format: expected one of {', '.join(FORMATS + IMU_FORMATS)}, got {fmt!r}")
-
-
-def _warn(message: str) -> None:
-    print(f"rigcal: warning: {message}", file=sys.stderr)
-
-
-def write_export(result: Export, fmt: str, out_path: Path) -> None:
-    """File formats go to out_path itself; folder formats are built in a temporary sibling
-    folder and moved into place, so a failure leaves nothing behind."""
-    if fmt in ("kalibr", "json"):
-        if out_path.is_dir():
-            raise OutputError(f"{out_path}: is a directory; --format {fmt} writes one file")
-        (text,) = result.files.values()
-        atomic_write_text(out_path, text)
-        return
-    if out_path.is_dir() and any(out_path.iterdir()):
-        raise OutputError(f"{out_path}: directory exists and is not empty; export writes a new folder "
-                          "(choose another --out or remove this one)")
-    with atomic_dir(out_path, force=True) as tmp:
-        for name, text in result.files.items():
-            (tmp / name).parent.mkdir(parents=True, exist_ok=True)  # euroc: <sensor>/sensor.yaml
-            atomic_write_text(tmp / name, text)
-
-
-def run(rig_path: Path, fmt: str, out_path: Path) -> str:
-    """`rigcal export RIG --format F --out PATH`: returns the text for stdout."""
-    rig_path, out_path = Path(rig_path), Path(out_path)
-    rig = load_rig(rig_path)
-    result = build(rig, fmt, str(rig_path))
-    for w in result.warnings:
-        _warn(w)
-    write_export(result, fmt, out_path)
-    what = {"kalibr": "Kalibr camchain", "opencv": "OpenCV FileStorage folder",
-            "ros": "ROS camera_info folder", "json": "rig JSON", "kalibr-imu": "Kalibr camchain-imucam folder",
-            "euroc": "EuRoC sensor.yaml folder"}[fmt]
-    lines = [f"wrote {what} {out_path} ({len(rig.cameras)} cameras, {len(rig.stereo_pairs)} stereo pairs)"]
-    lines += [f"  {s}" for s in result.summary if fmt != "json"]
-    return "\n".join(lines)
-
-
 # ----------------------------------------------------------------------------- kalibr import
 
 
@@ -497,7 +437,7 @@ def parse_camchain(doc: Any, label: str) -> list[KalibrCamera]:
     return cams
 
 
-def _match_declared(cams: list[KalibrCamera], declared: Rig) -> tuple[list[str], str]:
+def match_declared(cams: list[KalibrCamera], declared: Rig) -> tuple[list[str], str]:
     """Declared camera name for each Kalibr camera, and how they were matched."""
     names = list(declared.names)
     if len(cams) != len(names):
@@ -516,6 +456,18 @@ def _match_declared(cams: list[KalibrCamera], declared: Rig) -> tuple[list[str],
     return names, "by order (camN = the declared rig's N-th camera)"
 
 
+def _camera_entry(m: CameraModel, T_body_cam: np.ndarray) -> dict[str, Any]:
+    """One camera of the rig schema (rig-yaml.md) from imported intrinsics and pose."""
+    return {
+        "model": m.model, "resolution": [m.width, m.height],
+        "intrinsics": {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy},
+        "distortion": list(m.dist),
+        "position": [_plain_float(x) for x in T_body_cam[:3, 3]],
+        "rotation": _rows(T_body_cam[:3, :3]),
+        "quaternion": [_plain_float(x) for x in geo.quat_from_R(T_body_cam[:3, :3])],
+    }
+
+
 def rig_from_camchain(cams: list[KalibrCamera], source: str, declared: Rig | None = None,
                       declared_label: str = "", body_from: str | None = None) -> tuple[Rig, list[str], list[str]]:
     """Kalibr cameras -> (rig, notes for stdout, warnings for stderr).
@@ -526,7 +478,7 @@ def rig_from_camchain(cams: list[KalibrCamera], source: str, declared: Rig | Non
     notes: list[str] = []
     warnings: list[str] = []
     if declared is not None:
-        names, how = _match_declared(cams, declared)
+        names, how = match_declared(cams, declared)
         notes.append(f"cameras matched to {declared_label} {how}: "
                      + ", ".join(f"{c.key} = {n}" for c, n in zip(cams, names)))
         anchor = declared.camera(names[0])
@@ -557,18 +509,7 @@ def rig_from_camchain(cams: list[KalibrCamera], source: str, declared: Rig | Non
         notes.append("no stereo pairs (a camchain does not name them): add them under stereo_pairs, or import with --rig")
     if any(c.has_imu for c in cams):
         notes.append("T_cam_imu and the other IMU keys were not imported (a rig file has no IMU)")
-    cameras = {}
-    for c, n in zip(cams, names):
-        T = T_body_cam0 @ c.T_cam0_cam
-        m = c.intrinsics
-        cameras[n] = {
-            "model": m.model, "resolution": [m.width, m.height],
-            "intrinsics": {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy},
-            "distortion": list(m.dist),
-            "position": [_plain_float(x) for x in T[:3, 3]],
-            "rotation": _rows(T[:3, :3]),
-            "quaternion": [_plain_float(x) for x in geo.quat_from_R(T[:3, :3])],
-        }
+    cameras = {n: _camera_entry(c.intrinsics, T_body_cam0 @ c.T_cam0_cam) for c, n in zip(cams, names)}
     if declared is not None:
         cameras = {n: cameras[n] for n in declared.names}  # declared order
         warnings += _compare_declared(declared, cameras, declared_label)
@@ -592,39 +533,3 @@ def _compare_declared(declared: Rig, cameras: Mapping[str, Mapping[str, Any]], l
             out.append(f"{label}: cameras.{c.name}: the imported pose is {dpos * 1000:.0f} mm and {dang:.1f} deg "
                        "from the declared one; check that the cameras were matched correctly")
     return out
-
-
-def run_import(source: Path, fmt: str, out_path: Path, rig_path: Path | None = None,
-               body_from: str | None = None) -> str:
-    """`rigcal import --format kalibr CAMCHAIN --out RIG [--rig DECLARED | --body-from camN]`."""
-    from .rig import dump_rig
-
-    if fmt != "kalibr":
-        raise InputError(f"import: --format: expected kalibr, got {fmt!r}")
-    if rig_path is not None and body_from is not None:
-        raise InputError("import: give --rig or --body-from, not both")
-    if rig_path is None and body_from is None:
-        raise InputError(
-            "import: a camchain gives poses relative to cam0, not in the drone's FLU body frame: give "
-            "--rig DECLARED.yaml (declared camera names and poses; cam0 is placed at its declared pose) "
-            "or --body-from cam0 (cam0's camera frame becomes the body frame)")
-    from .rig import load_yaml
-    from .validate import read_text
-
-    label = str(source)
-    doc = load_yaml(read_text(source, InputError), label, InputError)
-    cams = parse_camchain(doc, label)
-    declared = load_rig(rig_path) if rig_path is not None else None
-    rig, notes, warnings = rig_from_camchain(cams, label, declared, str(rig_path) if rig_path else "", body_from)
-    if declared is not None and declared.imus and all(c.has_imu for c in cams):
-        from .export_imu import imucam_rig
-
-        rig = imucam_rig(rig, doc, _match_declared(cams, declared)[0], declared, label)
-        notes = [n for n in notes if "T_cam_imu" not in n and "body frame:" not in n]
-        notes.append(f"camchain-imucam: every camera placed by T_cam_imu against {declared.imus[0].name} at its "
-                     f"declared pose, timeshift_cam_imu as time_offset_s")
-    for w in warnings:
-        _warn(w)
-    atomic_write_text(Path(out_path), dump_rig(rig))
-    return "\n".join([f"wrote rig {out_path} from Kalibr camchain {label} ({len(rig.cameras)} cameras)"]
-                     + [f"  {n}" for n in notes])

@@ -27,6 +27,8 @@ from .errors import InputError
 from .export import Export, kalibr_camchain
 from .rig import IMU_NOISE_KEYS, Rig
 
+IMU_FORMATS = ("kalibr-imu", "euroc")  # export_command's --format names of the builders here
+
 
 def _plain(x: float) -> float:
     return float(x) + 0.0

@@ -315,3 +315,14 @@ def robust_mean_pose(Ts: np.ndarray, iters: int = 3) -> np.ndarray:
     keep = w > 0
     t = np.median(Ts[keep, :3, 3], axis=0)
     return make_T(R, t)
+
+
+def fit_rigid_to(S: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """The rigid T minimising sum ||R R_S - R_D||^2 + ||R (t_S - c_S) - (t_D - c_D)||^2 over
+    poses S, D (N, 4, 4): rotation by the polar decomposition of the summed rotation and
+    centred-position correlations, translation from the centroids. T @ S_i ~ D_i."""
+    tD, tS = D[:, :3, 3], S[:, :3, 3]
+    cD, cS = tD.mean(0), tS.mean(0)
+    M = np.einsum("nij,nkj->ik", D[:, :3, :3], S[:, :3, :3]) + (tD - cD).T @ (tS - cS)
+    R = nearest_rotation(M)
+    return make_T(R, cD - R @ cS)

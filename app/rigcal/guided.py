@@ -57,6 +57,8 @@ class BoardCorners:
 
 @dataclass(frozen=True)
 class ImageTask:
+    """One image for the guided pass: its file, the calibrated camera model and the boards it shows."""
+
     path: str
     model: CameraModel
     boards: tuple[BoardCorners, ...]
@@ -239,7 +241,7 @@ def guided_cameras(rig, mode: str) -> list[str]:
 
 
 def rerefiner(images, rig, target, jobs: int = 1, mode: str = "auto", scheduler: str | None = None):
-    """core.calibrate_views' `rerefine` hook for a dataset (dataset.DatasetImages), or None
+    """pipeline.calibrate_views' `rerefine` hook for a dataset (dataset.DatasetImages), or None
     when `mode` (guided_cameras) selects no camera; on the Dask cluster at `scheduler` if given."""
     chosen = set(guided_cameras(rig, mode))
     if not chosen or any(b.type == "aprilgrid" for b in target.boards):

@@ -167,25 +167,25 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
     """(state, per-camera RateStart, IMU sample mask): offsets and rotations from rates,
     declared translations, the trajectory from the camera poses, zero biases, gravity from
     the accelerometer. Refuses a recording that turns about one axis or never accelerates."""
-    starts, T_bc, t_all, T_wb = [], [], [], []
+    starts, T_body_cam, t_all, T_world_body = [], [], [], []
     for ci, c in enumerate(cams):
         s = imu_start.rate_start(c.t_cam, c.T_world_cam[:, :3, :3], imu.t, imu.gyro, c.time_offset_guess_s,
                                  settings.window_s, what=f"camera {ci}")
         T = c.T_body_cam.copy()
         T[:3, :3] = imu.T_body_imu[:3, :3] @ s.R_imu_cam
         starts.append(s)
-        T_bc.append(T)
+        T_body_cam.append(T)
         t_all.append(c.t_cam + s.time_offset_s)
-        T_wb.append(c.T_world_cam @ geo.inv_T(T))
-    t_all, T_wb = np.concatenate(t_all), np.concatenate(T_wb)
+        T_world_body.append(c.T_world_cam @ geo.inv_T(T))
+    t_all, T_world_body = np.concatenate(t_all), np.concatenate(T_world_body)
     frame_dt = float(np.median(np.diff(np.sort(cams[0].t_cam))))
-    spline = initial_spline(t_all, T_wb, settings.knot_dt, max(settings.knot_dt, 1.5 * frame_dt),
+    spline = initial_spline(t_all, T_world_body, settings.knot_dt, max(settings.knot_dt, 1.5 * frame_dt),
                             attitude=gyro_attitude(imu))
     imu_start.check_acceleration(spl.evaluate(spline, np.arange(t_all.min(), t_all.max(), 0.01)).a_world,
                                  "the camera trajectory")
     use = (imu.t >= spline.t0 + 0.5 * spline.dt) & (imu.t <= spline.t_end - 0.5 * spline.dt)
     n_bias = int(math.ceil((spline.t_end - spline.t0) / settings.bias_dt)) + 1
-    state = ir.State(spline=spline, T_body_imu=imu.T_body_imu.copy(), T_body_cam=np.stack(T_bc),
+    state = ir.State(spline=spline, T_body_imu=imu.T_body_imu.copy(), T_body_cam=np.stack(T_body_cam),
                      time_offset_s=np.array([s.time_offset_s for s in starts]),
                      line_delay_s=np.array([c.line_delay_s for c in cams]), bias_t0=spline.t0,
                      bias_dt=settings.bias_dt, gyro_bias=np.zeros((n_bias, 3)), accel_bias=np.zeros((n_bias, 3)),

@@ -68,8 +68,8 @@ def motion_inputs(dataset: str | Path, rig: Rig, target: Target, T_world_board: 
                          np.array([m.fx, m.fy, m.cx, m.cy, *m.dist]), m.model,
                          [target.boards[b].print_face for _, b, _, _ in first])
         ok = [j for j, f in enumerate(fits) if f is not None]
-        T_wc = np.stack([T_world_board[first[j][1]] @ geo.inv_T(fits[j][0]) for j in ok])
-        cams.append(CameraInput(m, cam.T_body_cam.copy(), t_img[[first[j][0] for j in ok]], T_wc,
+        T_world_cam = np.stack([T_world_board[first[j][1]] @ geo.inv_T(fits[j][0]) for j in ok])
+        cams.append(CameraInput(m, cam.T_body_cam.copy(), t_img[[first[j][0] for j in ok]], T_world_cam,
                                 cam.line_delay_s or 0.0, cam.time_offset_s or 0.0))
     obs = Corners(*(np.concatenate(x) for x in zip(*parts)))
     imu = ImuInput((samples.t_ns - t_base) * 1e-9, samples.gyro, samples.accel, imu_decl.update_rate,

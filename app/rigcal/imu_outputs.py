@@ -27,17 +27,15 @@ def _r(x: float, nd: int) -> float:
 def body_from_imu(reference: str, imu_name: str, T_imu_cam: np.ndarray, declared: Rig) -> np.ndarray:
     """T_body_imu of the calibrated IMU under the chosen reference: `imu:NAME` keeps the
     declared pose; `camera:NAME` puts that camera at its declared pose; `aligned` fits every
-    camera to its declared pose (core.fit_rigid_to)."""
+    camera to its declared pose (geometry.fit_rigid_to)."""
     if reference == f"imu:{imu_name}":
         return declared.imu(imu_name).T_body_imu
     names = declared.names
     if reference.startswith("camera:"):
         c = reference.split(":", 1)[1]
         return declared.camera(c).T_body_cam @ geo.inv_T(T_imu_cam[names.index(c)])
-    from .core import fit_rigid_to
-
     posed = [k for k, c in enumerate(declared.cameras) if c.T_body_cam is not None]
-    return fit_rigid_to(T_imu_cam[posed], np.stack([declared.cameras[k].T_body_cam for k in posed]))
+    return geo.fit_rigid_to(T_imu_cam[posed], np.stack([declared.cameras[k].T_body_cam for k in posed]))
 
 
 def _camera_block(old: dict | None, k: int, res: ImuCalibration) -> dict:

@@ -412,14 +412,14 @@ def retract(state: State, lay: Layout, dx: np.ndarray) -> State:
     sp_ = state.spline
     spline = replace(sp_, R=_turn(sp_.R, dx[:3 * n].reshape(n, 3)), p=sp_.p + dx[lay.pos:lay.pos + 3 * n].reshape(n, 3))
     dc = dx[lay.cam:lay.cam + 6 * c].reshape(c, 6)
-    T_bc = state.T_body_cam.copy()
-    T_bc[:, :3, :3] = _turn(T_bc[:, :3, :3], dc[:, :3])
-    T_bc[:, :3, 3] += dc[:, 3:]
-    T_bi = state.T_body_imu.copy()
-    T_bi[:3, :3] = _turn(T_bi[:3, :3], dx[lay.imu:lay.imu + 3])
-    T_bi[:3, 3] += dx[lay.imu + 3:lay.imu + 6]
+    T_body_cam = state.T_body_cam.copy()
+    T_body_cam[:, :3, :3] = _turn(T_body_cam[:, :3, :3], dc[:, :3])
+    T_body_cam[:, :3, 3] += dc[:, 3:]
+    T_body_imu = state.T_body_imu.copy()
+    T_body_imu[:3, :3] = _turn(T_body_imu[:3, :3], dx[lay.imu:lay.imu + 3])
+    T_body_imu[:3, 3] += dx[lay.imu + 3:lay.imu + 6]
     R_grav = geo.R_from_rotvec(tangent_basis(state.R_grav) @ dx[lay.grav:lay.grav + 2]) @ state.R_grav
-    return replace(state, spline=spline, T_body_cam=T_bc, T_body_imu=T_bi,
+    return replace(state, spline=spline, T_body_cam=T_body_cam, T_body_imu=T_body_imu,
                    time_offset_s=state.time_offset_s + dx[lay.offset:lay.offset + c],
                    line_delay_s=state.line_delay_s + dx[lay.line_delay:lay.line_delay + c],
                    gyro_bias=state.gyro_bias + dx[lay.bg:lay.bg + 3 * k].reshape(k, 3),

@@ -57,8 +57,8 @@ def _frame_poses(cam_model, T_world_board_f, p_board, uv, keep):
     vals = np.array([cam_model.fx, cam_model.fy, cam_model.cx, cam_model.cy, *cam_model.dist])
     fits = pnp_views(obj, img, vals, cam_model.model)
     ok = [k for k, fit in enumerate(fits) if fit is not None]
-    T_wc = np.stack([T_world_board_f[boards[k]] @ geo.inv_T(fits[k][0]) for k in ok])
-    return np.array([idx[k] for k in ok]), T_wc
+    T_world_cam = np.stack([T_world_board_f[boards[k]] @ geo.inv_T(fits[k][0]) for k in ok])
+    return np.array([idx[k] for k in ok]), T_world_cam
 
 
 def _project_rows(traj, cam, t_frame: np.ndarray, p_world: np.ndarray, iters: int = 4):
@@ -98,8 +98,8 @@ def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, se
     for ci, cam in enumerate(truth.cameras):
         t_true = timing.t_imu_s[ci]
         uv_all, keep_all = [], []
-        for b, T_wB in enumerate(T_world_board):
-            p_w = geo.transform(T_wB, p_board[b])
+        for b, T_world_board_b in enumerate(T_world_board):
+            p_w = geo.transform(T_world_board_b, p_board[b])
             uv, valid = _project_rows(traj, cam, t_true, p_w)
             uv = uv + rng.normal(0.0, sigma_px, uv.shape)
             keep = valid & cam.intrinsics.in_image(uv)
@@ -110,10 +110,10 @@ def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, se
             parts.append((np.full(len(f), ci), t_cam[f], uv_all[-1][f, n], p_w[n]))
         keep_fb = np.stack(keep_all, axis=1)  # (F, B, N) needs equal N per board
         uv_fb = np.stack(uv_all, axis=1)
-        frames, T_wc = _frame_poses(cam.intrinsics, T_world_board, p_board, uv_fb, keep_fb)
+        frames, T_world_cam = _frame_poses(cam.intrinsics, T_world_board, p_board, uv_fb, keep_fb)
         declared = rig.camera(cam.name)
-        cams.append(CameraInput(cam.intrinsics, declared.T_body_cam.copy(), t_true[frames] - cam.time_offset_s, T_wc,
-                                declared.line_delay_s or 0.0))
+        cams.append(CameraInput(cam.intrinsics, declared.T_body_cam.copy(), t_true[frames] - cam.time_offset_s,
+                                T_world_cam, declared.line_delay_s or 0.0))
     obs = Corners(*(np.concatenate(x) for x in zip(*parts)))
     declared_imu = rig.imus[0]
     imu_in = ImuInput(t_imu, stream.gyro, stream.accel, imu.update_rate, imu.gyroscope_noise_density,
@@ -125,10 +125,10 @@ def synthetic_recording(rig: Rig, duration: float, camera_rate: float = 20.0, se
 def errors_against_truth(rec, T_imu_cam: np.ndarray, time_offset_s: np.ndarray) -> np.ndarray:
     """(C, 3): rotation error (deg), translation error (m) of T_imu_cam and offset error (s)
     against `rec.truth` (a SyntheticRecording or simulate_imu.MotionSimResult)."""
-    T_bi = rec.truth.imus[0].T_body_imu
+    T_body_imu = rec.truth.imus[0].T_body_imu
     out = []
     for c, T, off in zip(rec.truth.cameras, T_imu_cam, time_offset_s):
-        T_true = geo.inv_T(T_bi) @ c.T_body_cam
+        T_true = geo.inv_T(T_body_imu) @ c.T_body_cam
         out.append([geo.rotation_angle_deg(T[:3, :3].T @ T_true[:3, :3]),
                     float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])), float(off - c.time_offset_s)])
     return np.array(out)

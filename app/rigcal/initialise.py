@@ -1,33 +1,35 @@
-"""Initial values for the rig bundle adjustment, robust to cameras that never share a view.
+"""Each camera's start for the rig bundle adjustment, and one corner order per frame.
 
 1. Intrinsics per camera from its own views (cv2.calibrateCamera for pinhole, seeded
    by the declared values; a one-camera bundle adjustment for fisheye), and a
-   `T_cam_board` per view by PnP.
+   `T_cam_board` per view by PnP (init_camera); the views PnP posed are PosedViews.
 2. 180-degree symmetric chessboards: each view's corner order is made consistent
    with the other cameras of its frame (the relative camera pose is the same in
-   every frame; only one of the two orders agrees with it).
-3. A pose graph over cameras, frames and boards. Each view links its camera,
-   frame and board through T_cam_board = T_cam_body T_body_world T_world_board.
-   Starting from one camera and one board, unknown poses are set from every
-   available observation at once by a robust average (chordal rotation mean with
-   outlier down-weighting, median translation), so the back camera joins the front
-   pair through the boards even when no frame shows one board to both. A camera whose
-   boards no other camera sees is placed by the rig's own motion (hand-eye, AX = XB)
-   from the frames the others posed.
+   every frame; only one of the two orders agrees with it): resolve_flips.
+3. When the rig is not rigid per frame, each camera's intrinsics from its own views
+   alone (own_views_intrinsics).
+
+The poses of cameras, frames and boards then come from the pose graph (pose_graph.py).
 """
 
 from __future__ import annotations
 
 from collections import defaultdict
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Callable
 
 import cv2
 import numpy as np
+# chdtri(k, q): the chi-square quantile with upper tail q; scipy.stats costs 1 s to import
+from scipy.special import chdtri
 
 from . import geometry as geo
-from .camera import CameraModel
+from .camera import PINHOLE_MODEL_NAMES, CameraModel
 from .errors import CalibrationError
+from .model_selection import forced_structure, keep_k3, refit, select_structure, solve_covariance
+from .observations import BoardView
+from .solve import Intrinsics, Observations, SolveResult, State, bundle_adjust, intrinsics_covariance
 
 # views given to cv2.calibrateCamera (a start and the rational test; the joint solve uses
 # every view); the rest get PnP, which keeps init linear in frames. 20 rather than 40
@@ -35,26 +37,42 @@ from .errors import CalibrationError
 MAX_INIT_VIEWS = 20
 CHESS_FLIP_DEG = 20.0
 PNP_AMBIGUITY = 1.5  # IPPE's two solutions count as ambiguous within this error ratio
-# hand-eye start (a camera whose boards no other camera sees): posed views it needs, the
-# views of one board it uses at most (pairs grow as their square), and the rotation (RMS
-# over frame pairs) the rig must make about a second axis for the pose to be determined
-HAND_EYE_MIN_FRAMES = 4
-HAND_EYE_MAX_FRAMES = 40
-HAND_EYE_MIN_SPREAD_DEG = 1.0
+DISTORTION_CHOICES = {"radial2": 2, "radtan4": 4, "radtan5": 5, "rational8": 8}
+# `--distortion auto` for a pinhole camera: radtan4 (k1 k2 p1 p2) is the least it fits,
+# as in Kalibr. Decentering is nearly a principal-point shift in reprojection, so a
+# significance test misses it when it is real but small, and each miss biases that
+# camera's rotation by about its cy bias / f. Measured on drone-stereo-back (30 frames,
+# 0.1 px, p ~ 1e-4, bench/montecarlo.py): the joint-solve Wald statistic of (p1, p2)
+# ranged 0.4-58, a 5 % test dropped p in 33 of 90 fits, and the 2-sigma coverage about
+# body L fell to 62 %. Always estimating p widens the sigma of rotation about the
+# camera's x and y axes 2.5-4x, yet its actual rotation errors were 2-4x SMALLER than
+# radial2's (0.005-0.008 deg against 0.009-0.033 deg RMS), and coverage is 90-98 %.
+# radial2 stays available by name, for lenses known to have no decentering.
+# The rational model is chosen before the joint solve (it is the richest start); it must
+# beat radtan5 by a likelihood ratio at this level, with a coefficient beyond RATIONAL_MIN_Z
+# sigmas, and lower the RMS by RATIONAL_MIN_GAIN.
+RATIONAL_LEVEL = 1e-4
+RATIONAL_MIN_Z = 3.0
+RATIONAL_MIN_GAIN = 0.05
+# joint / own-views RMS beyond which a rig is judged not rigid per frame (rigidity_check)
+RIGIDITY_RATIO = 3.0
+MIN_VIEW_CORNERS = 4
 
 
-@dataclass(frozen=True, eq=False)
-class PosedView:
-    """A view with its initial pose. ids/uv as detected (ids possibly re-ordered for flips)."""
+@dataclass(frozen=True)
+class PosedViews:
+    """The views PnP could pose, each with its start pose: what the per-camera start learns.
 
-    cam: int
-    frame: int
-    board: int
-    ids: np.ndarray
-    uv: np.ndarray
-    T_cam_board: np.ndarray
-    rms_px: float
-    sigma: np.ndarray | None = None  # (N,) the detector's own 1-sigma per corner, px (core.ViewIn)
+    views[k] (as detected; a symmetric chessboard's ids possibly reversed by resolve_flips)
+    was posed at T_cam_board[k] (4x4) with an RMS of rms_px[k] px; cam, frame, board: its
+    indices into the rig's cameras, the sorted frame names and the boards."""
+
+    views: tuple[BoardView, ...]
+    cam: tuple[int, ...]
+    frame: tuple[int, ...]
+    board: tuple[int, ...]
+    T_cam_board: tuple[np.ndarray, ...]
+    rms_px: tuple[float, ...]
 
 
 # ----------------------------------------------------------------------------- intrinsics
@@ -69,6 +87,9 @@ PINHOLE_FLAGS = {
 
 @dataclass(frozen=True)
 class MonoFit:
+    """One camera's cv2.calibrateCamera fit (fit_pinhole): values with their 1-sigma, RMS,
+    corner count, per-view T_cam_board and per-view RMS."""
+
     values: np.ndarray  # [fx, fy, cx, cy, dist(n)]
     sigma: np.ndarray  # 1-sigma of values (from OpenCV's covariance)
     rms_px: float
@@ -77,7 +98,7 @@ class MonoFit:
     view_rms: np.ndarray
 
 
-def _select_views(n_corners: np.ndarray, limit: int, rng_seed: int = 0) -> np.ndarray:
+def _select_views(n_corners: np.ndarray, limit: int) -> np.ndarray:
     """Indices of at most `limit` views, favouring many corners, spread over the sequence."""
     n = len(n_corners)
     if n <= limit:
@@ -226,6 +247,239 @@ def _camera_model(values: np.ndarray, model: str, size=(1, 1)) -> CameraModel:
                        float(values[3]), tuple(float(v) for v in values[4:]))
 
 
+# ----------------------------------------------------------------------------- one camera's start
+
+
+def _views_obj_img(views: list[BoardView], corners: dict) -> tuple[list, list]:
+    return [corners[v.board][v.ids] for v in views], [v.uv for v in views]
+
+
+def _faces(views: list[BoardView], faces: dict | None) -> list[float] | None:
+    """Per view the sign of board z on the printed side (initialise.camera_faces_print)."""
+    return None if faces is None else [float(faces.get(v.board, -1.0)) for v in views]
+
+
+@dataclass(frozen=True)
+class MonoInit:
+    """One camera's start: intrinsics, per-view T_cam_board (None where PnP failed), the
+    model-selection log, and its own-views fit for the rigidity check (rms_px None when
+    the intrinsics were not fitted; mono() gives the values it supports on its own)."""
+
+    values: np.ndarray
+    T_cam_board: list
+    log: list[str]
+    rms_px: float | None = None
+    mono: Callable[[], tuple[np.ndarray, str]] | None = None
+
+
+def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, distortion: str,
+                fix_intrinsics: bool, faces: dict | None = None) -> MonoInit:
+    """Initial intrinsics and per-view poses for one camera, from its own views.
+
+    With `auto` a pinhole camera starts from radtan5 (or rational8 when it wins clearly);
+    the joint solve then drops k3 when the data do not support it (keep_k3)."""
+    notes: list[str] = []
+    obj, img = _views_obj_img(views, corners)
+    rms, mono = None, None
+    if fix_intrinsics:
+        values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
+    elif declared.model == "fisheye":
+        values, rms = _init_fisheye(obj, img, declared, _faces(views, faces))
+        mono = lambda: (values, "fisheye (own views)")  # noqa: E731
+    else:
+        sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
+        o_s, i_s = [obj[i] for i in sel], [img[i] for i in sel]
+        n_want = 5 if distortion == "auto" else DISTORTION_CHOICES[distortion]
+        fit, o_s, i_s, _, _ = _clean_fit(o_s, i_s, declared, n_want)
+        chosen = fit
+        if distortion == "auto" and len(fit.values) == 9:
+            try:
+                fit8 = fit_pinhole(o_s, i_s, declared, 8)
+            except CalibrationError:
+                fit8 = None
+            n, log = select_rational(fit, fit8, 6 * len(o_s))
+            notes.extend(log)
+            if n == 8:
+                chosen = fit8
+        values, rms = chosen.values, chosen.rms_px
+
+        def mono(n=len(chosen.values) - 4):
+            # refitted on every view of the camera, cleaned: these intrinsics are kept,
+            # not just a start
+            own, _, _, o_c, i_c = _clean_fit(obj, img, declared, n)
+            if distortion != "auto" or n != 5:
+                return own.values, f"{PINHOLE_MODEL_NAMES[n]} (own views)"
+            keep, line = keep_k3(own.values[8], own.sigma[8] ** 2)
+            if keep:
+                return own.values, f"radtan5 (own views; {line})"
+            return fit_pinhole(o_c, i_c, declared, 4).values, f"radtan4 (own views; {line})"
+    return MonoInit(values, pnp_views(obj, img, values, declared.model, _faces(views, faces)), notes, rms, mono)
+
+
+def fixed_intrinsics_misfit(views: list[BoardView], corners: dict, declared: CameraModel, mi: MonoInit,
+                            faces: dict | None = None) -> str | None:
+    """With --fix-intrinsics: words when the declared intrinsics fit this camera's own views
+    (PnP per view) more than RIGIDITY_RATIO times worse than intrinsics fitted to them, else
+    None. Own views only, so neither the rig's rigidity nor its synchronisation enters: the
+    declared focal length, principal point or distortion do not describe these images, and
+    the extrinsics are bent to absorb that (Bumblebee2 with focal 500 and no distortion
+    declared: 2.0 px against 0.08, the baseline 137 mm instead of 120)."""
+    posed = [(T[1], len(v.ids)) for v, T in zip(views, mi.T_cam_board) if T is not None]
+    if not posed:
+        return None
+    fixed = float(np.sqrt(sum(r * r * k for r, k in posed) / sum(k for _, k in posed)))
+    obj, img = _views_obj_img(views, corners)
+    try:
+        if declared.model == "fisheye":
+            free = _init_fisheye(obj, img, declared, _faces(views, faces))[1]
+        else:
+            sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
+            free = _clean_fit([obj[i] for i in sel], [img[i] for i in sel], declared,
+                              min(max(len(declared.dist), 4), 8))[0].rms_px
+    except CalibrationError:
+        return None
+    if not fixed > RIGIDITY_RATIO * free:
+        return None
+    return (f"the declared intrinsics (--fix-intrinsics) fit its own views to {fixed:.2f} px RMS, {fixed / free:.0f}x "
+            f"the {free:.2f} px of intrinsics fitted to them: the declared focal length, principal point or "
+            f"distortion do not describe these images, and the extrinsics absorb the difference")
+
+
+def _clean_fit(obj: list, img: list, declared: CameraModel, n_dist: int) -> tuple[MonoFit, list, list, list, list]:
+    """OpenCV fit of `n_dist` coefficients without gross outlier corners: a few wrong
+    corners would otherwise decide the rational test and skew the start. Corners beyond
+    5 robust sigmas go, and so do views left with too few corners; the fit is redone
+    only if what went carried over 5 % of its cost. Falls back to fewer coefficients
+    when OpenCV fails (very few views). Returns (fit, the views it was fitted on, the
+    cleaned views)."""
+    last = None
+    for n in [n_dist] + [m for m in (4, 2) if m < n_dist]:
+        try:
+            fit = fit_pinhole(obj, img, declared, n)
+            break
+        except CalibrationError as e:
+            last = e
+    else:
+        raise last
+    errors = corner_residuals(obj, img, fit.values, "pinhole", fit.T_cam_board)
+    masks = inlier_masks(errors)
+    keep = [k for k, m in enumerate(masks) if m.sum() >= max(MIN_VIEW_CORNERS, 6)]
+    o2, i2 = [obj[k][masks[k]] for k in keep], [img[k][masks[k]] for k in keep]
+    e2 = np.concatenate(errors) ** 2
+    kept = np.concatenate([m if k in keep else np.zeros_like(m) for k, m in enumerate(masks)])
+    # corners that carried under 5 % of the cost cannot have pulled the fit far: keep it,
+    # with the views it was fitted on (the rational test compares fits on the same corners)
+    if np.isfinite(e2).all() and e2[~kept].sum() <= 0.05 * e2.sum():
+        return fit, obj, img, o2, i2
+    try:
+        return fit_pinhole(o2, i2, declared, n), o2, i2, o2, i2
+    except CalibrationError:
+        return fit, obj, img, obj, img
+
+
+def _init_fisheye(obj: list, img: list, declared: CameraModel, faces: list[float] | None = None
+                  ) -> tuple[np.ndarray, float]:
+    """One-camera bundle adjustment from the declared intrinsics and per-view PnP:
+    (intrinsics values, RMS reprojection px)."""
+    values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
+    res = one_camera_solve(obj, img, Intrinsics("fisheye", values), MAX_INIT_VIEWS, faces)
+    if res is None:
+        raise CalibrationError("fisheye: fewer than 2 views could be posed from the declared intrinsics")
+    return res.state.intrinsics[0].values, float(np.sqrt(np.mean(np.sum(res.residuals**2, axis=1))))
+
+
+def one_camera_solve(obj: list, img: list, intr: Intrinsics, limit: int | None = None,
+                     faces: list[float] | None = None) -> SolveResult | None:
+    """Bundle adjustment of one camera on its own views (each view a frame), started from
+    `intr` (its structure kept) and per-view PnP (faces: per view the sign of board z on the
+    printed side, _faces); at most `limit` views (_select_views) when given. None when fewer
+    than 2 views can be posed."""
+    keep, Ts = [], []
+    for k, r in enumerate(pnp_views(obj, img, intr.values, intr.model, faces)):
+        if r is not None:
+            keep.append(k)
+            Ts.append(r[0])
+    if len(keep) < 2:
+        return None
+    pos = {k: j for j, k in enumerate(keep)}
+    sel = keep if limit is None else [keep[j] for j in _select_views(np.array([len(obj[k]) for k in keep]), limit)]
+    P = np.concatenate([obj[k] for k in sel])
+    uv = np.concatenate([img[k] for k in sel])
+    frame = np.concatenate([np.full(len(obj[k]), j) for j, k in enumerate(sel)])
+    obs = Observations(np.zeros(len(P), int), frame, np.zeros(len(P), int), P, uv, frame)
+    state = State([replace(intr, values=intr.values.copy())], np.eye(4)[None],
+                  np.array([Ts[pos[k]] for k in sel]), np.eye(4)[None])
+    return bundle_adjust(obs, state, gauge_cam=0, gauge_board=0)
+
+
+@dataclass(frozen=True)
+class OwnViews:
+    """One camera's intrinsics from its own views (own_views_intrinsics): the structure
+    chosen, the log, and the covariance (n, n) of the values as solved and as estimated
+    freely before the choice (None when unknown)."""
+
+    intrinsics: Intrinsics
+    log: list
+    cov: np.ndarray | None
+    cov_free: np.ndarray | None
+
+
+def own_views_intrinsics(views: list[BoardView], corners: dict, start: Intrinsics, centre, mode: str,
+                         faces: dict | None = None) -> OwnViews:
+    """One camera's intrinsics from its own views alone (a rig whose frames are not rigid):
+    one_camera_solve over every view from `start`, the structure imposed (--intrinsics NAME)
+    or chosen (auto, select_structure) and the solve redone with it."""
+    obj, img = _views_obj_img(views, corners)
+    start = forced_structure(start, mode, centre)
+    res = one_camera_solve(obj, img, start, faces=_faces(views, faces))
+    if res is None:
+        return OwnViews(start, ["own views: fewer than 2 views could be posed; intrinsics kept as fitted"], None, None)
+    full = _intrinsics_cov(res)
+    free, lines = None, []
+    if mode == "auto" and full is not None:
+        free = full
+        reduced, lines = select_structure(res, 0, full, centre)
+        lines = [f"own views: {x}" for x in lines]
+        if reduced is not None:
+            res = refit(res, 0, reduced)
+            full = _intrinsics_cov(res)
+    return OwnViews(res.state.intrinsics[0], lines, full, free)
+
+
+def _intrinsics_cov(res: SolveResult) -> np.ndarray | None:
+    """The (n, n) covariance of a one-camera solve's intrinsic values, or None (singular)."""
+    cov = solve_covariance(res)
+    return None if cov is None else intrinsics_covariance(cov[0], cov[1], res.state.intrinsics)[0]
+
+
+def select_rational(fit5: MonoFit, fit8: MonoFit | None, n_params_views: int) -> tuple[int, list[str]]:
+    """5 or 8 coefficients as the start of the joint solve (see RATIONAL_LEVEL).
+
+    The rational model's numerator and denominator can nearly cancel, so on a narrow
+    lens a few systematic corner errors make it "significant" with absurd coefficients
+    (Bumblebee2: k1 = -38, k2 = 356) while it shifts the extrinsics; a genuinely wide lens
+    needs it by a wide margin, hence the RMS gain on top of the test."""
+    if fit8 is None:
+        return 5, []
+    stat, need, z = _lr_test(fit5, fit8, 5, 8, n_params_views)
+    gain = 1.0 - fit8.rms_px / fit5.rms_px
+    ok = stat > need and z > RATIONAL_MIN_Z and gain >= RATIONAL_MIN_GAIN
+    return (8 if ok else 5), [
+        f"radtan5->rational8 (single-camera fit): LR {stat:.1f} (needs {need:.1f}), max |coef/sigma| {z:.1f}, "
+        f"RMS gain {100 * gain:.1f}% (needs {100 * RATIONAL_MIN_GAIN:.0f}%) -> {'accepted' if ok else 'rejected'}"]
+
+
+def _lr_test(base: MonoFit, rich: MonoFit, n_base: int, n_rich: int, n_params_views: int):
+    """(LR statistic, chi2 threshold, max |z| of the added coefficients) for nested fits."""
+    N = rich.n_points
+    dof = max(2 * N - (4 + n_rich + n_params_views), 1)
+    s2 = rich.rms_px**2 * N / dof
+    stat = (base.rms_px**2 - rich.rms_px**2) * N / s2
+    k = n_rich - n_base
+    z = np.abs(rich.values[4 + n_base:4 + n_rich] / np.maximum(rich.sigma[4 + n_base:4 + n_rich], 1e-300))
+    return stat, float(chdtri(k, RATIONAL_LEVEL)), float(z.max())
+
+
 # ----------------------------------------------------------------------------- chessboard flips
 
 
@@ -241,38 +495,76 @@ def _angle_deg(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return geo.rotation_angle_deg(Ra.T @ Rb)
 
 
-def resolve_flips(views: list[dict], n_cams: int, corners_by_board: list[np.ndarray]) -> tuple[int, list[str]]:
-    """Make the corner order of ambiguous views consistent within each frame.
+@dataclass(frozen=True)
+class FlipResult:
+    """resolve_flips' answer: the posed views with consistent corner orders (reversed views
+    get new BoardViews and T_cam_board @ board_flip), how many were reversed, and notes."""
 
-    views: dicts with cam, frame, board, ids, T (T_cam_board), ambiguous; modified in place.
-    Returns (number of views re-ordered, notes)."""
-    amb = [v for v in views if v["ambiguous"]]
-    notes: list[str] = []
+    posed: PosedViews
+    flips: int
+    notes: list[str]
+
+
+def resolve_flips(posed: PosedViews, n_cams: int, corners_by_board: list[np.ndarray]) -> FlipResult:
+    """Make the corner order of ambiguous views (BoardView.ambiguous) consistent within each
+    frame: the relative camera pose is the same in every frame, and only one of a view's
+    two orders agrees with it."""
+    amb = [k for k, v in enumerate(posed.views) if v.ambiguous]
     if not amb:
-        return 0, notes
-    by_frame = defaultdict(dict)
-    for v in amb:
-        by_frame[(v["frame"], v["board"])][v["cam"]] = v
+        return FlipResult(posed, 0, [])
+    T = posed.T_cam_board
+    by_frame = defaultdict(dict)  # (frame, board) -> camera -> view index
+    for k in amb:
+        by_frame[(posed.frame[k], posed.board[k])][posed.cam[k]] = k
+    R_root, seen_count = _relative_orientations(posed, by_frame, amb, n_cams, corners_by_board)
+    views, T_new = list(posed.views), list(T)
+    flips = 0
+    for group in by_frame.values():
+        cams = sorted(group, key=lambda c: (c not in R_root, -seen_count[c]))
+        a = cams[0]
+        if a not in R_root:
+            continue
+        for c in cams[1:]:
+            if c not in R_root:
+                continue
+            ka, kc = group[a], group[c]
+            expected = R_root[a].T @ R_root[c]
+            F = board_flip(corners_by_board[posed.board[ka]])
+            same = (T[ka] @ geo.inv_T(T[kc]))[:3, :3]
+            flip = (T[ka] @ F @ geo.inv_T(T[kc]))[:3, :3]
+            if _angle_deg(expected, flip) < _angle_deg(expected, same):
+                views[kc] = views[kc].reversed_order(len(corners_by_board[posed.board[kc]]))
+                T_new[kc] = T[kc] @ F
+                flips += 1
+    notes = [f"symmetric chessboard: {flips} view(s) had their corner order reversed to agree with the other "
+             f"cameras"] if flips else []
+    return FlipResult(replace(posed, views=tuple(views), T_cam_board=tuple(T_new)), flips, notes)
+
+
+def _relative_orientations(posed: PosedViews, by_frame: dict, amb: list[int], n_cams: int,
+                           corners_by_board: list[np.ndarray]) -> tuple[dict, np.ndarray]:
+    """(camera -> R_root_cam for the cameras linked to the most-seen one, views per camera):
+    per camera pair the relative rotation that (nearly) every frame supports in one of its
+    two orders, chained breadth-first from the root."""
+    T = posed.T_cam_board
     # pairwise candidate relative poses T_a_c from every frame both see
     pair_cands = defaultdict(list)
     for group in by_frame.values():
         cams = sorted(group)
         for i, a in enumerate(cams):
             for c in cams[i + 1:]:
-                va, vc = group[a], group[c]
-                F = board_flip(corners_by_board[va["board"]])
-                same = va["T"] @ geo.inv_T(vc["T"])
-                flip = va["T"] @ F @ geo.inv_T(vc["T"])
-                pair_cands[(a, c)].append((same, flip))
+                ka, kc = group[a], group[c]
+                F = board_flip(corners_by_board[posed.board[ka]])
+                pair_cands[(a, c)].append((T[ka] @ geo.inv_T(T[kc]), T[ka] @ F @ geo.inv_T(T[kc])))
     consensus = {}
     for (a, c), cands in pair_cands.items():
-        allR = [T[:3, :3] for pair in cands for T in pair]
+        allR = [T_a_c[:3, :3] for pair in cands for T_a_c in pair]
         # the true relative rotation is supported by (nearly) every frame; its mirror by few
         scores = [sum(_angle_deg(R, s[:3, :3]) < CHESS_FLIP_DEG or _angle_deg(R, f[:3, :3]) < CHESS_FLIP_DEG
                       for s, f in cands) for R in allR]
         consensus[(a, c)] = allR[int(np.argmax(scores))]
     # BFS over cameras from the most-seen one: relative orientation to a root
-    seen_count = np.bincount([v["cam"] for v in amb], minlength=n_cams)
+    seen_count = np.bincount([posed.cam[k] for k in amb], minlength=n_cams)
     root = int(np.argmax(seen_count))
     R_root = {root: np.eye(3)}
     frontier = [root]
@@ -283,264 +575,4 @@ def resolve_flips(views: list[dict], n_cams: int, corners_by_board: list[np.ndar
                 if p == a and q not in R_root:
                     R_root[q] = R_root[p] @ Rpq
                     frontier.append(q)
-    flips = 0
-    for key, group in by_frame.items():
-        cams = sorted(group, key=lambda c: (c not in R_root, -seen_count[c]))
-        a = cams[0]
-        if a not in R_root:
-            continue
-        for c in cams[1:]:
-            if c not in R_root:
-                continue
-            va, vc = group[a], group[c]
-            expected = R_root[a].T @ R_root[c]
-            F = board_flip(corners_by_board[va["board"]])
-            same = (va["T"] @ geo.inv_T(vc["T"]))[:3, :3]
-            flip = (va["T"] @ F @ geo.inv_T(vc["T"]))[:3, :3]
-            if _angle_deg(expected, flip) < _angle_deg(expected, same):
-                n = len(corners_by_board[vc["board"]])
-                vc["ids"] = n - 1 - vc["ids"]
-                vc["T"] = vc["T"] @ F
-                flips += 1
-    if flips:
-        notes.append(f"symmetric chessboard: {flips} view(s) had their corner order reversed to agree with the other cameras")
-    return flips, notes
-
-
-# ----------------------------------------------------------------------------- pose graph
-
-
-def pose_graph(views: list[PosedView], n_cams: int, n_frames: int, n_boards: int, gauge_cam: int,
-               cam_names: list[str], board_names: list[str], min_obs: int = 3):
-    """Chain poses through the camera-frame-board graph with robust averages per unknown.
-
-    Returns (T_cam_body, T_body_world, T_world_board, frame_posed, gauge_board, missing
-    boards, cameras placed by hand-eye)."""
-    T_bc = [None] * n_cams  # T_body_cam
-    T_wB = [None] * n_frames  # T_world_body
-    T_wb = [None] * n_boards  # T_world_board
-    T_bc[gauge_cam] = np.eye(4)
-    counts = np.bincount([v.board for v in views if v.cam == gauge_cam], minlength=n_boards)
-    if counts.max() == 0:
-        raise CalibrationError(f"{cam_names[gauge_cam]}: no board views to start from")
-    gauge_board = int(np.argmax(counts))
-    T_wb[gauge_board] = np.eye(4)
-    by_frame = defaultdict(list)
-    for v in views:
-        by_frame[v.frame].append(v)
-
-    def sweep(threshold: int) -> bool:
-        progress = False
-        # frames: T_world_body = T_world_board inv(T_cam_board) inv(T_body_cam)
-        for f, vs in by_frame.items():
-            if T_wB[f] is not None:
-                continue
-            est = [T_wb[v.board] @ geo.inv_T(v.T_cam_board) @ geo.inv_T(T_bc[v.cam])
-                   for v in vs if T_bc[v.cam] is not None and T_wb[v.board] is not None]
-            if est:
-                T_wB[f] = geo.robust_mean_pose(np.array(est))
-                progress = True
-        # boards: T_world_board = T_world_body T_body_cam T_cam_board
-        est_b = defaultdict(list)
-        est_c = defaultdict(list)
-        for v in views:
-            if T_wB[v.frame] is None:
-                continue
-            if T_wb[v.board] is None and T_bc[v.cam] is not None:
-                est_b[v.board].append(T_wB[v.frame] @ T_bc[v.cam] @ v.T_cam_board)
-            # cameras: T_body_cam = inv(T_world_body) T_world_board inv(T_cam_board)
-            if T_bc[v.cam] is None and T_wb[v.board] is not None:
-                est_c[v.cam].append(geo.inv_T(T_wB[v.frame]) @ T_wb[v.board] @ geo.inv_T(v.T_cam_board))
-        for b, est in est_b.items():
-            if len(est) >= threshold:
-                T_wb[b] = geo.robust_mean_pose(np.array(est))
-                progress = True
-        for c, est in est_c.items():
-            if len(est) >= threshold:
-                T_bc[c] = geo.robust_mean_pose(np.array(est))
-                progress = True
-        return progress
-
-    by_hand_eye: list[int] = []
-
-    def hand_eye_step() -> bool:
-        # a camera whose boards no posed camera sees: the rig's own motion places it
-        # (boards are static, dataset.md), as in robot hand-eye calibration
-        for c in range(n_cams):
-            if T_bc[c] is not None:
-                continue
-            by_board = defaultdict(list)
-            for v in views:
-                if v.cam == c and T_wB[v.frame] is not None:
-                    by_board[v.board].append(v)
-            # pairs of frames within each board (its pose is unknown but fixed)
-            vs = [bv[k] for bv in by_board.values() if len(bv) >= 2
-                  for k in np.linspace(0, len(bv) - 1, min(len(bv), HAND_EYE_MAX_FRAMES)).round().astype(int)]
-            if len(vs) < HAND_EYE_MIN_FRAMES:
-                continue
-            X = hand_eye(np.array([T_wB[v.frame] for v in vs]), np.array([v.T_cam_board for v in vs]),
-                         np.array([v.board for v in vs]))
-            if X is not None:
-                T_bc[c] = X
-                by_hand_eye.append(c)
-                return True
-        return False
-
-    while True:
-        if sweep(min_obs):
-            continue
-        if sweep(1):
-            continue
-        if not hand_eye_step():
-            break
-    # The search posed each unknown from whatever was known at that moment (a frame may
-    # rest on one view). Re-average everything from all views now that all is known.
-    for _ in range(3):
-        _refine_all(views, T_bc, T_wB, T_wb, gauge_cam, gauge_board)
-    missing_c = [c for c in range(n_cams) if T_bc[c] is None]
-    missing_b = [b for b in range(n_boards) if T_wb[b] is None and any(v.board == b for v in views)]
-    if missing_c:
-        raise CalibrationError(_disconnected_message(views, missing_c, cam_names, board_names))
-    posed = np.array([T is not None for T in T_wB])
-    T_cam_body = np.array([geo.inv_T(T) for T in T_bc])
-    T_body_world = np.array([geo.inv_T(T) if T is not None else np.eye(4) for T in T_wB])
-    T_world_board = np.array([T if T is not None else np.eye(4) for T in T_wb])
-    return T_cam_body, T_body_world, T_world_board, posed, gauge_board, missing_b, by_hand_eye
-
-
-def hand_eye(T_world_body: np.ndarray, T_cam_board: np.ndarray, board: np.ndarray | None = None) -> np.ndarray | None:
-    """T_body_cam from one camera's views of static boards in frames whose body pose is
-    known: AX = XB with A the body's motion and B the camera's between two frames that show
-    it the same board (rotation axes aligned by Kabsch, then translation by least squares,
-    each once re-fitted without the pairs a bad PnP spoilt). T_world_body, T_cam_board:
-    (n, 4, 4); board: (n,) the board of each view (default: all one board).
-
-    None when the rig rotated about one axis only (or barely at all): the camera's rotation
-    about that axis and its position along it are then not determined."""
-    i, j = np.triu_indices(len(T_world_body), 1)
-    if board is not None:
-        same = board[i] == board[j]
-        i, j = i[same], j[same]
-    if len(i) < 3:
-        return None
-    A = geo.inv_T(T_world_body[j]) @ T_world_body[i]
-    B = T_cam_board[j] @ geo.inv_T(T_cam_board[i])
-    a, b = geo.rotvecs_from_R(A[:, :3, :3]), geo.rotvecs_from_R(B[:, :3, :3])
-    # the body and the camera turn by the same angle between two frames
-    gap = np.abs(np.linalg.norm(a, axis=1) - np.linalg.norm(b, axis=1))
-    keep = gap <= max(np.deg2rad(2.0), 3.0 * np.median(gap))
-    R = None
-    for _ in range(2):
-        if keep.sum() < 3:
-            return None
-        U, S, Vt = np.linalg.svd(b[keep].T @ a[keep])
-        if np.sqrt(S[1] / keep.sum()) < np.deg2rad(HAND_EYE_MIN_SPREAD_DEG):
-            return None
-        d = np.sign(np.linalg.det(Vt.T @ U.T))
-        R = Vt.T @ np.diag([1.0, 1.0, d]) @ U.T
-        err = np.linalg.norm(a - b @ R.T, axis=1)
-        keep = keep & (err <= 3.0 * np.median(err[keep]) + 1e-9)
-    M = A[keep, :3, :3] - np.eye(3)
-    rhs = B[keep, :3, 3] @ R.T - A[keep, :3, 3]
-    t = np.linalg.lstsq(M.reshape(-1, 3), rhs.reshape(-1), rcond=None)[0]
-    res = np.linalg.norm(np.einsum("nij,j->ni", M, t) - rhs, axis=1)
-    ok = res <= 3.0 * np.median(res) + 1e-9
-    t = np.linalg.lstsq(M[ok].reshape(-1, 3), rhs[ok].reshape(-1), rcond=None)[0]
-    return geo.make_T(R, t)
-
-
-def _refine_all(views, T_bc, T_wB, T_wb, gauge_cam: int, gauge_board: int) -> None:
-    """One pass of robust re-averaging: frames, then boards, then cameras (gauges fixed).
-    The per-view products are batched; only the averages loop, once per unknown."""
-    cam = np.array([v.cam for v in views])
-    frame = np.array([v.frame for v in views])
-    board = np.array([v.board for v in views])
-    T_cb = np.array([v.T_cam_board for v in views])
-
-    def stacked(Ts):
-        return np.array([T is not None for T in Ts]), np.array([np.eye(4) if T is None else T for T in Ts])
-
-    known_c, Tbc = stacked(T_bc)
-    known_b, Twb = stacked(T_wb)
-    known_f, _ = stacked(T_wB)
-    ok = known_c[cam] & known_b[board] & known_f[frame]
-    est = Twb[board[ok]] @ geo.inv_T(T_cb[ok]) @ geo.inv_T(Tbc[cam[ok]])
-    for f, e in _groups(frame[ok], est):
-        T_wB[f] = geo.robust_mean_pose(e)
-    _, TwB = stacked(T_wB)
-    est_b = TwB[frame[ok]] @ Tbc[cam[ok]] @ T_cb[ok]
-    est_c = geo.inv_T(TwB[frame[ok]]) @ Twb[board[ok]] @ geo.inv_T(T_cb[ok])
-    for b, e in _groups(board[ok], est_b):
-        if b != gauge_board:
-            T_wb[b] = geo.robust_mean_pose(e)
-    for c, e in _groups(cam[ok], est_c):
-        if c != gauge_cam:
-            T_bc[c] = geo.robust_mean_pose(e)
-
-
-def _groups(keys: np.ndarray, values: np.ndarray):
-    """(key, values of that key in their original order) for each distinct key, ascending."""
-    order = np.argsort(keys, kind="stable")
-    uniq, start = np.unique(keys[order], return_index=True)
-    for k, chunk in zip(uniq, np.split(values[order], start[1:])):
-        yield int(k), chunk
-
-
-def camera_groups(views, n_cams: int) -> list[set[int]]:
-    """Cameras linked by a shared frame or a shared (world-fixed) board, as connected
-    components (union-find); cameras without views are singletons."""
-    parent = list(range(n_cams))
-
-    def root(c: int) -> int:
-        while parent[c] != c:
-            parent[c] = parent[parent[c]]
-            c = parent[c]
-        return c
-
-    first = {}
-    for v in views:
-        for key in (("frame", v.frame), ("board", v.board)):
-            other = first.setdefault(key, v.cam)
-            parent[root(v.cam)] = root(other)
-    groups: dict[int, set[int]] = defaultdict(set)
-    for c in range(n_cams):
-        groups[root(c)].add(c)
-    return list(groups.values())
-
-
-def _disconnected_message(views, missing, cam_names, board_names) -> str:
-    """Why the pose graph left cameras out, naming groups rather than measuring from the
-    gauge camera: when the gauge sits in the smaller group, the others are not at fault."""
-    seen = {v.cam for v in views}
-    groups = [g for g in camera_groups(views, len(cam_names)) if g & seen]
-
-    def boards_of(c: int) -> str:
-        return ", ".join(sorted({board_names[v.board] for v in views if v.cam == c}))
-
-    head = "cannot connect every camera to the rig: "
-    parts = [f"{cam_names[c]}: no usable board views" for c in missing if c not in seen]
-    if len(groups) > 1:
-        n_views = defaultdict(int)
-        for v in views:
-            n_views[v.cam] += 1
-        main = max(groups, key=lambda g: (len(g), sum(n_views[c] for c in g)))
-        names = lambda g: ", ".join(cam_names[c] for c in sorted(g))  # noqa: E731
-        for g in groups:
-            if g is main:
-                continue
-            for c in sorted(g):
-                if len(g) == 1:
-                    parts.append(f"{cam_names[c]}: never in a frame with another camera that sees a board, and its "
-                                 f"boards ({boards_of(c)}) are seen by no other camera")
-                else:
-                    parts.append(f"{cam_names[c]}: linked only to {names(g - {c})}; no frame or board is shared "
-                                 f"with {names(main)}")
-        return head + "; ".join(parts)
-    for c in missing:
-        if c not in seen:
-            continue
-        parts.append(f"{cam_names[c]}: its boards ({boards_of(c)}) are never linked to the rest "
-                     f"of the rig (no posed frame shows them to a calibrated camera), and the rig's motion "
-                     f"cannot place it either (that needs {HAND_EYE_MIN_FRAMES} or more posed frames showing "
-                     f"it its boards, the rig turning about two axes between them)")
-    return head + "; ".join(parts)
+    return R_root, seen_count

@@ -377,34 +377,11 @@ def render_boards(model: CameraModel, rays: SampleRays, T_cam_boards: list[np.nd
     inv_depth = None  # 1 / distance of the nearest board so far, built once boards overlap
     drawn: list[tuple[tuple[int, int, int, int], list[np.ndarray], np.ndarray, np.ndarray]] = []
     for i in shown:
-        T_cam_board, tex, (black, white) = T_cam_boards[i], textures[i], grey[i]
         x0, y0, x1, y1 = (c * ss for c in boxes[i])
-        sub = rays.grid[y0:y1, x0:x1]
         chans = [c[y0:y1, x0:x1] for c in rays.chans]
-        G = np.column_stack([T_cam_board[:3, 0], T_cam_board[:3, 1], T_cam_board[:3, 3]])
-        Ginv = np.linalg.inv(G)
-        (tex_white, tex_paper), ppm, margin = tex.get(tex.level_for(_footprint(sub, Ginv, tex.extent, 16)))
-        # board metres -> texture pixel (OpenCV centre convention), composed with G^-1
-        A = np.array([[ppm, 0.0, margin - 0.5], [0.0, ppm, margin - 0.5], [0.0, 0.0, 1.0]])
-        M = A @ Ginv
-        tmap, front = _texture_map(sub, chans, M)
-        white16 = cv2.remap(tex_white, tmap, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        paper16 = cv2.remap(tex_paper, tmap, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        # The printed face is seen when the camera centre lies on the face's side (board z < 0).
-        facing = geo.inv_T(T_cam_board)[2, 3] < 0
-        k = 1.0 / 65535.0
-        # premultiplied grey: black * paper + (white - black) * white coverage
-        if facing:
-            v = cv2.addWeighted(white16, (white - black) * k, paper16, black * k, 0.0, dtype=cv2.CV_32F)
-        else:
-            v = cv2.addWeighted(paper16, white * BACK_GREY * k, paper16, 0.0, 0.0, dtype=cv2.CV_32F)
-        a = cv2.addWeighted(paper16, k, paper16, 0.0, 0.0, dtype=cv2.CV_32F)
-        if front is not None:  # rays that meet the plane behind the camera see nothing
-            v = cv2.multiply(v, front)
-            a = cv2.multiply(a, front)
+        v, a, Mw = _board_layer(rays.grid[y0:y1, x0:x1], chans, T_cam_boards[i], textures[i], grey[i])
         box_s = (x0, y0, x1, y1)
         lx0, ly0, lx1, ly1 = x0 - ux0 * ss, y0 - uy0 * ss, x1 - ux0 * ss, y1 - uy0 * ss  # in the union
-        Mw = M[2:3].astype(np.float32)  # ray -> 1 / distance (times a positive factor)
         if not any(_overlap(box_s, d[0]) for d in drawn):
             val[ly0:ly1, lx0:lx1] = v
             alpha[ly0:ly1, lx0:lx1] = a
@@ -426,6 +403,36 @@ def render_boards(model: CameraModel, rays: SampleRays, T_cam_boards: list[np.nd
     out_val[uy0:uy1, ux0:ux1] = val
     out_alpha[uy0:uy1, ux0:ux1] = alpha
     return out_val, out_alpha
+
+
+def _board_layer(sub: np.ndarray, chans: list[np.ndarray], T_cam_board: np.ndarray, tex: BoardTexture,
+                 grey: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One board over the samples `sub` of its box (rays and their channels, render_boards):
+    (premultiplied grey, coverage alpha) float32 at sample resolution, and Mw (1, 3): ray ->
+    1 / distance to the board plane (times a positive factor), for the nearest-board test."""
+    black, white = grey
+    G = np.column_stack([T_cam_board[:3, 0], T_cam_board[:3, 1], T_cam_board[:3, 3]])
+    Ginv = np.linalg.inv(G)
+    (tex_white, tex_paper), ppm, margin = tex.get(tex.level_for(_footprint(sub, Ginv, tex.extent, 16)))
+    # board metres -> texture pixel (OpenCV centre convention), composed with G^-1
+    A = np.array([[ppm, 0.0, margin - 0.5], [0.0, ppm, margin - 0.5], [0.0, 0.0, 1.0]])
+    M = A @ Ginv
+    tmap, front = _texture_map(sub, chans, M)
+    white16 = cv2.remap(tex_white, tmap, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    paper16 = cv2.remap(tex_paper, tmap, None, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    # The printed face is seen when the camera centre lies on the face's side (board z < 0).
+    facing = geo.inv_T(T_cam_board)[2, 3] < 0
+    k = 1.0 / 65535.0
+    # premultiplied grey: black * paper + (white - black) * white coverage
+    if facing:
+        v = cv2.addWeighted(white16, (white - black) * k, paper16, black * k, 0.0, dtype=cv2.CV_32F)
+    else:
+        v = cv2.addWeighted(paper16, white * BACK_GREY * k, paper16, 0.0, 0.0, dtype=cv2.CV_32F)
+    a = cv2.addWeighted(paper16, k, paper16, 0.0, 0.0, dtype=cv2.CV_32F)
+    if front is not None:  # rays that meet the plane behind the camera see nothing
+        v = cv2.multiply(v, front)
+        a = cv2.multiply(a, front)
+    return v, a, M[2:3].astype(np.float32)
 
 
 def _inv_depth(chans: list[np.ndarray], Mw: np.ndarray) -> np.ndarray:

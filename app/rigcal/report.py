@@ -24,9 +24,9 @@ from plotly.subplots import make_subplots
 
 from . import __version__
 from . import geometry as geo
-from .calibrate import structure_text, warnings_for
 from .checks import depth_samples as checks_depth_samples
-from .core import Calibration
+from .pipeline import Calibration
+from .outputs import structure_text, warnings_for
 from .rig import Rig
 from .solve import Problem
 from .view import BODY_COLOURS, rig_figure
@@ -150,6 +150,7 @@ def _table(header: list[str], rows: list[list[str]], name_cols: int = 1, wrap: t
 
 
 def summary_html(cal: Calibration, out_rig: Rig) -> str:
+    """The page's opening line: rig, cameras, frames, boards, RMS, reference."""
     top = out_rig.calibration or {}
     n_in = int(cal.inliers.sum())
     return (f"<p>rig <b>{_e(out_rig.name)}</b>, {len(cal.cam_names)} cameras, {len(cal.frames)} frames, "
@@ -161,6 +162,7 @@ def summary_html(cal: Calibration, out_rig: Rig) -> str:
 
 
 def messages_html(cal: Calibration) -> str:
+    """The calibration's warnings (outputs.warnings_for) and notes as lists."""
     warns = warnings_for(cal)
     parts = []
     if warns:
@@ -178,6 +180,7 @@ def _pm(value: float, sigma: dict | None, key: str, nd: int) -> str:
 
 
 def intrinsics_table(cal: Calibration, out_rig: Rig) -> str:
+    """Per camera its intrinsics and distortion with their 1-sigma."""
     rows = []
     for cam in out_rig.cameras:
         m, st = cam.intrinsics, cal.stats[cam.name]
@@ -191,7 +194,7 @@ def intrinsics_table(cal: Calibration, out_rig: Rig) -> str:
 
 
 def model_choice_html(cal: Calibration, out_rig: Rig) -> str:
-    """Why each camera has its distortion model and intrinsics structure: the tests core.py ran, per camera."""
+    """Why each camera has its distortion model and intrinsics structure: the tests pipeline.py ran, per camera."""
     items = [f"<li>{_e(cam.name)}: {_e(cal.stats[cam.name].distortion_model)}"
              + (f"; intrinsics {_e(structure_text(cal.stats[cam.name].intrinsics_model))}"
                 if cal.stats[cam.name].intrinsics_model else "")
@@ -201,6 +204,7 @@ def model_choice_html(cal: Calibration, out_rig: Rig) -> str:
 
 
 def extrinsics_table(cal: Calibration, out_rig: Rig) -> str:
+    """Per camera its pose in the body frame with its 1-sigma about and along F, L, U."""
     rows = []
     for cam in out_rig.cameras:
         st = cal.stats[cam.name]
@@ -215,6 +219,7 @@ def extrinsics_table(cal: Calibration, out_rig: Rig) -> str:
 
 
 def stereo_table(out_rig: Rig, pairs: dict) -> str:
+    """Per stereo pair its baseline and depth check (checks.stereo_checks)."""
     rows = []
     for p in out_rig.stereo_pairs:
         chk = pairs.get((p.left, p.right)) or {}
@@ -233,6 +238,7 @@ def stereo_table(out_rig: Rig, pairs: dict) -> str:
 
 
 def bands_table(pair: tuple[str, str], chk: dict) -> str:
+    """One pair's depth errors per distance band, against the board poses and the truth."""
     dc = (chk or {}).get("depth_check") or {}
     rows = []
     for kind, block in (("vs calibrated board pose", dc), ("vs truth", dc.get("vs_truth") or {})):
@@ -287,6 +293,7 @@ def _rich_text(renderable) -> str:
 
 
 def timings_table(timings: dict) -> str:
+    """Seconds per step of the command."""
     rows = [[_e(k.removesuffix("_s")), _f(v, 2)] for k, v in timings.items() if isinstance(v, (int, float))]
     return _table(["step", "seconds"], rows)
 

@@ -18,7 +18,8 @@ from . import geometry as geo
 from .camera import FISHEYE_DIST_LENGTH, MODELS, PINHOLE_DIST_LENGTHS, CameraModel
 from .errors import RigFileError
 from .io import atomic_write_text
-from .validate import read_text, _check_finite_tree, _kind, _number, _positive, _short, _unknown, _vector
+from .validate import (check_finite_tree, describe, finite_number, number_vector, positive_number, read_text,
+                       refuse_unknown_keys, shorten)
 
 NAME_RE = re.compile(r"^[a-z0-9_]+$")
 TOP_KEYS = ("rig", "body_frame", "imus", "cameras", "stereo_pairs", "calibration")
@@ -121,6 +122,9 @@ class Projection:
 
 @dataclass(frozen=True)
 class StereoPair:
+    """Two cameras declared as a stereo pair, with the calibration's baseline and depth checks
+    (checks.py) when the file holds them."""
+
     left: str
     right: str
     baseline_m: float | None = None
@@ -130,6 +134,9 @@ class StereoPair:
 
 @dataclass(frozen=True, eq=False)
 class Rig:
+    """The rig: its cameras (T_body_cam, intrinsics), IMUs, stereo pairs, body frame and the
+    calibration block of a calibrated file (rig-yaml.md). load_rig / dump_rig read and write it."""
+
     name: str
     cameras: tuple[Camera, ...]
     stereo_pairs: tuple[StereoPair, ...] = ()
@@ -346,43 +353,43 @@ def rig_from_dict(doc: Any, label: str = "<rig>") -> Rig:
         return RigFileError(_one_line(f"{label}: {key}: {msg}" if key else f"{label}: {msg}"))
 
     if not isinstance(doc, dict):
-        raise err("", f"expected a mapping with `cameras`, got {_kind(doc)}")
-    _unknown(doc, TOP_KEYS, "", err)
+        raise err("", f"expected a mapping with `cameras`, got {describe(doc)}")
+    refuse_unknown_keys(doc, TOP_KEYS, "", err)
     name = doc.get("rig", "rig")
     if isinstance(name, float):
-        name = _number(name, "rig", err)
+        name = finite_number(name, "rig", err)
     if not isinstance(name, (str, int, float)) or isinstance(name, bool):
-        raise err("rig", f"expected a name (text), got {_kind(name)}")
+        raise err("rig", f"expected a name (text), got {describe(name)}")
     body = doc.get("body_frame", "FLU")
     if body != "FLU":
-        raise err("body_frame", f"only FLU is defined, got {_kind(body)}")
+        raise err("body_frame", f"only FLU is defined, got {describe(body)}")
     if "cameras" not in doc:
         raise err("cameras", "missing (expected a mapping of camera name -> camera)")
     cams_doc = doc["cameras"]
     if not isinstance(cams_doc, dict) or not cams_doc:
-        raise err("cameras", f"expected a non-empty mapping of camera name -> camera, got {_kind(cams_doc)}")
+        raise err("cameras", f"expected a non-empty mapping of camera name -> camera, got {describe(cams_doc)}")
     cameras = []
     for cname, cdoc in cams_doc.items():
         if not isinstance(cname, str) or not NAME_RE.match(cname):
-            raise err(f"cameras.{cname}", f"camera names must match [a-z0-9_]+, got {_kind(cname)}")
+            raise err(f"cameras.{cname}", f"camera names must match [a-z0-9_]+, got {describe(cname)}")
         cameras.append(_camera_from_dict(cname, cdoc, f"cameras.{cname}", err))
     pairs = _pairs_from_doc(doc.get("stereo_pairs"), {c.name: c for c in cameras}, err)
     imus = _imus_from_doc(doc.get("imus"), {c.name for c in cameras}, err) if "imus" in doc else ()
     calib = doc.get("calibration")
     if calib is not None and not isinstance(calib, dict):
-        raise err("calibration", f"expected a mapping, got {_kind(calib)}")
-    _check_finite_tree(calib, "calibration", err)
+        raise err("calibration", f"expected a mapping, got {describe(calib)}")
+    check_finite_tree(calib, "calibration", err)
     return Rig(name=str(name), cameras=tuple(cameras), stereo_pairs=pairs, calibration=calib, imus=imus)
 
 
 def _imus_from_doc(v: Any, camera_names: set[str], err) -> tuple[Imu, ...]:
     if not isinstance(v, dict) or not v:
-        raise err("imus", f"expected a non-empty mapping of IMU name -> IMU, got {_kind(v)}")
+        raise err("imus", f"expected a non-empty mapping of IMU name -> IMU, got {describe(v)}")
     out = []
     for name, d in v.items():
         key = f"imus.{name}"
         if not isinstance(name, str) or not NAME_RE.match(name):
-            raise err(key, f"IMU names must match [a-z0-9_]+, got {_kind(name)}")
+            raise err(key, f"IMU names must match [a-z0-9_]+, got {describe(name)}")
         if name in camera_names:
             raise err(key, f"the name {name!r} is also a camera's; sensor names must be unique")
         out.append(_imu_from_dict(name, d, key, err))
@@ -391,43 +398,43 @@ def _imus_from_doc(v: Any, camera_names: set[str], err) -> tuple[Imu, ...]:
 
 def _imu_from_dict(name: str, d: Any, key: str, err) -> Imu:
     if not isinstance(d, dict):
-        raise err(key, f"expected a mapping, got {_kind(d)}")
+        raise err(key, f"expected a mapping, got {describe(d)}")
     if "look" in d:
         raise err(f"{key}.look", "an IMU has no viewing direction; give its axes, rotation or quaternion")
-    _unknown(d, IMU_KEYS, key, err)
+    refuse_unknown_keys(d, IMU_KEYS, key, err)
     if "position" not in d or not any(k in d for k in ORIENTATION_KEYS):
         raise err(key, "missing pose (expected `position` and one of axes, rotation, quaternion)")
     T = _pose(d, key, err)
     if "update_rate" not in d:
         raise err(f"{key}.update_rate", "missing (expected the nominal sample rate in Hz)")
-    rate = _number(d["update_rate"], f"{key}.update_rate", err)
+    rate = finite_number(d["update_rate"], f"{key}.update_rate", err)
     if rate < MIN_IMU_RATE_HZ:
         raise err(f"{key}.update_rate", f"expected at least {MIN_IMU_RATE_HZ:g} Hz, got {d['update_rate']!r}")
     noise = []
     for k in IMU_NOISE_KEYS:
         if k not in d:
             raise err(f"{key}.{k}", "missing (Kalibr's imu.yaml figure, continuous time)")
-        noise.append(_positive(d[k], f"{key}.{k}", err))
+        noise.append(positive_number(d[k], f"{key}.{k}", err))
     calib = d.get("calibration")
     if calib is not None and not isinstance(calib, dict):
-        raise err(f"{key}.calibration", f"expected a mapping, got {_kind(calib)}")
-    _check_finite_tree(calib, f"{key}.calibration", err)
+        raise err(f"{key}.calibration", f"expected a mapping, got {describe(calib)}")
+    check_finite_tree(calib, f"{key}.calibration", err)
     return Imu(name, T, rate, *noise, calibration=calib)
 
 
 def _camera_from_dict(name: str, d: Any, key: str, err) -> Camera:
     if not isinstance(d, dict):
-        raise err(key, f"expected a mapping, got {_kind(d)}")
-    _unknown(d, CAMERA_KEYS, key, err)
+        raise err(key, f"expected a mapping, got {describe(d)}")
+    refuse_unknown_keys(d, CAMERA_KEYS, key, err)
     model = d.get("model", "pinhole")
     if model not in MODELS:
-        raise err(f"{key}.model", f"expected one of {', '.join(MODELS)}, got {_kind(model)}")
+        raise err(f"{key}.model", f"expected one of {', '.join(MODELS)}, got {describe(model)}")
     if "resolution" not in d:
         raise err(f"{key}.resolution", "missing (expected [width, height] in pixels)")
     res = d["resolution"]
     if (not isinstance(res, (list, tuple)) or len(res) != 2
             or not all(isinstance(v, int) and not isinstance(v, bool) and 0 < v <= MAX_PIXELS for v in res)):
-        raise err(f"{key}.resolution", f"expected two positive integers [width, height], got {_kind(res)}")
+        raise err(f"{key}.resolution", f"expected two positive integers [width, height], got {describe(res)}")
     width, height = res
     fx, fy, cx, cy = _intrinsics(d.get("intrinsics"), width, height, f"{key}.intrinsics", err)
     dist = _distortion(d.get("distortion"), model, f"{key}.distortion", err)
@@ -435,15 +442,15 @@ def _camera_from_dict(name: str, d: Any, key: str, err) -> Camera:
     T = _pose(d, key, err)
     calib = d.get("calibration")
     if calib is not None and not isinstance(calib, dict):
-        raise err(f"{key}.calibration", f"expected a mapping, got {_kind(calib)}")
-    _check_finite_tree(calib, f"{key}.calibration", err)
+        raise err(f"{key}.calibration", f"expected a mapping, got {describe(calib)}")
+    check_finite_tree(calib, f"{key}.calibration", err)
     offset = delay = None
     if "time_offset_s" in d:
-        offset = _number(d["time_offset_s"], f"{key}.time_offset_s", err)
+        offset = finite_number(d["time_offset_s"], f"{key}.time_offset_s", err)
         if abs(offset) > MAX_TIME_OFFSET_S:
             raise err(f"{key}.time_offset_s", f"expected seconds within +-{MAX_TIME_OFFSET_S:g}, got {offset!r}")
     if "line_delay_s" in d:
-        delay = _number(d["line_delay_s"], f"{key}.line_delay_s", err)
+        delay = finite_number(d["line_delay_s"], f"{key}.line_delay_s", err)
         if delay < 0 or delay * height > MAX_FRAME_READOUT_S:
             raise err(f"{key}.line_delay_s", f"expected seconds per row, >= 0 and at most "
                       f"{MAX_FRAME_READOUT_S:g} s over the image's {height} rows, got {delay!r}")
@@ -455,20 +462,20 @@ def _intrinsics(d: Any, width: int, height: int, key: str, err) -> tuple[float, 
     if d is None:
         raise err(key, "missing (expected fx, fy or focal, and optionally cx, cy)")
     if not isinstance(d, dict):
-        raise err(key, f"expected a mapping, got {_kind(d)}")
-    _unknown(d, INTRINSIC_KEYS, key, err)
+        raise err(key, f"expected a mapping, got {describe(d)}")
+    refuse_unknown_keys(d, INTRINSIC_KEYS, key, err)
     if "focal" in d and ("fx" in d or "fy" in d):
         raise err(key, "give either `focal` or `fx`/`fy`, not both")
     if "focal" in d:
-        fx = fy = _positive(d["focal"], f"{key}.focal", err)
+        fx = fy = positive_number(d["focal"], f"{key}.focal", err)
     else:
         for k in ("fx", "fy"):
             if k not in d:
                 raise err(f"{key}.{k}", "missing (expected a positive focal length in pixels, or `focal`)")
-        fx = _positive(d["fx"], f"{key}.fx", err)
-        fy = _positive(d["fy"], f"{key}.fy", err)
-    cx = _number(d.get("cx", width / 2.0), f"{key}.cx", err)
-    cy = _number(d.get("cy", height / 2.0), f"{key}.cy", err)
+        fx = positive_number(d["fx"], f"{key}.fx", err)
+        fy = positive_number(d["fy"], f"{key}.fy", err)
+    cx = finite_number(d.get("cx", width / 2.0), f"{key}.cx", err)
+    cy = finite_number(d.get("cy", height / 2.0), f"{key}.cy", err)
     return fx, fy, cx, cy
 
 
@@ -476,8 +483,8 @@ def _distortion(v: Any, model: str, key: str, err) -> tuple[float, ...]:
     if v is None:
         return (0.0,) * (FISHEYE_DIST_LENGTH if model == "fisheye" else 5)
     if not isinstance(v, (list, tuple)):
-        raise err(key, f"expected a list of numbers, got {_kind(v)}")
-    vals = tuple(_number(x, f"{key}[{i}]", err) for i, x in enumerate(v))
+        raise err(key, f"expected a list of numbers, got {describe(v)}")
+    vals = tuple(finite_number(x, f"{key}[{i}]", err) for i, x in enumerate(v))
     allowed = (FISHEYE_DIST_LENGTH,) if model == "fisheye" else PINHOLE_DIST_LENGTHS
     if len(vals) not in allowed:
         what = "4 (k1 k2 k3 k4)" if model == "fisheye" else "2, 4, 5, 8 or 12"
@@ -492,7 +499,7 @@ def _pose(d: dict, key: str, err) -> np.ndarray | None:
         return None  # pose left for calibrate to find
     if not has_pos:
         raise err(f"{key}.position", "missing (an orientation without a position)")
-    t = _vector(d["position"], 3, f"{key}.position", err)
+    t = number_vector(d["position"], 3, f"{key}.position", err)
     # A calibrated file writes rotation + quaternion together (rig-yaml.md); they must agree.
     if sorted(present) == ["quaternion", "rotation"]:
         R = _rotation(d, "rotation", key, err)
@@ -515,21 +522,22 @@ def _rotation(d: dict, k: str, key: str, err) -> np.ndarray:
     try:
         if k == "look":
             if not isinstance(v, str):
-                raise ValueError(f"expected one of {', '.join(geo.LOOK_AXES)}, got {_kind(v)}")
+                raise ValueError(f"expected one of {', '.join(geo.LOOK_AXES)}, got {describe(v)}")
             return geo.R_from_look(v)
         if k == "axes":
             if isinstance(v, (list, tuple)):
                 for i, a in enumerate(v):
                     if isinstance(a, (list, tuple)):
-                        _vector(a, 3, f"{key}.axes[{i}]", err)
+                        number_vector(a, 3, f"{key}.axes[{i}]", err)
             return geo.R_from_axes(v)
         if k == "rotation":
             if (not isinstance(v, (list, tuple)) or len(v) != 3
                     or not all(isinstance(r, (list, tuple)) and len(r) == 3 for r in v)):
-                raise ValueError(f"expected a 3x3 matrix [[r00, r01, r02], ...], got {_kind(v)}")
-            rows = [[_number(x, f"{key}.rotation[{i}][{j}]", err) for j, x in enumerate(r)] for i, r in enumerate(v)]
+                raise ValueError(f"expected a 3x3 matrix [[r00, r01, r02], ...], got {describe(v)}")
+            rows = [[finite_number(x, f"{key}.rotation[{i}][{j}]", err) for j, x in enumerate(r)]
+                    for i, r in enumerate(v)]
             return geo.check_rotation(np.array(rows))
-        q = _vector(v, 4, f"{key}.quaternion", err)
+        q = number_vector(v, 4, f"{key}.quaternion", err)
         return geo.R_from_quat(q)
     except ValueError as e:
         raise err(f"{key}.{k}", str(e)) from None
@@ -539,29 +547,29 @@ def _pairs_from_doc(v: Any, cameras: dict[str, Camera], err) -> tuple[StereoPair
     if v is None:
         return ()
     if not isinstance(v, list):
-        raise err("stereo_pairs", f"expected a list of [left, right] pairs, got {_kind(v)}")
+        raise err("stereo_pairs", f"expected a list of [left, right] pairs, got {describe(v)}")
     pairs = []
     for i, p in enumerate(v):
         key = f"stereo_pairs[{i}]"
         if isinstance(p, (list, tuple)):
             if len(p) != 2:
-                raise err(key, f"expected [left, right], got {_kind(p)}")
+                raise err(key, f"expected [left, right], got {describe(p)}")
             left, right, extra = p[0], p[1], {}
         elif isinstance(p, dict):
-            _unknown(p, PAIR_KEYS, key, err)
+            refuse_unknown_keys(p, PAIR_KEYS, key, err)
             if "left" not in p or "right" not in p:
                 raise err(key, "expected `left` and `right` camera names")
             left, right = p["left"], p["right"]
             extra = {k: p[k] for k in ("baseline_m", "depth_check", "sanity_10m") if k in p}
             if "baseline_m" in extra:
-                extra["baseline_m"] = _positive(extra["baseline_m"], f"{key}.baseline_m", err)
+                extra["baseline_m"] = positive_number(extra["baseline_m"], f"{key}.baseline_m", err)
             for k in ("depth_check", "sanity_10m"):
-                _check_finite_tree(extra.get(k), f"{key}.{k}", err)
+                check_finite_tree(extra.get(k), f"{key}.{k}", err)
         else:
-            raise err(key, f"expected [left, right], got {_kind(p)}")
+            raise err(key, f"expected [left, right], got {describe(p)}")
         for side, n in (("left", left), ("right", right)):
             if not isinstance(n, str) or n not in cameras:
-                what = _short(repr(n), 60) if isinstance(n, str) else _kind(n)
+                what = shorten(repr(n), 60) if isinstance(n, str) else describe(n)
                 raise err(key, f"{side} camera {what} is not declared under cameras ({', '.join(cameras)})")
         if left == right:
             raise err(key, f"a pair needs two different cameras, got {left!r} twice")

@@ -100,12 +100,12 @@ def perturb_rig(rig: Rig, rng: np.random.Generator, mount_error_mm: float = 5.0,
         draws = rng.uniform(-1.0, 1.0, 6)  # drawn once so retries below do not shift the stream
         # the focal and principal-point errors are kept whatever becomes of the distortion draw
         lens = m.with_(fx=m.fx * (1 + e1), fy=m.fy * (1 + e1 + e2), cx=m.cx + pp[0], cy=m.cy + pp[1])
-        declared_field = _field_border(m)
+        declared_field = field_border(m)
         true_m = lens  # the declared distortion, when no scaled draw passes
         for scale in (1.0, 0.5, 0.25):
             cand = lens.with_(dist=_perturbed_distortion(m, draws, scale))
             # the errors must not make the lens fold back where the declared one does not
-            if np.all(_field_border(cand) | ~declared_field):
+            if np.all(field_border(cand) | ~declared_field):
                 true_m = cand
                 break
         cams.append(Camera(name=cam.name, intrinsics=true_m, T_body_cam=T))
@@ -125,7 +125,7 @@ def _perturbed_distortion(m: CameraModel, u: np.ndarray, scale: float) -> tuple[
     return tuple(float(x) for x in d)
 
 
-def _field_border(m: CameraModel) -> np.ndarray:
+def field_border(m: CameraModel) -> np.ndarray:
     """(N,) bool: which sample pixels on the image border have a ray through the model (a
     fisheye's corners may lie outside its field; a pinhole model may fold back)."""
     u = np.linspace(-0.5, m.width - 0.5, 33)
@@ -432,6 +432,9 @@ def plan_room_scene(rig: Rig, target: Target, n_frames: int, rng: np.random.Gene
 
 @dataclass(frozen=True)
 class CameraCoverage:
+    """How well one camera saw the simulated boards: frames with a board, views per board, and
+    the share of image cells that received corners."""
+
     frames_with_board: int  # frames in which the camera sees at least one board
     frames: int
     board_views: Mapping[str, int]  # board -> frames in which the camera sees it
@@ -461,6 +464,9 @@ def coverage(rig: Rig, scene: Scene) -> dict[str, CameraCoverage]:
 
 @dataclass(frozen=True)
 class RenderSettings:
+    """How images are rendered: the seed, pixel noise (grey levels), blur (px), supersampling
+    and the optics blur sigma (px)."""
+
     seed: int
     noise: float
     blur: float
@@ -564,6 +570,9 @@ def truth_dict(true_rig: Rig, scene: Scene, settings: RenderSettings, perturbati
 
 @dataclass(frozen=True)
 class SimResult:
+    """What `rigcal simulate` wrote: the dataset folder, its frames, the declared and true rigs,
+    the target, the scene poses, the image paths and per camera its coverage."""
+
     out_dir: Path
     scene: str
     frames: tuple[str, ...]
@@ -624,7 +633,7 @@ def simulate_dataset(rig: Rig, out_dir: str | Path, *, scene: str | None = None,
     cover = coverage(true_rig, plan)
     settings = RenderSettings(seed=seed, noise=float(noise), blur=float(blur))
     with atomic_dir(out_dir, force=force) as tmp:
-        paths, image_cpu = _render_all(true_rig, plan, settings, tmp, jobs, progress)
+        paths, image_cpu = render_all(true_rig, plan, settings, tmp, jobs, progress)
         (tmp / "rig.yaml").write_text(rig_text if rig_text is not None else _dump_declared(rig), encoding="utf-8")
         (tmp / "target.yaml").write_text(target_text if target_text is not None else dump_target(target),
                                          encoding="utf-8")
@@ -641,7 +650,7 @@ def _dump_declared(rig: Rig) -> str:
     return yaml.safe_dump(rig_to_dict(rig), sort_keys=False, default_flow_style=None, width=120)
 
 
-def _render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path, jobs: int,
+def render_all(true_rig: Rig, scene: Scene, settings: RenderSettings, tmp: Path, jobs: int,
                 progress: bool) -> tuple[dict[str, list[Path]], float]:
     """Write every image; returns the paths per camera and the CPU seconds spent on images."""
     paths: dict[str, list[Path]] = {}

@@ -82,7 +82,7 @@ class Observations:
 
 # ----------------------------------------------------------------------------- corner noise model
 
-# The detector's own per-corner sigma (detect.View.sigma) ranks corners well but its
+# The detector's own per-corner sigma (BoardView.sigma) ranks corners well but its
 # spread is not to be trusted: on pinhole renders it spreads 2.2x where the true error
 # spreads 1.3x, on fisheye renders 3.2x against 2x (10 % to 90 % of corners). Each camera's
 # residuals calibrate it: s_eff = scale * s_det^gamma, fitted on quantile bins of s_det.
@@ -581,6 +581,9 @@ def _projection_jacobians_one(pc: np.ndarray, v: np.ndarray, model: str) -> tupl
 
 @dataclass
 class SolveResult:
+    """bundle_adjust's answer: the solved state, the problem linearised there, which
+    observations were kept, their residuals and sigma, and how the iterations went."""
+
     state: State
     problem: Problem  # linearised at the solution (reference = solution), inliers only
     inliers: np.ndarray  # (M_all,) bool over the observations given to bundle_adjust()

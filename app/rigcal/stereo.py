@@ -41,11 +41,11 @@ def rectify_pair(cam_left, cam_right, alpha: float = -1.0) -> StereoRectificatio
     """cv2.stereoRectify (or cv2.fisheye.stereoRectify) for two posed rig cameras."""
     if cam_left.T_body_cam is None or cam_right.T_body_cam is None:
         raise ValueError(f"stereo pair {cam_left.name}/{cam_right.name}: both cameras need a pose")
-    T_rl = geo.inv_T(cam_right.T_body_cam) @ cam_left.T_body_cam
-    if np.linalg.norm(T_rl[:3, 3]) < 1e-9:
+    T_right_left = geo.inv_T(cam_right.T_body_cam) @ cam_left.T_body_cam
+    if np.linalg.norm(T_right_left[:3, 3]) < 1e-9:
         raise ValueError(f"stereo pair {cam_left.name}/{cam_right.name}: the cameras are at the same position")
     # OpenCV 5's fisheye code refuses non-contiguous views ("matrix is not continuous").
-    R, T = np.ascontiguousarray(T_rl[:3, :3]), np.ascontiguousarray(T_rl[:3, 3].reshape(3, 1))
+    R, T = np.ascontiguousarray(T_right_left[:3, :3]), np.ascontiguousarray(T_right_left[:3, 3].reshape(3, 1))
     mL, mR = cam_left.intrinsics, cam_right.intrinsics
     size = (mL.width, mL.height)
     if mL.model == "fisheye" and mR.model == "fisheye":
@@ -56,7 +56,7 @@ def rectify_pair(cam_left, cam_right, alpha: float = -1.0) -> StereoRectificatio
     else:
         R1, R2, P1, P2, Q = cv2.stereoRectify(
             mL.K, _cv_dist(mL), mR.K, _cv_dist(mR), size, R, T, flags=cv2.CALIB_ZERO_DISPARITY, alpha=alpha)[:5]
-    return StereoRectification(cam_left.name, cam_right.name, T_rl, R1, R2, P1, P2, Q, size)
+    return StereoRectification(cam_left.name, cam_right.name, T_right_left, R1, R2, P1, P2, Q, size)
 
 
 def _fisheye_rectified_projections(P2_cv: np.ndarray, f: float, cx: float, cy: float):

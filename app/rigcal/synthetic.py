@@ -24,7 +24,7 @@ import numpy as np
 
 from . import geometry as geo
 from .compare import Truth
-from .core import ViewIn
+from .observations import BoardView
 from .rig import Camera, Rig
 
 BOARD = (10, 7, 0.14)  # (nx, ny, square metres)
@@ -46,7 +46,7 @@ class SyntheticScene:
     """
 
     rig: Rig
-    views: tuple[ViewIn, ...]
+    views: tuple[BoardView, ...]
     corners: Mapping[str, np.ndarray]
     T_world_board: Mapping[str, np.ndarray]
     T_world_body: Mapping[str, np.ndarray]
@@ -120,11 +120,11 @@ def room_scene(rig: Rig, rng: np.random.Generator, n_frames: int, n_boards: int 
             for name, T_w_board in T_world_board.items():
                 seen = board_view(cam, T_cam_world @ T_w_board, p_board, min_corners)
                 if seen is not None:
-                    views.append(ViewIn(cam.name, frame, name, *seen))
+                    views.append(BoardView(cam.name, frame, name, *seen))
     return SyntheticScene(rig, tuple(views), {n: p_board for n in T_world_board}, T_world_board, T_world_body)
 
 
-def with_noise(views: Sequence[ViewIn], sigma: float, rng: np.random.Generator) -> list[ViewIn]:
+def with_noise(views: Sequence[BoardView], sigma: float, rng: np.random.Generator) -> list[BoardView]:
     """The views with isotropic Gaussian noise of `sigma` px added to every corner (drawn
     in view order, so a seed gives the same noise for the same views)."""
-    return [ViewIn(v.camera, v.frame, v.board, v.ids, v.uv + rng.normal(0.0, sigma, v.uv.shape)) for v in views]
+    return [BoardView(v.camera, v.frame, v.board, v.ids, v.uv + rng.normal(0.0, sigma, v.uv.shape)) for v in views]

@@ -31,7 +31,7 @@ from scipy.special import ndtr
 from .errors import InputError, OutputError, TargetFileError
 from .io import atomic_write_bytes, atomic_write_text
 from .rig import load_yaml
-from .validate import _kind, _positive, _unknown, read_text
+from .validate import describe, positive_number, read_text, refuse_unknown_keys
 
 TYPES = ("charuco", "chessboard", "aprilgrid")
 TOP_KEYS = ("boards",)
@@ -217,6 +217,8 @@ class Board:
 
 @dataclass(frozen=True)
 class Target:
+    """The calibration target: its boards (target.yaml, one or several)."""
+
     boards: tuple[Board, ...]
 
     def board(self, name: str) -> Board:
@@ -359,15 +361,15 @@ def target_from_dict(doc: Any, label: str = "<target>") -> Target:
         return TargetFileError(f"{label}: {key}: {msg}" if key else f"{label}: {msg}")
 
     if not isinstance(doc, dict):
-        raise err("", f"expected a mapping with `boards`, got {_kind(doc)}")
+        raise err("", f"expected a mapping with `boards`, got {describe(doc)}")
     if "target_type" in doc:
         return Target(boards=(_kalibr_board(doc, err),))
-    _unknown(doc, TOP_KEYS, "", err)
+    refuse_unknown_keys(doc, TOP_KEYS, "", err)
     if "boards" not in doc:
         raise err("boards", "missing (expected a list of boards)")
     raw = doc["boards"]
     if not isinstance(raw, list) or not raw:
-        raise err("boards", f"expected a non-empty list of boards, got {_kind(raw)}")
+        raise err("boards", f"expected a non-empty list of boards, got {describe(raw)}")
     boards = tuple(_board_from_dict(b, f"boards[{i}]", err) for i, b in enumerate(raw))
     _check_together(boards, err)
     return Target(boards=boards)
@@ -375,21 +377,22 @@ def target_from_dict(doc: Any, label: str = "<target>") -> Target:
 
 def _board_from_dict(d: Any, key: str, err) -> Board:
     if not isinstance(d, dict):
-        raise err(key, f"expected a mapping, got {_kind(d)}")
+        raise err(key, f"expected a mapping, got {describe(d)}")
     if "type" not in d:
         raise err(f"{key}.type", f"missing (expected one of {', '.join(TYPES)})")
     typ = d["type"]
     if typ not in TYPES:
-        raise err(f"{key}.type", f"expected one of {', '.join(TYPES)}, got {_kind(typ)}")
-    _unknown(d, {"charuco": CHARUCO_KEYS, "chessboard": CHESSBOARD_KEYS, "aprilgrid": APRILGRID_KEYS}[typ], key, err)
+        raise err(f"{key}.type", f"expected one of {', '.join(TYPES)}, got {describe(typ)}")
+    allowed = {"charuco": CHARUCO_KEYS, "chessboard": CHESSBOARD_KEYS, "aprilgrid": APRILGRID_KEYS}[typ]
+    refuse_unknown_keys(d, allowed, key, err)
     if "name" not in d and typ != "chessboard":
         raise err(f"{key}.name", "missing (expected a board name)")
     name = d.get("name", "chessboard")
     if not isinstance(name, str) or not NAME_RE.match(name):
-        raise err(f"{key}.name", f"expected a name of letters, digits, '_', '.', '-', got {_kind(name)}")
+        raise err(f"{key}.name", f"expected a name of letters, digits, '_', '.', '-', got {describe(name)}")
     if typ == "aprilgrid":
         return _aprilgrid_from_dict(d, name, key, err)
-    square = _positive(_required(d, "square_length", key, err, "a length in metres"), f"{key}.square_length", err)
+    square = positive_number(_required(d, "square_length", key, err, "a length in metres"), f"{key}.square_length", err)
     if square > MAX_SQUARE_M:
         raise err(f"{key}.square_length", f"expected metres (at most {MAX_SQUARE_M:g}), got {square:g}; in "
                   f"millimetres that is {square / 1000:g} m")
@@ -401,18 +404,18 @@ def _board_from_dict(d: Any, key: str, err) -> Board:
     dict_name = _required(d, "dictionary", key, err, "a cv2.aruco dictionary name such as DICT_5X5_1000")
     if not isinstance(dict_name, str) or dict_name not in DICTIONARIES:
         hint = difflib.get_close_matches(str(dict_name), DICTIONARIES, n=1, cutoff=0.6)
-        raise err(f"{key}.dictionary", f"expected a cv2.aruco dictionary name (e.g. DICT_5X5_1000), got {_kind(dict_name)}"
+        raise err(f"{key}.dictionary", f"expected a cv2.aruco dictionary name (e.g. DICT_5X5_1000), got {describe(dict_name)}"
                   + (f" (did you mean {hint[0]}?)" if hint else ""))
     squares = _int_pair(_required(d, "squares", key, err, "[nx, ny] squares"), f"{key}.squares", 2, err)
-    marker = _positive(_required(d, "marker_length", key, err, "a length in metres"), f"{key}.marker_length", err)
+    marker = positive_number(_required(d, "marker_length", key, err, "a length in metres"), f"{key}.marker_length", err)
     if marker >= square:
         raise err(f"{key}.marker_length", f"expected less than square_length ({square:g}), got {marker:g}")
     first = d.get("first_marker_id", 0)
     if isinstance(first, bool) or not isinstance(first, int) or first < 0:
-        raise err(f"{key}.first_marker_id", f"expected a non-negative integer, got {_kind(first)}")
+        raise err(f"{key}.first_marker_id", f"expected a non-negative integer, got {describe(first)}")
     legacy = d.get("legacy_pattern", False)
     if not isinstance(legacy, bool):
-        raise err(f"{key}.legacy_pattern", f"expected true or false, got {_kind(legacy)}")
+        raise err(f"{key}.legacy_pattern", f"expected true or false, got {describe(legacy)}")
     board = Board(name=name, type="charuco", square_length=square, squares=squares, dictionary=dict_name,
                   marker_length=marker, first_marker_id=first, legacy_pattern=legacy)
     size = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dict_name)).bytesList.shape[0]
@@ -425,13 +428,13 @@ def _board_from_dict(d: Any, key: str, err) -> Board:
 def _aprilgrid_from_dict(d: dict, name: str, key: str, err) -> Board:
     tags = _int_pair(_required(d, "tags", key, err, "[cols, rows] tags"), f"{key}.tags", 1, err)
     size = _metres(_required(d, "tag_size", key, err, "a length in metres"), f"{key}.tag_size", err)
-    spacing = _positive(_required(d, "tag_spacing", key, err, "the gap between tags / tag_size, e.g. 0.3"),
+    spacing = positive_number(_required(d, "tag_spacing", key, err, "the gap between tags / tag_size, e.g. 0.3"),
                         f"{key}.tag_spacing", err)
     if spacing > 1.0:
         raise err(f"{key}.tag_spacing", f"expected the gap as a fraction of tag_size (0 < spacing <= 1), got {spacing:g}")
     first = d.get("first_tag_id", 0)
     if isinstance(first, bool) or not isinstance(first, int) or first < 0:
-        raise err(f"{key}.first_tag_id", f"expected a non-negative integer, got {_kind(first)}")
+        raise err(f"{key}.first_tag_id", f"expected a non-negative integer, got {describe(first)}")
     board = Board.aprilgrid(name, tags, size, spacing, first)
     n_codes = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, APRIL_DICTIONARY)).bytesList.shape[0]
     if first + board.n_markers > n_codes:
@@ -450,7 +453,7 @@ def _kalibr_board(doc: dict, err) -> Board:
         return doc[k]
 
     if typ == "aprilgrid":
-        _unknown(doc, KALIBR_APRILGRID_KEYS, "", err)
+        refuse_unknown_keys(doc, KALIBR_APRILGRID_KEYS, "", err)
         d = {"name": KALIBR_GRID_NAME, "type": "aprilgrid",
              "tags": [need("tagCols", "the number of tag columns"),
                       need("tagRows", "the number of tag rows")],
@@ -458,7 +461,7 @@ def _kalibr_board(doc: dict, err) -> Board:
              "tag_spacing": need("tagSpacing", "the gap between tags / tagSize")}
         return _board_from_dict(d, "Kalibr aprilgrid", err)
     if typ == "checkerboard":
-        _unknown(doc, KALIBR_CHECKER_KEYS, "", err)
+        refuse_unknown_keys(doc, KALIBR_CHECKER_KEYS, "", err)
         row = _metres(need("rowSpacingMeters", "the square size in metres"), "rowSpacingMeters", err)
         col = _metres(doc.get("colSpacingMeters", row), "colSpacingMeters", err)
         if abs(col - row) > 1e-9 * max(col, row):
@@ -468,11 +471,11 @@ def _kalibr_board(doc: dict, err) -> Board:
                                need("targetRows", "inner corners along y")],
              "square_length": row}
         return _board_from_dict(d, "Kalibr checkerboard", err)
-    raise err("target_type", f"expected aprilgrid or checkerboard (Kalibr target types rigcal reads), got {_kind(typ)}")
+    raise err("target_type", f"expected aprilgrid or checkerboard (Kalibr target types rigcal reads), got {describe(typ)}")
 
 
 def _metres(v: Any, key: str, err) -> float:
-    x = _positive(v, key, err)
+    x = positive_number(v, key, err)
     if x > MAX_SQUARE_M:
         raise err(key, f"expected metres (at most {MAX_SQUARE_M:g}), got {x:g}; in millimetres that is {x / 1000:g} m")
     return x
@@ -517,7 +520,7 @@ def _required(d: dict, k: str, key: str, err, what: str) -> Any:
 def _int_pair(v: Any, key: str, least: int, err) -> tuple[int, int]:
     if (not isinstance(v, (list, tuple)) or len(v) != 2
             or not all(isinstance(x, int) and not isinstance(x, bool) for x in v)):
-        raise err(key, f"expected two integers [nx, ny], got {_kind(v)}")
+        raise err(key, f"expected two integers [nx, ny], got {describe(v)}")
     if min(v) < least:
         raise err(key, f"expected at least {least} in each direction, got {list(v)}")
     return (int(v[0]), int(v[1]))

@@ -10,27 +10,27 @@ from typing import Any, Sequence
 
 import numpy as np
 
-def _kind(v: Any, limit: int = 60) -> str:
+def describe(v: Any, limit: int = 60) -> str:
     """A value, described briefly for an error line."""
     if v is None:
         return "nothing"
     if isinstance(v, dict):
         return "a mapping" if v else "an empty mapping"
     if isinstance(v, str):
-        return "text " + _short(repr(v), limit)
-    return _short(repr(v), limit)
+        return "text " + shorten(repr(v), limit)
+    return shorten(repr(v), limit)
 
 
-def _short(text: str, limit: int) -> str:
+def shorten(text: str, limit: int) -> str:
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-def _unknown(d: dict, allowed: Sequence[str], key: str, err) -> None:
+def refuse_unknown_keys(d: dict, allowed: Sequence[str], key: str, err) -> None:
     for k in d:
         if k not in allowed:
             hint = _closest(str(k), allowed)
             # a key with a line break (or other control characters) is shown quoted: the error is one line
-            name = _short(str(k) if str(k).isprintable() else repr(str(k)), 60)
+            name = shorten(str(k) if str(k).isprintable() else repr(str(k)), 60)
             at = f"{key}.{name}" if key else name
             raise err(at, "unknown key" + (f" (did you mean `{hint}`?)" if hint else "")
                       + f"; expected one of {', '.join(allowed)}")
@@ -43,46 +43,46 @@ def _closest(word: str, options: Sequence[str]) -> str | None:
     return m[0] if m else None
 
 
-def _number(v: Any, key: str, err) -> float:
+def finite_number(v: Any, key: str, err) -> float:
     if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise err(key, f"expected a number, got {_kind(v)}")
+        raise err(key, f"expected a number, got {describe(v)}")
     try:
         x = float(v)
     except OverflowError:  # an integer beyond float range
         x = math.inf
     if not math.isfinite(x):
-        raise err(key, f"expected a finite number, got {_kind(v)}")
+        raise err(key, f"expected a finite number, got {describe(v)}")
     return x
 
 
-def _positive(v: Any, key: str, err) -> float:
-    x = _number(v, key, err)
+def positive_number(v: Any, key: str, err) -> float:
+    x = finite_number(v, key, err)
     if x <= 0:
         raise err(key, f"expected a positive number, got {v!r}")
     return x
 
 
-def _vector(v: Any, n: int, key: str, err) -> np.ndarray:
+def number_vector(v: Any, n: int, key: str, err) -> np.ndarray:
     if not isinstance(v, (list, tuple)) or len(v) != n:
-        raise err(key, f"expected {n} numbers, got {_kind(v)}")
-    return np.array([_number(x, f"{key}[{i}]", err) for i, x in enumerate(v)])
+        raise err(key, f"expected {n} numbers, got {describe(v)}")
+    return np.array([finite_number(x, f"{key}[{i}]", err) for i, x in enumerate(v)])
 
 
-def _check_finite_tree(v: Any, key: str, err) -> None:
+def check_finite_tree(v: Any, key: str, err) -> None:
     """Free-form stats blocks (calibration, depth_check) hold mappings with text keys, lists,
     text, booleans and finite numbers, which is what the writer can round-trip."""
     if isinstance(v, dict):
         for k, x in v.items():
             if not isinstance(k, str):
-                raise err(key, f"expected text keys, got {_kind(k)}")
-            _check_finite_tree(x, f"{key}.{k}", err)
+                raise err(key, f"expected text keys, got {describe(k)}")
+            check_finite_tree(x, f"{key}.{k}", err)
     elif isinstance(v, list):
         for i, x in enumerate(v):
-            _check_finite_tree(x, f"{key}[{i}]", err)
+            check_finite_tree(x, f"{key}[{i}]", err)
     elif isinstance(v, (int, float)):  # bool is an int
-        _number(float(v) if isinstance(v, bool) else v, key, err)
+        finite_number(float(v) if isinstance(v, bool) else v, key, err)
     elif v is not None and not isinstance(v, str):
-        raise err(key, f"expected numbers, text, lists or mappings, got {_kind(v)}")
+        raise err(key, f"expected numbers, text, lists or mappings, got {describe(v)}")
 
 
 def parses_as_float(text: str) -> bool:

@@ -153,10 +153,10 @@ def rig_scale(dataset: Path, views) -> float:
     sys.path.insert(0, str(ROOT))
     from bench.common import calibrate, rig_scale_ppm
     from rigcal.compare import load_truth
-    from rigcal.core import ViewIn
+    from dataclasses import replace
 
     target = load_target(dataset / "target.yaml")
-    cal = calibrate([ViewIn(v.camera, v.frame, v.board, v.ids, v.uv, v.ambiguous) for v in views],
+    cal = calibrate([replace(v, sigma=None) for v in views],
                     load_rig(dataset / "rig.yaml"), {b.name: b.corners for b in target.boards})
     return rig_scale_ppm(cal, load_truth(dataset / "truth.yaml").rig)
 

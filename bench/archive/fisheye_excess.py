@@ -7,7 +7,7 @@ guided pass (rigcal.guided), which bench.noise_limit and bench.archive.guided me
 
 Per seed (bench.common's render + detect cache, bench.noise_limit's frame count) the
 detected corners' error e = detected - true projection is split into parts, and the same
-bundle adjustment (rigcal.core.calibrate_views) runs on true projections + each part:
+bundle adjustment (rigcal.pipeline.calibrate_views) runs on true projections + each part:
 
 - full: e itself (must reproduce the detected calibration)
 - radial / tangential: e's component along / across the ray from the principal point
@@ -42,7 +42,7 @@ import os
 import numpy as np
 
 from rigcal import geometry as geo
-from rigcal.bounds import _relative_pose_jacobian, measured_corner_noise, true_state
+from rigcal.bounds import relative_pose_jacobian, measured_corner_noise, true_state
 from rigcal.target import load_target
 from rigcal.solve import Problem, SolveResult, camera_covariance
 
@@ -69,7 +69,7 @@ def rot_bound_cov(cal, truth, sigma: float) -> np.ndarray:
     cov, _, cam_sl = camera_covariance(res)
     free = [c for c in range(len(cal.cam_names)) if cam_sl[c] is not None]
     idx = np.concatenate([np.arange(cam_sl[c].start, cam_sl[c].stop) for c in free])
-    G = _relative_pose_jacobian(st.T_cam_body, 0, 1, free)
+    G = relative_pose_jacobian(st.T_cam_body, 0, 1, free)
     S = G @ cov[np.ix_(idx, idx)] @ G.T
     return np.degrees(np.degrees(S[:3, :3]))
 
@@ -189,7 +189,7 @@ def influence(cal, truth, weighted: bool = True) -> np.ndarray:
     w = pb.obs.sqrt_weights()[:, None] if weighted else np.ones((2 * len(pb.obs), 1))
     J = w * pb.jacobian(pb.x0()).toarray()
     free = [c for c in range(len(cal.cam_names)) if pb.layout.cam[c] is not None]
-    G = _relative_pose_jacobian(st.T_cam_body, 0, 1, free)[:3]
+    G = relative_pose_jacobian(st.T_cam_body, 0, 1, free)[:3]
     return np.degrees(G @ np.linalg.solve(J.T @ J, (w * J).T)[pb.layout.cam[free[0]]])
 
 

@@ -28,8 +28,8 @@ import numpy as np
 
 import rigcal
 
-from bench.common import OUT, ROOT, get_dataset, md_table, say, scenario, view_tuples, write_json
-from bench.noise_limit import _pair_stats
+from bench.common import OUT, ROOT, get_dataset, md_table, say, scenario, write_json
+from bench.noise_limit import pair_stats
 
 SCENES = ("fisheye-indie", "pinhole-indie", "stereo-forward", "fisheye-rigcal")
 FRAMES = 20
@@ -54,7 +54,7 @@ def dataset(scene: str, seed: int) -> Path:
 def run_one(d: Path) -> dict:
     from rigcal.bounds import measured_corner_noise
     from rigcal.compare import load_truth
-    from rigcal.core import ViewIn, calibrate_views
+    from rigcal.pipeline import calibrate_views
     from rigcal.dataset import list_dataset
     from rigcal.detect import detect_dataset
     from rigcal.guided import rerefiner
@@ -64,14 +64,14 @@ def run_one(d: Path) -> dict:
     truth = load_truth(d / "truth.yaml")
     images = list_dataset(d, rig)
     det = detect_dataset(images, target, rig=rig, jobs=2, progress=False)
-    views = [ViewIn(*t) for t in view_tuples(det.views)]
+    views = list(det.views)
     corners = {b.name: b.corners for b in target.boards}
     out = {"detection_s": det.seconds}
     for name, hook in (("off", None), ("on", rerefiner(images, rig, target, jobs=2, mode="on"))):
         t0 = time.perf_counter()
         cal = calibrate_views(views, rig, corners, rerefine=hook)
         sigma = measured_corner_noise(cal, truth)
-        out[name] = {"corner_rms_px": sigma, "pairs": _pair_stats(cal, truth, sigma),
+        out[name] = {"corner_rms_px": sigma, "pairs": pair_stats(cal, truth, sigma),
                      "calibrate_s": time.perf_counter() - t0, "guided_s": cal.timings.get("guided_s")}
     return out
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rigcal import export
+from rigcal import export_command
 from rigcal.io import atomic_dir
 from rigcal.rig import load_rig
 
@@ -42,8 +42,8 @@ def write_goldens(dest: Path) -> list[Path]:
         rig = load_rig(rig_path)
         for fmt, name in outputs.items():
             # A label without the machine's path keeps messages identical everywhere.
-            result = export.build(rig, fmt, f"{stem}.yaml")
-            export.write_export(result, fmt, dest / stem / name)
+            result = export_command.build(rig, fmt, f"{stem}.yaml")
+            export_command.write_export(result, fmt, dest / stem / name)
     return sorted(p for p in dest.rglob("*") if p.is_file())
 
 

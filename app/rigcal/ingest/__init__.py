@@ -49,6 +49,9 @@ class IngestOptions:
 
 @dataclass(frozen=True)
 class IngestResult:
+    """What `rigcal ingest` wrote: the dataset folder, the source kind, per camera and IMU the
+    counts read, written and skipped, where rig.yaml and target.yaml came from, and warnings."""
+
     out_dir: Path
     kind: str
     cameras: dict[str, CameraCounts]
@@ -201,7 +204,7 @@ def _rig_from_camera_info(rec: BagRecording, source: Path) -> tuple[str, dict | 
     IMU (its noise figures are not in the bag)."""
     if rec.imus:
         return "not written: the bag does not give the IMU's noise figures (pass --rig)", None
-    cams, why = declared_cameras(rec.reader, source, {c: rec.topic_of[c] for c in rec.cameras})
+    cams, why = declared_cameras(rec.reader, {c: rec.topic_of[c] for c in rec.cameras})
     if cams is None:
         return f"not written: {why} (pass --rig)", None
     return "CameraInfo topics (intrinsics only, no poses)", {"rig": _rig_name(source), "body_frame": "FLU",

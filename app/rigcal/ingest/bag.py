@@ -57,6 +57,8 @@ def open_bag(source: Path):
 
 @dataclass(frozen=True)
 class TopicInfo:
+    """One image or IMU topic of a bag: its message type, message count and mean rate (Hz)."""
+
     topic: str
     msgtype: str
     count: int
@@ -165,7 +167,7 @@ def info_topic(image_topic: str) -> str:
     return base.rsplit("/", 1)[0] + "/camera_info"
 
 
-def declared_cameras(reader, source: Path, cameras: dict[str, str]) -> tuple[dict | None, str]:
+def declared_cameras(reader, cameras: dict[str, str]) -> tuple[dict | None, str]:
     """(rig `cameras` mapping from each camera's first CameraInfo, or None; why not). The
     poses are left out: a CameraInfo does not say where the camera sits on the body."""
     conns = {c.topic: c for c in reader.connections if c.msgtype == INFO_TYPE}

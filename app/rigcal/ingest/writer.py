@@ -79,6 +79,8 @@ class StreamCounts:
 
 @dataclass
 class CameraCounts(StreamCounts):
+    """One camera's frame counts, with the frames dropped by --rate thinning."""
+
     thinned: int = 0
     _last_kept: int | None = field(default=None, repr=False)
 
