@@ -34,6 +34,7 @@ from .errors import CalibrationError, DatasetError, InputError
 from .initialise import pnp_views
 from .motion import ImuSamples
 from .rig import Imu
+from .solve import project_obs
 
 BOARD_PASSES = 2  # camera-IMU estimates on every corner, each after re-fitting the boards to the last
 BOARD_CONVERGED_M = 1e-5  # a board move below this (and BOARD_CONVERGED_RAD) ends the passes
@@ -179,6 +180,8 @@ def refit_boards(state: ir.State, inp: Inputs, models: list, gauge: int, T_world
     others = [int(b) for b in np.unique(inp.board) if b != gauge]
     C, nb = len(models), len(others)
     obs = ir.Corners(inp.cam, inp.t_cam, inp.uv, inp.p_board)
+    vals = [np.array([m.fx, m.fy, m.cx, m.cy, *m.dist]) for m in models]
+    kinds = [m.model for m in models]
 
     def boards(x):
         T_wb = T_world_board.copy()
@@ -198,11 +201,8 @@ def refit_boards(state: ir.State, inp: Inputs, models: list, gauge: int, T_world
         p_body = np.einsum("mji,mj->mi", m.R_world_body, p_world - m.p_world)
         T_cb = geo.inv_T(T_bc)[obs.cam]
         p_cam = np.einsum("mij,mj->mi", T_cb[:, :3, :3], p_body) + T_cb[:, :3, 3]
-        uv = np.empty_like(obs.uv)
-        for c in range(C):  # a loop over cameras, not corners
-            k = obs.cam == c
-            uv[k] = models[c].project(p_cam[k])[0]
-        return (uv - obs.uv).ravel()
+        # the lens polynomial also past its fold, as the estimator's corner block (no NaN)
+        return (project_obs(p_cam, obs.cam, vals, kinds) - obs.uv).ravel()
 
     return boards(so.least_squares(residual, np.zeros(6 * nb + 7 * C), method="lm").x)
 
@@ -292,6 +292,8 @@ def jacobian(res: ic.CameraImuResult, inp: Inputs, T_world_board: np.ndarray, se
     held = frozenset({"imu_rot", "imu_pos"} | (set() if settings.line_delay else {"line_delay"}))
     lay = ir.layout_for(state, held)
     _, obs = _with_boards(inp, T_world_board)
+    k = res.corners_used
+    obs = ir.Corners(obs.cam[k], obs.t_cam[k], obs.uv[k], obs.p_world[k])
     use = _imu_mask(state, imu.t)
     r = math.sqrt(imu.update_rate)
     mj = ir.motion_jacobian(state, imu.t[use])

@@ -33,7 +33,7 @@ import scipy.sparse as sp
 
 from . import geometry as geo
 from .camera import CameraModel
-from .solve import projection_jacobians
+from .solve import project_obs, projection_jacobians
 from .spline import ORDER, Motion, Spline, basis, motion_from_controls, segment
 
 GRAVITY = 9.80665
@@ -353,11 +353,12 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     q = p_body - t_bc
     p_cam = np.einsum("mji,mj->mi", R_bc, q)
     vals = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in cameras]
-    uv = np.empty((len(c), 2))
-    for ci, cam in enumerate(cameras):
-        k = c == ci
-        uv[k] = cam.project(p_cam[k])[0]
-    J_uv = projection_jacobians(p_cam, c, vals, [k.model for k in cameras])[0]  # (M, 2, 3)
+    kinds = [k.model for k in cameras]
+    # the lens polynomial as the camera BA evaluates it, also past the radius where it folds
+    # back (CameraModel.project gives NaN there): a start or a trial step may put a corner
+    # there, and a NaN cost made LM refuse every step (EuRoC: the start returned as result)
+    uv = project_obs(p_cam, c, vals, kinds)
+    J_uv = projection_jacobians(p_cam, c, vals, kinds)[0]  # (M, 2, 3)
     Rt = np.swapaxes(R, 1, 2)
     d_body_pose = np.concatenate([Rt @ geo.skew(dw), -Rt], axis=2)  # (M, 3, 6): theta, p
     omega_world = np.einsum("mij,mj->mi", R, m_u.omega_body[inv])
