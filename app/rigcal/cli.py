@@ -192,6 +192,8 @@ def calibrate(
                                                              "many seconds of the declared time_offset_s (default 0.2)"),
     rolling_shutter: bool = typer.Option(False, help="with imu/: estimate every camera's line_delay_s (default: "
                                                      "only where the rig declares one non-zero)"),
+    knot_spacing: Optional[float] = typer.Option(None, help="with imu/: the trajectory spline's knot spacing, s "
+                                                            "(default 0.05; 0.01, Kalibr's, for fast hand-waved motion)"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from . import calibrate as cal
@@ -200,7 +202,8 @@ def calibrate(
                 reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
                 allow_resize=allow_resize, guided=guided.value, intrinsics=intrinsics.value,
                 scheduler=scheduler, imu_options={"gravity": gravity, "window_s": offset_window,
-                                                  "rolling_shutter": True if rolling_shutter else None}))
+                                                  "rolling_shutter": True if rolling_shutter else None,
+                                                  "knot_dt": knot_spacing}))
 
 
 @app.command()

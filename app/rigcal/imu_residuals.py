@@ -389,22 +389,21 @@ def bias_prior_block(state: State, lay: Layout, gyro_random_walk: float, accel_r
 
 
 def assemble(blocks: list[Block], n_cols: int) -> tuple[sp.csr_matrix, np.ndarray]:
-    """The sparse Jacobian (rows: every residual of every block in order) and residual vector."""
-    rows, cols, vals, res = [], [], [], []
-    row0 = 0
+    """The sparse Jacobian (rows: every residual of every block in order) and residual vector.
+    Built as CSR directly (rows come in order, each with its block's columns): going through
+    COO made EuRoC's 23 million entries cost 2 s per iteration in the row sort alone."""
+    counts, cols, vals, res = [], [], [], []
     for b in blocks:
         m, d, k = b.J.shape
-        r_idx = row0 + np.arange(m * d).reshape(m, d)
-        rr = np.broadcast_to(r_idx[:, :, None], (m, d, k))
-        cc = np.broadcast_to(b.cols[:, None, :], (m, d, k))
-        keep = cc >= 0
-        rows.append(rr[keep])
-        cols.append(cc[keep])
+        keep = np.broadcast_to(b.cols[:, None, :] >= 0, (m, d, k))
+        counts.append(keep.sum(axis=2).ravel())
+        cols.append(np.broadcast_to(b.cols[:, None, :], (m, d, k))[keep])
         vals.append(b.J[keep])
         res.append(b.r.ravel())
-        row0 += m * d
-    J = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(row0, n_cols))
-    return J, np.concatenate(res)
+    indptr = np.concatenate([[0], np.cumsum(np.concatenate(counts))])
+    r = np.concatenate(res)
+    J = sp.csr_matrix((np.concatenate(vals), np.concatenate(cols), indptr), shape=(len(r), n_cols))
+    return J, r
 
 
 def retract(state: State, lay: Layout, dx: np.ndarray) -> State:
