@@ -193,6 +193,10 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         from .report import build_report
 
         report_html = build_report(cal, out_rig, det, pairs, timings)
+        if imu_res is not None:
+            from .report_imu import with_imu_section
+
+            report_html = with_imu_section(report_html, out_rig, imu_res, motion.imus[imu_name])
     # the rig and its report land together or not at all
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
     imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
