@@ -127,28 +127,32 @@ def inputs(data: EurocData, models: dict, t_lo: float = -np.inf, t_hi: float = n
     return cams, obs, imu
 
 
-def compare(res: ic.CameraImuResult, ref: dict) -> dict:
-    """Per camera: rotation (deg) and translation (mm) differences from EuRoC's T_BS, offset
-    (ms), 1-sigmas; the baseline (mm)."""
+def against_reference(T_imu_cam: np.ndarray, offsets_s, sigma: np.ndarray, ref: dict) -> dict:
+    """Per camera (T_imu_cam (2, 4, 4), offsets (2,) s, sigma (2, 7): rotation rad, position m,
+    offset s): rotation (deg) and translation (mm) differences from EuRoC's T_BS, as vectors in
+    IMU axes too, offset (ms), 1-sigmas; the baseline (mm)."""
     out = {"rot_deg": [], "pos_mm": [], "offset_ms": [], "sigma_rot_deg": [], "sigma_pos_mm": [], "sigma_offset_ms": [],
            "rot_vec_deg": [], "pos_vec_mm": []}
     for ci, cam in enumerate(CAMERAS):
         T_ref = np.array(ref[cam]["T_BS"], dtype=float)
-        T = res.T_imu_cam[ci]
+        T = T_imu_cam[ci]
         dR = T[:3, :3] @ T_ref[:3, :3].T
         out["rot_deg"].append(geo.rotation_angle_deg(dR))
         out["rot_vec_deg"].append(np.degrees(geo.rotvecs_from_R(dR[None])[0]).tolist())
         out["pos_vec_mm"].append((1000 * (T[:3, 3] - T_ref[:3, 3])).tolist())
         out["pos_mm"].append(1000 * float(np.linalg.norm(T[:3, 3] - T_ref[:3, 3])))
-        out["offset_ms"].append(1000 * float(res.time_offset_s[ci]))
-        out["sigma_rot_deg"].append(np.degrees(res.sigma[ci, :3]).tolist())
-        out["sigma_pos_mm"].append((1000 * res.sigma[ci, 3:6]).tolist())
-        out["sigma_offset_ms"].append(1000 * float(res.sigma[ci, 6]))
-    out["baseline_mm"] = 1000 * float(np.linalg.norm(res.T_imu_cam[0, :3, 3] - res.T_imu_cam[1, :3, 3]))
-    out["normalised_rms"] = res.normalised_rms
-    out["iterations"] = res.iterations
-    out["solve_s"] = res.seconds
+        out["offset_ms"].append(1000 * float(offsets_s[ci]))
+        out["sigma_rot_deg"].append(np.degrees(sigma[ci, :3]).tolist())
+        out["sigma_pos_mm"].append((1000 * sigma[ci, 3:6]).tolist())
+        out["sigma_offset_ms"].append(1000 * float(sigma[ci, 6]))
+    out["baseline_mm"] = 1000 * float(np.linalg.norm(T_imu_cam[0, :3, 3] - T_imu_cam[1, :3, 3]))
     return out
+
+
+def compare(res: ic.CameraImuResult, ref: dict) -> dict:
+    """against_reference for the estimator's result, with its residuals, iterations, time."""
+    return {**against_reference(res.T_imu_cam, res.time_offset_s, res.sigma, ref),
+            "normalised_rms": res.normalised_rms, "iterations": res.iterations, "solve_s": res.seconds}
 
 
 def corner_spread(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> dict:
@@ -257,10 +261,6 @@ def via_calibrate(log=say) -> dict | None:
     import subprocess
     import sys
 
-    import yaml
-
-    import rigcal
-
     d = build_dataset(OUT / "euroc_imu_dataset", log)
     if d is None:
         return None
@@ -271,33 +271,28 @@ def via_calibrate(log=say) -> dict | None:
         run = subprocess.run(cmd, capture_output=True, text=True)
     if run.returncode != 0:
         raise RuntimeError(f"rigcal calibrate failed ({run.returncode}): {run.stderr.strip()[-2000:]}")
+    return score(out_yaml, t.wall, run.stdout, log)
+
+
+def score(out_yaml, wall_s: float, console: str, log=say) -> dict:
+    """A calibrated EuRoC rig (`rigcal calibrate`'s YAML) against EuRoC's T_BS."""
+    import yaml
+
+    import rigcal
+
     rig = rigcal.load_rig(out_yaml)
     ref = yaml.safe_load((SHARED / "euroc_imu_april" / "reference.yaml").read_text())
     doc = yaml.safe_load(out_yaml.read_text())
     T_bi = rig.imu("imu0").T_body_imu
-    row = {"label": "rigcal calibrate", "seconds": t.wall, "console": run.stdout[-6000:],
-           "timings": doc.get("calibration", {}).get("timings"), "camera_imu": doc["calibration"].get("camera_imu"),
-           "imu0": doc["imus"]["imu0"].get("calibration"), "rot_deg": [], "pos_mm": [], "offset_ms": [],
-           "rot_vec_deg": [], "pos_vec_mm": [], "sigma_rot_deg": [], "sigma_pos_mm": [], "sigma_offset_ms": [],
-           "intrinsics": {}}
-    T = {}
-    for cam in CAMERAS:
-        c = rig.camera(cam)
-        T[cam] = geo.inv_T(T_bi) @ c.T_body_cam
-        T_ref = np.array(ref[cam]["T_BS"], dtype=float)
-        dR = T[cam][:3, :3] @ T_ref[:3, :3].T
-        row["rot_deg"].append(geo.rotation_angle_deg(dR))
-        row["rot_vec_deg"].append(np.degrees(geo.rotvecs_from_R(dR[None])[0]).tolist())
-        row["pos_vec_mm"].append((1000 * (T[cam][:3, 3] - T_ref[:3, 3])).tolist())
-        row["pos_mm"].append(1000 * float(np.linalg.norm(T[cam][:3, 3] - T_ref[:3, 3])))
-        row["offset_ms"].append(1000 * c.time_offset_s)
-        sig = c.calibration["sigma"]
-        row["sigma_rot_deg"].append(sig["rotation_deg"])
-        row["sigma_pos_mm"].append(sig["position_mm"])
-        row["sigma_offset_ms"].append(sig["time_offset_ms"])
-        m = c.intrinsics
-        row["intrinsics"][cam] = [m.fx, m.fy, m.cx, m.cy, *m.dist]
-    row["baseline_mm"] = 1000 * float(np.linalg.norm(T["cam0"][:3, 3] - T["cam1"][:3, 3]))
+    T = np.stack([geo.inv_T(T_bi) @ rig.camera(cam).T_body_cam for cam in CAMERAS])
+    sig = [rig.camera(cam).calibration["sigma"] for cam in CAMERAS]
+    sigma = np.array([[*np.radians(s["rotation_deg"]), *(1e-3 * np.array(s["position_mm"])), 1e-3 * s["time_offset_ms"]]
+                      for s in sig])
+    row = {"label": "rigcal calibrate", "seconds": wall_s, "console": console[-6000:],
+           "camera_imu": doc["calibration"].get("camera_imu"), "imu0": doc["imus"]["imu0"].get("calibration"),
+           "intrinsics": {cam: [m.fx, m.fy, m.cx, m.cy, *m.dist] for cam in CAMERAS
+                          for m in [rig.camera(cam).intrinsics]},
+           **against_reference(T, [rig.camera(cam).time_offset_s for cam in CAMERAS], sigma, ref)}
     cal = row["imu0"]
     row["normalised_rms"] = {"corners": float("nan"),
                              "gyro": cal["gyroscope_residual_rms"] / cal["gyroscope_residual_rms_declared"],
@@ -306,7 +301,7 @@ def via_calibrate(log=say) -> dict | None:
     log(f"  rigcal calibrate: rot {row['rot_deg'][0]:.3f}/{row['rot_deg'][1]:.3f} deg, pos {row['pos_mm'][0]:.2f}/"
         f"{row['pos_mm'][1]:.2f} mm, baseline {row['baseline_mm']:.2f} mm, offset {row['offset_ms'][0]:+.3f}/"
         f"{row['offset_ms'][1]:+.3f} ms, gyro/accel RMS {row['normalised_rms']['gyro']:.2f}/"
-        f"{row['normalised_rms']['accel']:.2f} x declared, whole calibrate {t.wall:.1f} s")
+        f"{row['normalised_rms']['accel']:.2f} x declared, whole calibrate {wall_s:.1f} s")
     return row
 
 
