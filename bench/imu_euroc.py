@@ -180,7 +180,8 @@ def run_one(data: EurocData, models: dict, sigma_px: float, label: str, log=say,
     return row
 
 
-def run(halves: bool = True, euroc_intrinsics: bool = True, huber: float | None = None, log=say) -> dict | None:
+def run(halves: bool = True, euroc_intrinsics: bool = True, huber: float | None = None, log=say,
+        calibrate: bool = False) -> dict | None:
     data = load(log)
     if data is None:
         return None
@@ -200,6 +201,9 @@ def run(halves: bool = True, euroc_intrinsics: bool = True, huber: float | None 
         mid = 0.5 * (data.imu.t[0] + data.imu.t[-1])
         out["runs"].append(run_one(data, models, sigma, "first half", log, huber, t_hi=mid))
         out["runs"].append(run_one(data, models, sigma, "second half", log, huber, t_lo=mid))
+    if calibrate:
+        out["calibrate"] = via_calibrate(log)
+        out["runs"].append(out["calibrate"])
     return out
 
 
@@ -313,10 +317,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--calibrate", action="store_true", help="also run `rigcal calibrate` on the recording")
     ap.add_argument("--calibrate-only", action="store_true", help="only `rigcal calibrate` on the recording")
     a = ap.parse_args(argv)
-    res = {"runs": []} if a.calibrate_only else run(not a.no_halves, not a.no_euroc_intrinsics, a.huber)
-    if res is not None and (a.calibrate or a.calibrate_only):
+    if a.calibrate_only:
         row = via_calibrate()
-        res = None if row is None else {**res, "calibrate": row, "runs": res["runs"] + [row]}
+        res = None if row is None else {"calibrate": row, "runs": [row]}
+    else:
+        res = run(not a.no_halves, not a.no_euroc_intrinsics, a.huber, calibrate=a.calibrate)
     if res is None:
         say("imu_euroc: ../shared/data/real/euroc_imu_april not found; skipped")
         return 0
