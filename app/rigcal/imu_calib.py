@@ -1,9 +1,8 @@
-"""Prototype camera-IMU estimator (issue 18): the body trajectory as a spline, every camera's
+"""The camera-IMU estimator (issue 18): the body trajectory as a spline, every camera's
 T_body_cam and clock offset, gyroscope and accelerometer biases and gravity's direction,
 jointly, by Levenberg-Marquardt on the sparse residual blocks of rigcal.imu_residuals.
 
-NOT yet used by `rigcal calibrate` (README "Camera-IMU calibration (in progress)"). What
-it assumes today: intrinsics known (a camera-only calibration), the corners' world points
+`rigcal calibrate` calls it through rigcal.calibrate_imu. What it assumes: intrinsics known (a camera-only calibration), the corners' world points
 known (static boards at known poses: the board frame is the world), the reference IMU's
 T_body_imu held (it defines the body frame, imu.md), no outlier rejection, one IMU.
 
