@@ -18,7 +18,9 @@ Sections (each also runs alone: python -m bench.<name>):
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
   imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds + 30 s rendered
   imu_euroc    the camera-IMU estimator on EuRoC's real 72 s imu_april corners + IMU vs EuRoC's T_BS (Kalibr);
-               with EuRoC's intrinsics and on each half of the recording
+               with EuRoC's intrinsics and on each half of the recording; then `rigcal calibrate` on it
+  imu_speed    `rigcal calibrate` on a simulated 30 s 3-camera IMU recording: whole time / detection time
+               (issue 18: <= 1.5), errors via compare
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
@@ -50,7 +52,7 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_euroc, indie, indie_noise, ingest,
+from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_euroc, imu_speed, indie, indie_noise, ingest,
                intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu,
                solver_libraries, speed)
 from .common import OUT, machine, say, write_json
@@ -92,8 +94,10 @@ TABLE = (
             _only(simulate_imu)),
     Section("imu_calib", "imu_calib", lambda q, d: imu_calib.run(duration=8.0 if q else 30.0, seeds=1 if q else 3,
                                                                  rendered=4.0 if q else 30.0), _only(imu_calib)),
-    Section("imu_euroc", "imu_euroc", lambda q, d: imu_euroc.run(halves=not q, euroc_intrinsics=not q),
+    Section("imu_euroc", "imu_euroc",
+            lambda q, d: imu_euroc.run(halves=not q, euroc_intrinsics=not q, calibrate=True),
             _only(imu_euroc)),
+    Section("imu_speed", "imu_speed", lambda q, d: imu_speed.run(duration=8.0 if q else 30.0), _only(imu_speed)),
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),

@@ -9,7 +9,11 @@ direction is estimated (|g| = 9.81007, EuRoC's site), the IMU defines the body f
 The run is repeated with EuRoC's own intrinsics held, and on each half of the recording,
 to tell rigcal's differences from the reference's.
 
-    python -m bench.imu_euroc [--no-halves] [--no-euroc-intrinsics] [--huber K]
+The recording is also calibrated end to end by `rigcal calibrate` (`--calibrate`): a
+motion dataset of dataset.md's `corners/` input (the camera-only set of bench.real) plus
+imu/imu0.csv and the IMU declared in rig.yaml, with EuRoC's gravity and Kalibr's knot spacing.
+
+    python -m bench.imu_euroc [--no-halves] [--no-euroc-intrinsics] [--huber K] [--calibrate | --calibrate-only]
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from rigcal import geometry as geo
 from rigcal import imu_calib as ic
 from rigcal import imu_residuals as ir
 
-from .common import Timer, md_table, say, write_json
+from .common import OUT, Timer, md_table, say, write_json
 from .real import SHARED, linked
 
 GRAVITY_EUROC = 9.81007  # m/s^2 at ETH Zurich (imu.md)
@@ -123,33 +127,39 @@ def inputs(data: EurocData, models: dict, t_lo: float = -np.inf, t_hi: float = n
     return cams, obs, imu
 
 
-def compare(res: ic.CameraImuResult, ref: dict) -> dict:
-    """Per camera: rotation (deg) and translation (mm) differences from EuRoC's T_BS, offset
-    (ms), 1-sigmas; the baseline (mm)."""
+def against_reference(T_imu_cam: np.ndarray, offsets_s, sigma: np.ndarray, ref: dict) -> dict:
+    """Per camera (T_imu_cam (2, 4, 4), offsets (2,) s, sigma (2, 7): rotation rad, position m,
+    offset s): rotation (deg) and translation (mm) differences from EuRoC's T_BS, as vectors in
+    IMU axes too, offset (ms), 1-sigmas; the baseline (mm)."""
     out = {"rot_deg": [], "pos_mm": [], "offset_ms": [], "sigma_rot_deg": [], "sigma_pos_mm": [], "sigma_offset_ms": [],
            "rot_vec_deg": [], "pos_vec_mm": []}
     for ci, cam in enumerate(CAMERAS):
         T_ref = np.array(ref[cam]["T_BS"], dtype=float)
-        T = res.T_imu_cam[ci]
+        T = T_imu_cam[ci]
         dR = T[:3, :3] @ T_ref[:3, :3].T
         out["rot_deg"].append(geo.rotation_angle_deg(dR))
         out["rot_vec_deg"].append(np.degrees(geo.rotvecs_from_R(dR[None])[0]).tolist())
         out["pos_vec_mm"].append((1000 * (T[:3, 3] - T_ref[:3, 3])).tolist())
         out["pos_mm"].append(1000 * float(np.linalg.norm(T[:3, 3] - T_ref[:3, 3])))
-        out["offset_ms"].append(1000 * float(res.time_offset_s[ci]))
-        out["sigma_rot_deg"].append(np.degrees(res.sigma[ci, :3]).tolist())
-        out["sigma_pos_mm"].append((1000 * res.sigma[ci, 3:6]).tolist())
-        out["sigma_offset_ms"].append(1000 * float(res.sigma[ci, 6]))
-    out["baseline_mm"] = 1000 * float(np.linalg.norm(res.T_imu_cam[0, :3, 3] - res.T_imu_cam[1, :3, 3]))
-    out["normalised_rms"] = res.normalised_rms
-    out["iterations"] = res.iterations
-    out["solve_s"] = res.seconds
+        out["offset_ms"].append(1000 * float(offsets_s[ci]))
+        out["sigma_rot_deg"].append(np.degrees(sigma[ci, :3]).tolist())
+        out["sigma_pos_mm"].append((1000 * sigma[ci, 3:6]).tolist())
+        out["sigma_offset_ms"].append(1000 * float(sigma[ci, 6]))
+    out["baseline_mm"] = 1000 * float(np.linalg.norm(T_imu_cam[0, :3, 3] - T_imu_cam[1, :3, 3]))
     return out
+
+
+def compare(res: ic.CameraImuResult, ref: dict) -> dict:
+    """against_reference for the estimator's result, with its residuals, iterations, time."""
+    return {**against_reference(res.T_imu_cam, res.time_offset_s, res.sigma, ref),
+            "normalised_rms": res.normalised_rms, "iterations": res.iterations, "solve_s": res.seconds}
 
 
 def corner_spread(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> dict:
     """The corners' residual norms (px) at the estimate: RMS, 99th percentile, share beyond
     1 and 2 px (outliers would show here)."""
+    k = res.corners_used
+    obs = ir.Corners(obs.cam[k], obs.t_cam[k], obs.uv[k], obs.p_world[k])
     b = ir.reprojection_block(res.state, ir.layout_for(res.state), obs, models, 1.0)
     e = np.linalg.norm(b.r, axis=1)
     return {"rms_px": float(np.sqrt(np.mean(e ** 2))), "p99_px": float(np.percentile(e, 99)),
@@ -170,7 +180,8 @@ def run_one(data: EurocData, models: dict, sigma_px: float, label: str, log=say,
     return row
 
 
-def run(halves: bool = True, euroc_intrinsics: bool = True, huber: float | None = None, log=say) -> dict | None:
+def run(halves: bool = True, euroc_intrinsics: bool = True, huber: float | None = None, log=say,
+        calibrate: bool = False) -> dict | None:
     data = load(log)
     if data is None:
         return None
@@ -190,6 +201,9 @@ def run(halves: bool = True, euroc_intrinsics: bool = True, huber: float | None 
         mid = 0.5 * (data.imu.t[0] + data.imu.t[-1])
         out["runs"].append(run_one(data, models, sigma, "first half", log, huber, t_hi=mid))
         out["runs"].append(run_one(data, models, sigma, "second half", log, huber, t_lo=mid))
+    if calibrate:
+        out["calibrate"] = via_calibrate(log)
+        out["runs"].append(out["calibrate"])
     return out
 
 
@@ -208,19 +222,115 @@ def tables(res: dict | None) -> str:
                      "cam0 offset ms", "cam1 offset ms", "RMS / declared: corners / gyro / accel", "solve s"], rows)
 
 
+# EuRoC's ADIS16448 is mounted x up, y to the right, z forward (its T_BS against the cameras'):
+# declared roughly, as a user would before calibrating; the noise figures are EuRoC's imu0 sensor.yaml
+IMU_BLOCK = """
+imus:
+  imu0:
+    position: [0.0, 0.0, 0.0]
+    axes: [U, -L, F]
+    update_rate: 200.0
+    gyroscope_noise_density: {gyroscope_noise_density}
+    gyroscope_random_walk: {gyroscope_random_walk}
+    accelerometer_noise_density: {accelerometer_noise_density}
+    accelerometer_random_walk: {accelerometer_random_walk}
+"""
+
+
+def build_dataset(dst, log=say):
+    """The EuRoC motion dataset for `rigcal calibrate`: bench.real's corners-only set (its
+    corners/, target.yaml and declared camera rig) plus imu/imu0.csv (EuRoC's file as is) and
+    the IMU in rig.yaml. None when the shared data is absent."""
+    import shutil
+
+    import yaml
+
+    src = linked("euroc", log)
+    if src is None:
+        return None
+    if dst.exists():
+        shutil.rmtree(dst)
+    shutil.copytree(src / "corners", dst / "corners")
+    shutil.copy(src / "target.yaml", dst / "target.yaml")
+    (dst / "imu").mkdir()
+    shutil.copy(SHARED / "euroc_imu_april" / "imu0.csv", dst / "imu" / "imu0.csv")
+    noise = yaml.safe_load((SHARED / "euroc_imu_april" / "reference.yaml").read_text())["imu0"]
+    (dst / "rig.yaml").write_text((src / "rig.yaml").read_text() + IMU_BLOCK.format(**noise))
+    return dst
+
+
+def via_calibrate(log=say) -> dict | None:
+    """`rigcal calibrate` on the EuRoC motion dataset (a subprocess, timed start to YAML),
+    its T_imu_cam against EuRoC's T_BS."""
+    import subprocess
+    import sys
+
+    d = build_dataset(OUT / "euroc_imu_dataset", log)
+    if d is None:
+        return None
+    out_yaml = OUT / "euroc_imu_calibrated.yaml"
+    cmd = [sys.executable, "-m", "rigcal", "calibrate", str(d), "--out", str(out_yaml), "--gravity",
+           str(GRAVITY_EUROC), "--knot-spacing", str(KNOT_DT), "--jobs", "2"]
+    with Timer() as t:
+        run = subprocess.run(cmd, capture_output=True, text=True)
+    if run.returncode != 0:
+        raise RuntimeError(f"rigcal calibrate failed ({run.returncode}): {run.stderr.strip()[-2000:]}")
+    return score(out_yaml, t.wall, run.stdout, log)
+
+
+def score(out_yaml, wall_s: float, console: str, log=say) -> dict:
+    """A calibrated EuRoC rig (`rigcal calibrate`'s YAML) against EuRoC's T_BS."""
+    import yaml
+
+    import rigcal
+
+    rig = rigcal.load_rig(out_yaml)
+    ref = yaml.safe_load((SHARED / "euroc_imu_april" / "reference.yaml").read_text())
+    doc = yaml.safe_load(out_yaml.read_text())
+    T_bi = rig.imu("imu0").T_body_imu
+    T = np.stack([geo.inv_T(T_bi) @ rig.camera(cam).T_body_cam for cam in CAMERAS])
+    sig = [rig.camera(cam).calibration["sigma"] for cam in CAMERAS]
+    sigma = np.array([[*np.radians(s["rotation_deg"]), *(1e-3 * np.array(s["position_mm"])), 1e-3 * s["time_offset_ms"]]
+                      for s in sig])
+    row = {"label": "rigcal calibrate", "seconds": wall_s, "console": console[-6000:],
+           "camera_imu": doc["calibration"].get("camera_imu"), "imu0": doc["imus"]["imu0"].get("calibration"),
+           "intrinsics": {cam: [m.fx, m.fy, m.cx, m.cy, *m.dist] for cam in CAMERAS
+                          for m in [rig.camera(cam).intrinsics]},
+           **against_reference(T, [rig.camera(cam).time_offset_s for cam in CAMERAS], sigma, ref)}
+    cal = row["imu0"]
+    row["normalised_rms"] = {"corners": float("nan"),
+                             "gyro": cal["gyroscope_residual_rms"] / cal["gyroscope_residual_rms_declared"],
+                             "accel": cal["accelerometer_residual_rms"] / cal["accelerometer_residual_rms_declared"]}
+    row["solve_s"] = float(row["camera_imu"]["seconds"])
+    log(f"  rigcal calibrate: rot {row['rot_deg'][0]:.3f}/{row['rot_deg'][1]:.3f} deg, pos {row['pos_mm'][0]:.2f}/"
+        f"{row['pos_mm'][1]:.2f} mm, baseline {row['baseline_mm']:.2f} mm, offset {row['offset_ms'][0]:+.3f}/"
+        f"{row['offset_ms'][1]:+.3f} ms, gyro/accel RMS {row['normalised_rms']['gyro']:.2f}/"
+        f"{row['normalised_rms']['accel']:.2f} x declared, whole calibrate {wall_s:.1f} s")
+    return row
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-halves", action="store_true")
     ap.add_argument("--no-euroc-intrinsics", action="store_true")
     ap.add_argument("--huber", type=float, default=None, help="Huber loss on the corners beyond this many sigma")
+    ap.add_argument("--calibrate", action="store_true", help="also run `rigcal calibrate` on the recording")
+    ap.add_argument("--calibrate-only", action="store_true", help="only `rigcal calibrate` on the recording")
     a = ap.parse_args(argv)
-    res = run(not a.no_halves, not a.no_euroc_intrinsics, a.huber)
+    if a.calibrate_only:
+        row = via_calibrate()
+        res = None if row is None else {"calibrate": row, "runs": [row]}
+    else:
+        res = run(not a.no_halves, not a.no_euroc_intrinsics, a.huber, calibrate=a.calibrate)
     if res is None:
         say("imu_euroc: ../shared/data/real/euroc_imu_april not found; skipped")
         return 0
     write_json("imu_euroc", res)
     print(tables(res))
-    print(f"start to result (read, camera-only, camera-IMU): {res['start_to_result_s']:.1f} s")
+    if "start_to_result_s" in res:
+        print(f"start to result (read, camera-only, camera-IMU): {res['start_to_result_s']:.1f} s")
+    if "calibrate" in res:
+        print(f"rigcal calibrate, start to YAML: {res['calibrate']['seconds']:.1f} s")
     return 0
 
 

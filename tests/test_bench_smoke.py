@@ -20,8 +20,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 # checks run by hand, not benchmark sections (bench/__main__.py's docstring lists them)
 CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
-           "indie_noise", "simulate_imu", "imu_calib", "imu_euroc", "solver_libraries", "ingest", "aprilgrid_excess",
-           "dome", "long_recording", "intrinsics_holdout", "__main__") + CHECKS
+           "indie_noise", "simulate_imu", "imu_calib", "imu_euroc", "imu_speed", "solver_libraries", "ingest",
+           "aprilgrid_excess", "dome", "long_recording", "intrinsics_holdout", "__main__") + CHECKS
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -317,3 +317,10 @@ def test_holdout_scores_are_zero_for_the_truth_and_grow_with_a_wrong_rig():
     moved = np.median([e for e, _ in cross_errors(turned, sc.views, sc.corners)])
     expected = right.intrinsics.fy * np.radians(0.2)
     assert 0.7 * expected < moved < 1.3 * expected
+
+
+def test_imu_speed_reads_the_console_stage_times():
+    from bench.imu_speed import stage_times
+
+    t = stage_times("note: x\ntime: detection 61.2 s, intrinsics 3.0 s, solve 9.5 s, guided pass 1.5 s, total 88.0 s\n")
+    assert t == {"detection_s": 61.2, "intrinsics_s": 3.0, "solve_s": 9.5, "guided_pass_s": 1.5, "total_s": 88.0}

@@ -44,7 +44,7 @@ def run(tmp_path_factory):
              "--seed", 0, "--jobs", 1)
     assert r.exit_code == 0, r.output
     out = tmp / "cal.yaml"
-    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--guided", "off")
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--guided", "off", "--report", out.with_suffix(".html"))
     assert r.exit_code == 0, r.output
     return ds, out, r.output
 
@@ -206,3 +206,52 @@ def test_imu_exports_refuse_a_rig_without_imu_and_unwritable_out(fmt, tmp_path):
     blocker.write_text("not a folder")
     r = _cli("export", GOLDEN_IMU, "--format", fmt, "--out", blocker / "out")
     assert r.exit_code == 2 and "a_file" in r.output, r.output
+
+
+def test_a_corners_dataset_with_imu_is_checked_on_its_frames(run, tmp_path):
+    """corners/<camera>.csv instead of images (dataset.md), with imu/: the frames come from
+    the csv (an empty image list crashed the motion check), a non-integer frame is named
+    with its file and row, and a csv that misses the IMU stream is named."""
+    from rigcal.dataset import list_dataset
+    from rigcal.errors import DatasetError
+    from rigcal.motion import check_motion_dataset
+
+    ds = run[0]
+    v = tmp_path / "v"
+    (v / "corners").mkdir(parents=True)
+    for f in ("rig.yaml", "target.yaml"):
+        shutil.copy(ds / f, v / f)
+    shutil.copytree(ds / "imu", v / "imu")
+    rig = load_rig(ds / "rig.yaml")
+    stems = {}
+    for cam in rig.names:
+        stems[cam] = sorted(p.stem for p in (ds / "images" / cam).glob("*.png"))
+        rows = [f"{s},b,{k},1.0,2.0" for s in stems[cam] for k in range(2)]
+        (v / "corners" / f"{cam}.csv").write_text("#frame,board,corner_id,x_px,y_px\n" + "\n".join(rows) + "\n")
+    check = check_motion_dataset(v, rig, list_dataset(v, rig))
+    for cam in rig.names:
+        np.testing.assert_array_equal(check.image_t_ns[cam], np.array(sorted(int(s) for s in stems[cam])))
+    first = v / "corners" / f"{rig.names[0]}.csv"
+    good = first.read_text()
+    lines = good.splitlines()
+    first.write_text("\n".join(lines[:3] + ["img3,b,0,1.0,2.0"] + lines[3:]) + "\n")
+    with pytest.raises(DatasetError, match=r"corners/[a-z_]+\.csv: row 4: frame 'img3' is not an integer"):
+        check_motion_dataset(v, rig, list_dataset(v, rig))
+    first.write_text("".join(ln.replace(ln.split(",", 1)[0], str(int(ln.split(",", 1)[0]) + 60 * 10**9), 1) + "\n"
+                             if not ln.startswith("#") else ln + "\n" for ln in lines))
+    with pytest.raises(DatasetError, match=r"corners/[a-z_]+\.csv: camera .* do not overlap"):
+        check_motion_dataset(v, rig, list_dataset(v, rig))
+
+
+def test_report_has_the_imu_section(run):
+    """The HTML report of an IMU calibration adds the clocks with their sigmas, measured vs
+    predicted IMU readings and the residual histograms against the declared noise."""
+    _, out, _ = run
+    page = out.with_suffix(".html").read_text(encoding="utf-8")
+    est = load_rig(out)
+    for needle in ("Camera-IMU: clocks and IMU residuals", 'id="fig-imu-series"', 'id="fig-imu-hist"',
+                   "declared noise (unit Gaussian)", "(IMU axes)", "gyroscope, rad/s</td>"):
+        assert needle in page, needle
+    for cam in est.cameras:  # each camera's offset and its sigma, as in the YAML
+        assert f"{1000 * cam.time_offset_s:+.4f}</td><td>{cam.calibration['sigma']['time_offset_ms']:.4f}" in page
+    assert page.index('id="fig-imu-hist"') < page.rindex("</body>")

@@ -189,3 +189,27 @@ def test_start_bridges_a_gap_in_the_frames_with_the_gyroscope():
     swing = max(geo.rotation_angle_deg(R_true[0].T @ b) for b in R_true)
     assert swing > 5.0  # the rig does turn inside the gap: holding the last pose would be off by this
     assert max(err) < 0.5, err
+
+
+def test_every_knot_is_observed_when_the_imu_starts_with_the_frames():
+    """EuRoC's IMU starts 5 ms before its first frame: the spline (with its padding knots)
+    must stay inside the IMU stream, frames too near its ends left out, so no control point
+    is all but unobserved (one was, turned by 10^5 degrees a step, and LM crawled)."""
+    rec = isyn.synthetic_recording(load_rig(RIG), duration=3.0, seed=2)
+    t_first = min(c.t_cam.min() for c in rec.cams)
+    k = rec.imu.t >= t_first - 0.005
+    imu = replace(rec.imu, t=rec.imu.t[k], gyro=rec.imu.gyro[k], accel=rec.imu.accel[k])
+    state, _, use = ic.start_state(rec.cams, imu, ic.Settings())
+    assert state.spline.t0 >= imu.t[0] and state.spline.t_end <= imu.t[-1]
+    keep = ic.frame_span(state, rec.obs)
+    assert 0.9 * len(keep) < keep.sum() < len(keep)  # the first frames' corners are left out
+    obs = ir.Corners(rec.obs.cam[keep], rec.obs.t_cam[keep], rec.obs.uv[keep], rec.obs.p_world[keep])
+    lay = ir.layout_for(state)
+    rate = np.sqrt(imu.update_rate)
+    J, _ = ir.assemble([ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], imu.gyroscope_noise_density * rate),
+                        ir.accel_block(state, lay, imu.t[use], imu.accel[use], imu.accelerometer_noise_density * rate),
+                        ir.reprojection_block(state, lay, obs, [c.model for c in rec.cams], SIGMA_PX)], lay.size)
+    d = (J.T @ J).diagonal()
+    for group in (lay.rot, lay.pos):
+        g = d[group:group + 3 * lay.n_ctrl]
+        assert g.min() > 1e-3 * np.median(g), (g.min(), np.median(g))

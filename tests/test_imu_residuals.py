@@ -136,3 +136,28 @@ def test_huber_block_cost_and_weights():
     assert np.allclose(h.J[0], np.sqrt(0.4)) and np.allclose(h.J[1], 1.0)
     # IRLS: J^T r is half the cost's gradient in s beyond k (d/ds (2 k s) / 2 = k = w s)
     assert abs(np.linalg.norm(h.r[0]) ** 2 - 2.0 * 5.0) < 1e-12
+
+
+def test_corner_past_the_lens_fold_stays_finite():
+    """A corner the start places past the radius where the distortion polynomial folds back
+    (CameraModel.project: NaN) gets the polynomial's finite pixel, as in the camera BA, with
+    a Jacobian that matches the whole problem's differences there. A NaN made the first cost
+    NaN and LM refused every step (EuRoC's start came back as the result)."""
+    rng = np.random.default_rng(5)
+    st = _state(rng)
+    lay = ir.layout_for(st, held=frozenset())
+    # EuRoC-like radtan with k3 < 0: folds back near r = 1.36 (normalised)
+    cams = [CameraModel("pinhole", 752, 480, 458.0, 457.0, 367.0, 248.0, (-0.33, 0.16, 0.0005, 0.0005, -0.045))] * 2
+    obs = _corners(rng, st, m=6)
+    mo = evaluate(st.spline, ir.corner_times(st, obs))
+    T_wc = mo.T_world_body @ st.T_body_cam[obs.cam]
+    p_cam = np.array([[1.6, 0.3, 1.0], [0.1, 0.1, 1.0], [-1.5, -0.2, 1.0], [0.2, -0.1, 1.5], [0.0, 0.0, 2.0],
+                      [1.9, 1.0, 1.2]])
+    obs = ir.Corners(obs.cam, obs.t_cam, obs.uv, np.einsum("mij,mj->mi", T_wc[:, :3, :3], p_cam) + T_wc[:, :3, 3])
+    assert not cams[0].project(p_cam)[1].all()  # some corners are past the fold
+    blocks_of = lambda s: [ir.reprojection_block(s, lay, obs, cams, 0.5)]  # noqa: E731
+    b = blocks_of(st)[0]
+    assert np.all(np.isfinite(b.r)) and np.all(np.isfinite(b.J))
+    J_fd = _global_fd(st, lay, blocks_of)
+    J = ir.assemble([b], lay.size)[0].toarray()
+    np.testing.assert_allclose(J, J_fd, rtol=1e-4, atol=2e-5 * np.abs(J_fd).max())

@@ -121,7 +121,8 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         imu_res, out_rig = calibrate_with_imu(cal, out_rig, inp.motion, imu_name, reference, inp.target,
                                               imu_options or {})
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
-    _write_outputs(out_path, report_path, out_rig, cal, found.det, pairs, timings)
+    _write_outputs(out_path, report_path, out_rig, cal, found.det, pairs, timings,
+                   imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]))
     imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
     for w in found.warnings + warnings_for(cal) + imu_warnings:
         console.print(f"warning: {w}")
@@ -215,15 +216,19 @@ def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_r
 
 
 def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, det, pairs: dict,
-                   timings: dict) -> None:
+                   timings: dict, imu: tuple | None = None) -> None:
     """The calibrated rig YAML and the HTML report (when asked for), written together or not
-    at all."""
+    at all. `imu`: (camera-IMU result, its IMU's samples) for the report's IMU part."""
     text = dump_rig(out_rig)
     report_html = None
     if report_path is not None:
         from .report import build_report
 
         report_html = build_report(cal, out_rig, det, pairs, timings)
+        if imu is not None:
+            from .report_imu import with_imu_section
+
+            report_html = with_imu_section(report_html, out_rig, *imu)
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
 
 

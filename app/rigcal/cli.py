@@ -207,6 +207,8 @@ def calibrate(
                                                      "only where the rig declares one non-zero)"),
     camera_only: bool = typer.Option(False, help="with imu/: calibrate the cameras only (the IMU blocks are "
                                                  "carried through unchanged, the reference is 'aligned')"),
+    knot_spacing: Optional[float] = typer.Option(None, help="with imu/: the trajectory spline's knot spacing, s "
+                                                            "(default 0.05; 0.01, Kalibr's, for fast hand-waved motion)"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from . import calibrate as cal
@@ -215,7 +217,8 @@ def calibrate(
                 reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
                 allow_resize=allow_resize, guided=guided.value, intrinsics=intrinsics.value,
                 scheduler=scheduler, imu_options={"gravity": gravity, "window_s": offset_window,
-                                                  "rolling_shutter": True if rolling_shutter else None},
+                                                  "rolling_shutter": True if rolling_shutter else None,
+                                                  "knot_dt": knot_spacing},
                 camera_only=camera_only))
 
 

@@ -1,9 +1,8 @@
-"""Prototype camera-IMU estimator (issue 18): the body trajectory as a spline, every camera's
+"""The camera-IMU estimator (issue 18): the body trajectory as a spline, every camera's
 T_body_cam and clock offset, gyroscope and accelerometer biases and gravity's direction,
 jointly, by Levenberg-Marquardt on the sparse residual blocks of rigcal.imu_residuals.
 
-NOT yet used by `rigcal calibrate` (README "Camera-IMU calibration (in progress)"). What
-it assumes today: intrinsics known (a camera-only calibration), the corners' world points
+`rigcal calibrate` calls it through rigcal.calibrate_imu. What it assumes: intrinsics known (a camera-only calibration), the corners' world points
 known (static boards at known poses: the board frame is the world), the reference IMU's
 T_body_imu held (it defines the body frame, imu.md), no outlier rejection, one IMU.
 
@@ -80,7 +79,8 @@ class Settings:
 class CameraImuResult:
     """The estimate: state (all of it), per camera T_imu_cam (C, 4, 4) and time_offset_s (C,),
     their 1-sigma (C, 7): rotation (rad, body axes), translation (m), offset (s), from the
-    declared noise; the starts; per-block RMS of the normalised residuals (1 = as declared)."""
+    declared noise; the starts; per-block RMS of the normalised residuals (1 = as declared);
+    corners_used (M,) bool: the given corners inside the IMU stream's spline (frame_span)."""
 
     state: ir.State
     T_imu_cam: np.ndarray
@@ -90,6 +90,7 @@ class CameraImuResult:
     normalised_rms: dict
     iterations: int
     seconds: float
+    corners_used: np.ndarray
 
 
 def _imu_sigmas(imu: ImuInput) -> tuple[float, float]:
@@ -97,7 +98,10 @@ def _imu_sigmas(imu: ImuInput) -> tuple[float, float]:
     return imu.gyroscope_noise_density * r, imu.accelerometer_noise_density * r
 
 
-def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s: float, pad: int = 2,
+SPLINE_PAD = 2  # knots beyond the first and last frame: room for clock-offset steps
+
+
+def initial_spline(t: np.ndarray, T_world_body: np.ndarray, dt: float, smooth_s: float, pad: int = SPLINE_PAD,
                    attitude=None) -> spl.Spline:
     """A start spline with knots every dt through noisy sampled body poses: each control point
     is the Gaussian-weighted (sigma smooth_s) mean of the samples near its knot, positions
@@ -166,7 +170,13 @@ def gravity_start(spline: spl.Spline, imu: ImuInput, t: np.ndarray, accel: np.nd
 def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> tuple[ir.State, tuple, np.ndarray]:
     """(state, per-camera RateStart, IMU sample mask): offsets and rotations from rates,
     declared translations, the trajectory from the camera poses, zero biases, gravity from
-    the accelerometer. Refuses a recording that turns about one axis or never accelerates."""
+    the accelerometer. Refuses a recording that turns about one axis or never accelerates.
+
+    The spline spans the frames inside the IMU stream (less its padding knots): a knot that
+    only frames at a segment's edge touch, with no IMU sample, is all but unobserved, LM's
+    scale-free damping then let it turn by thousands of degrees (EuRoC's first frame is 5 ms
+    after its first IMU sample) and no step lowered the cost. Corners of frames outside the
+    span are left out (`frame_span`)."""
     starts, T_body_cam, t_all, T_world_body = [], [], [], []
     for ci, c in enumerate(cams):
         s = imu_start.rate_start(c.t_cam, c.T_world_cam[:, :3, :3], imu.t, imu.gyro, c.time_offset_guess_s,
@@ -178,6 +188,11 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
         t_all.append(c.t_cam + s.time_offset_s)
         T_world_body.append(c.T_world_cam @ geo.inv_T(T))
     t_all, T_world_body = np.concatenate(t_all), np.concatenate(T_world_body)
+    pad = SPLINE_PAD * settings.knot_dt
+    inside = (t_all >= imu.t[0] + pad) & (t_all <= imu.t[-1] - pad - settings.knot_dt)
+    if inside.sum() < 2:
+        raise CalibrationError("no camera frame falls inside the IMU stream")
+    t_all, T_world_body = t_all[inside], T_world_body[inside]
     frame_dt = float(np.median(np.diff(np.sort(cams[0].t_cam))))
     spline = initial_spline(t_all, T_world_body, settings.knot_dt, max(settings.knot_dt, 1.5 * frame_dt),
                             attitude=gyro_attitude(imu))
@@ -234,6 +249,9 @@ def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: in
     order = band_order(lay)
     J, r = ir.assemble(blocks, lay.size)
     cost, lam = sum(b.objective for b in blocks), 1e-4
+    if not np.isfinite(cost):  # no trial cost compares below NaN: LM would return the start quietly
+        bad = [i for i, b in enumerate(blocks) if not np.isfinite(b.objective)]
+        raise CalibrationError(f"the camera-IMU start gives non-finite residuals (blocks {bad}); nothing to refine")
     for it in range(1, max_iter + 1):
         H = (J.T @ J).tocsc()
         g = J.T @ r
@@ -279,12 +297,25 @@ def camera_sigmas(J: sp.csr_matrix, lay: ir.Layout) -> np.ndarray:
     return np.column_stack([sd[:6 * lay.n_cam].reshape(lay.n_cam, 6), sd[6 * lay.n_cam:]])
 
 
+def frame_span(state: ir.State, obs: ir.Corners) -> np.ndarray:
+    """(M,) bool: the corners whose frame (first row, IMU clock) lies between the spline's
+    padding knots, i.e. among the frames start_state built it from."""
+    t = obs.t_cam + state.time_offset_s[obs.cam]
+    sp_ = state.spline
+    pad = SPLINE_PAD * sp_.dt
+    return (t >= sp_.t0 + pad - 1e-9) & (t <= sp_.t_end - pad + 1e-9)
+
+
 def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput,
                          settings: Settings = Settings()) -> CameraImuResult:
     """Start (imu_start), then the joint estimate; raises CalibrationError on a recording
     that cannot determine it or when the corners' times fall outside the IMU stream."""
     t0 = time.perf_counter()
     state, starts, use = start_state(cams, imu, settings)
+    keep = frame_span(state, obs)
+    if not keep.any():
+        raise CalibrationError("no corner falls inside the IMU stream")
+    obs = ir.Corners(obs.cam[keep], obs.t_cam[keep], obs.uv[keep], obs.p_world[keep])
     t_obs = ir.corner_times(state, obs)
     if t_obs.min() < state.spline.t0 or t_obs.max() > state.spline.t_end:
         raise CalibrationError("corner times fall outside the camera frames' span; give every frame's pose")
@@ -297,4 +328,4 @@ def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput
     rms = {k: float(np.sqrt(np.mean(b.r ** 2))) for k, b in zip(("corners", "gyro", "accel", "bias_walk"), blocks)}
     T_imu_cam = geo.inv_T(state.T_body_imu)[None] @ state.T_body_cam
     return CameraImuResult(state, T_imu_cam, state.time_offset_s.copy(), camera_sigmas(J, lay), tuple(starts), rms,
-                           iters, time.perf_counter() - t0)
+                           iters, time.perf_counter() - t0, keep)

@@ -90,11 +90,35 @@ def imu_csv(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str:
     return IMU_HEADER + "\n" + "\n".join(rows) + "\n"
 
 
+def corner_frame_stems(path: Path) -> dict[str, int]:
+    """The frames of a corners/<camera>.csv (its first column) -> the first row naming each;
+    the full check of the file is rigcal.corners' when calibrate reads it."""
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as e:
+        raise DatasetError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
+    out: dict[str, int] = {}
+    for n, line in enumerate(text.splitlines(), start=1):
+        s = line.strip()
+        if s and not s.startswith("#"):
+            out.setdefault(s.split(",", 1)[0].strip(), n)
+    return out
+
+
 def image_times_ns(images: DatasetImages) -> dict[str, np.ndarray]:
-    """Per camera the image stems as int64 nanoseconds (camera clock); DatasetError naming the
-    first image whose stem is not an integer."""
+    """Per camera the image stems as int64 nanoseconds (camera clock), or, for a camera given
+    as corners/<camera>.csv, its frames; DatasetError naming the first image (or row) whose
+    stem is not an integer."""
     out = {}
     for cam in images.cameras:
+        if cam in images.corners:
+            frames = corner_frame_stems(images.corners[cam])
+            for stem, row in frames.items():
+                if not _INTEGER.match(stem):
+                    raise DatasetError(f"{images.corners[cam]}: row {row}: frame {stem!r} is not an integer; a "
+                                       f"dataset with imu/ names every frame by its capture time in nanoseconds")
+            out[cam] = np.array(sorted(int(s) for s in frames), np.int64)
+            continue
         for stem, path in images.frames[cam].items():
             if not _INTEGER.match(stem):
                 raise DatasetError(f"{path}: image stem {stem!r} is not an integer; a dataset with imu/ names every "
@@ -154,7 +178,8 @@ def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages) -> M
             lo, hi = int(s.t_ns[0]), int(s.t_ns[-1])
             slack = round(OVERLAP_SLACK_S * 1e9)
             if t[-1] < lo - slack or t[0] > hi + slack:
-                first = min(images.frames[cam].items(), key=lambda kv: int(kv[0]))[1]
+                first = images.corners[cam] if cam in images.corners else min(
+                    images.frames[cam].items(), key=lambda kv: int(kv[0]))[1]
                 raise DatasetError(
                     f"{first}: camera {cam}'s images ({t[0] * 1e-9:.3f}-{t[-1] * 1e-9:.3f} s on the IMU clock, "
                     f"stem + time_offset_s) do not overlap {s.path.name}'s samples ({lo * 1e-9:.3f}-{hi * 1e-9:.3f} s) "
