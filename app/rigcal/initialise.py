@@ -35,6 +35,11 @@ from .solve import Intrinsics, Observations, SolveResult, State, bundle_adjust, 
 # every view); the rest get PnP, which keeps init linear in frames. 20 rather than 40
 # halves the initialisation (0.9 -> 0.5 s on the 60-frame demo rig).
 MAX_INIT_VIEWS = 20
+# views given to cv2.calibrateCamera for a camera's own-views intrinsics (a rig whose frames
+# are not rigid: unsynchronised cameras, a moving recording): the start of a one-camera
+# solve over every view, and its k3 decision. OpenCV's solver is dense in the views: on a
+# 30 s recording (600 views a camera) its 15 calls took 270 s of a 313 s calibrate.
+MAX_MONO_VIEWS = 150
 CHESS_FLIP_DEG = 20.0
 PNP_AMBIGUITY = 1.5  # IPPE's two solutions count as ambiguous within this error ratio
 DISTORTION_CHOICES = {"radial2": 2, "radtan4": 4, "radtan5": 5, "rational8": 8}
@@ -304,9 +309,11 @@ def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, di
         values, rms = chosen.values, chosen.rms_px
 
         def mono(n=len(chosen.values) - 4):
-            # refitted on every view of the camera, cleaned: these intrinsics are kept,
-            # not just a start
-            own, _, _, o_c, i_c = _clean_fit(obj, img, declared, n)
+            # refitted on the camera's views (up to MAX_MONO_VIEWS), cleaned: the k3 decision
+            # is kept, the values start own_views_intrinsics' solve over every view
+            keep_views = _select_views(np.array([len(o) for o in obj]), MAX_MONO_VIEWS)
+            own, _, _, o_c, i_c = _clean_fit([obj[i] for i in keep_views], [img[i] for i in keep_views],
+                                             declared, n)
             if distortion != "auto" or n != 5:
                 return own.values, f"{PINHOLE_MODEL_NAMES[n]} (own views)"
             keep, line = keep_k3(own.values[8], own.sigma[8] ** 2)
