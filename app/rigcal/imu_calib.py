@@ -222,13 +222,29 @@ def _blocks(state, lay, obs, models, imu, use, settings):
 def band_order(lay: ir.Layout) -> np.ndarray:
     """A column permutation that makes J^T J banded with an arrow: each control point's
     rotation and position together, in time order (a residual touches 4 consecutive ones),
-    then the few global columns (cameras, offsets, biases, gravity, IMU pose, line delays).
-    Factored in this order without pivoting the fill stays in the band and the arrow, so
-    the cost is linear in the number of knots (sparse LU's own column ordering filled far
-    more: 3x slower at 100 knots/s)."""
-    k = np.arange(lay.n_ctrl)[:, None]
-    spline = np.concatenate([lay.rot + 3 * k + np.arange(3), lay.pos + 3 * k + np.arange(3)], axis=1).ravel()
-    return np.concatenate([spline, np.arange(6 * lay.n_ctrl, lay.size)])
+    each bias knot's 6 columns just after the last control point whose residuals reach it,
+    then the few global columns (cameras, offsets, gravity, IMU pose, line delays).
+    Factored in this order without pivoting the fill stays in the band, the bias knots'
+    spans and the arrow, so the cost is linear in the number of knots (sparse LU's own
+    column ordering filled far more: 3x slower at 100 knots/s). With the bias knots in the
+    arrow instead, every bias row filled in to the end of the recording: on EuRoC's 72 s at
+    100 knots/s (73 bias knots) a factorisation took 1.02 s, interleaved 0.17 s."""
+    n = lay.n_ctrl
+    k = np.arange(n)[:, None]
+    spline = np.concatenate([lay.rot + 3 * k + np.arange(3), lay.pos + 3 * k + np.arange(3)], axis=1)
+    j = np.arange(lay.n_bias)
+    bias = np.concatenate([lay.bg + 3 * j[:, None] + np.arange(3), lay.ba + 3 * j[:, None] + np.arange(3)], axis=1)
+    if lay.knots_per_bias <= 0:  # placement unknown: the bias knots join the arrow
+        return np.concatenate([spline.ravel(), np.arange(6 * n, lay.size)])
+    # bias knot j is interpolated over [j - 1, j + 1] bias intervals; the residuals there
+    # reach control points up to segment index ... + ORDER - 1
+    last = np.ceil(lay.bias_knot0 + (j + 1) * lay.knots_per_bias).astype(int) + spl.ORDER - 1
+    after = np.clip(last, 0, n - 1)
+    # a stable sort of (position, kind): control c, then the bias knots placed after it
+    key = np.concatenate([2 * np.arange(n), 2 * after + 1])
+    rows = np.concatenate([spline, bias])[np.argsort(key, kind="stable")].ravel()
+    rest = np.setdiff1d(np.arange(lay.size), rows, assume_unique=True)
+    return np.concatenate([rows, rest])
 
 
 def factor(H: sp.spmatrix, order: np.ndarray):
