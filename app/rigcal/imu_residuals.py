@@ -26,7 +26,6 @@ every block against differences of the whole problem (global state perturbed thr
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -34,7 +33,7 @@ import scipy.sparse as sp
 from . import geometry as geo
 from .camera import CameraModel
 from .solve import project_obs, projection_jacobians
-from .spline import ORDER, Motion, Spline, basis, motion_from_controls, segment
+from .spline import ORDER, Motion, Spline, basis, motion_from_controls, rotation_chain, segment, segment_rotations
 
 GRAVITY = 9.80665
 STEP = 1e-6  # central-difference step (radians, metres, seconds, bias units)
@@ -157,19 +156,6 @@ def huber(block: Block, k: float) -> Block:
     return Block(block.r * w[:, None], block.J * w[:, None, None], block.cols, cost)
 
 
-def local_jacobian(fun: Callable[[np.ndarray], np.ndarray], m: int, k: int, h: float = STEP
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """fun maps local perturbations (m, k) to residuals (m, D); returns (r (m, D), J (m, D, k))
-    by central differences, each column one vectorised pair of evaluations."""
-    r = fun(np.zeros((m, k)))
-    J = np.empty(r.shape + (k,))
-    for j in range(k):
-        d = np.zeros((m, k))
-        d[:, j] = h
-        J[:, :, j] = (fun(d) - fun(-d)) / (2 * h)
-    return r, J
-
-
 def tangent_basis(R_grav: np.ndarray) -> np.ndarray:
     """(3, 2): the two world directions orthogonal to gravity that its 2 dof turn about."""
     return R_grav[:, :2]
@@ -184,12 +170,6 @@ def _controls(spline: Spline, t: np.ndarray):
 def _turn(R: np.ndarray, d: np.ndarray) -> np.ndarray:
     """Exp(d) @ R, d (..., 3)."""
     return geo.R_from_rotvec(d) @ R
-
-
-def _motion(t, u, Rc, P, dt, d_rot, d_pos):
-    """Motion with the local control perturbations d_rot, d_pos (M, 12) applied."""
-    Rp = _turn(Rc, d_rot.reshape(-1, ORDER, 3))
-    return motion_from_controls(t, u, Rp, P + d_pos.reshape(-1, ORDER, 3), dt)
 
 
 def _bias_at(state: State, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -218,7 +198,8 @@ class MotionJacobian:
     """The motion at times t and its derivatives with respect to each time's local controls:
     J_rot (M, 9, 12) of [theta; omega_body; alpha_body] (theta: the world-side rotation
     perturbation of R_world_body) by the 12 control-rotation perturbations (a local central
-    difference: 24 evaluations of the spline over all rows), and the exact weights (M, 4) of
+    difference: 24 evaluations over all rows, each redoing only the one or two segment
+    rotations the perturbed control enters), and the exact weights (M, 4) of
     the control positions in p_world (w_p) and a_world (w_a)."""
 
     motion: Motion
@@ -237,15 +218,30 @@ def motion_jacobian(state: State, t: np.ndarray) -> MotionJacobian:
     i, u, Rc, P = _controls(state.spline, t)
     dt = state.spline.dt
     m0 = motion_from_controls(t, u, Rc, P, dt)
-    zero = np.zeros((len(t), 12))
-
-    def fun(d):
-        m = _motion(t, u, Rc, P, dt, d, zero)
-        theta = geo.rotvecs_from_R(m.R_world_body @ np.swapaxes(m0.R_world_body, 1, 2))
-        return np.concatenate([theta, m.omega_body, m.alpha_body], axis=1)
-
-    _, J = local_jacobian(fun, len(t), 12)
-    b, _, ddb = basis(u, dt)
+    b, db, ddb = basis(u, dt)
+    # central differences, one control rotation and axis at a time; a control enters only
+    # the one or two segment rotations next to it, so the others are reused unperturbed
+    # (the same numbers as perturbing every control by zero: half the work)
+    phi, A = segment_rotations(Rc, b)
+    R0t = np.swapaxes(m0.R_world_body, 1, 2)
+    J = np.empty((len(t), 9, 3 * ORDER))
+    for c in range(ORDER):
+        near = [j for j in (c, c + 1) if 1 <= j < ORDER]
+        for axis in range(3):
+            out = []
+            for h in (STEP, -STEP):
+                d = np.zeros((len(t), 3))
+                d[:, axis] = h
+                Rc_c = _turn(Rc[:, c], d)
+                ph, AA = list(phi), list(A)
+                for j in near:
+                    lo = Rc_c if j - 1 == c else Rc[:, j - 1]
+                    hi = Rc_c if j == c else Rc[:, j]
+                    ph[j - 1] = geo.rotvecs_from_R(np.swapaxes(lo, 1, 2) @ hi)
+                    AA[j - 1] = geo.R_from_rotvec(b[:, j, None] * ph[j - 1])
+                R, omega, alpha = rotation_chain(Rc_c if c == 0 else Rc[:, 0], ph, AA, db, ddb)
+                out.append(np.concatenate([geo.rotvecs_from_R(R @ R0t), omega, alpha], axis=1))
+            J[:, :, 3 * c + axis] = (out[0] - out[1]) / (2 * STEP)
     return MotionJacobian(m0, i, J, _position_weights(b), _position_weights(ddb))
 
 

@@ -118,19 +118,33 @@ def motion_from_controls(t: np.ndarray, u: np.ndarray, Rc: np.ndarray, P: np.nda
     p = P[:, 0] + np.einsum("mj,mjk->mk", b[:, 1:], d)
     v = np.einsum("mj,mjk->mk", db[:, 1:], d)
     a = np.einsum("mj,mjk->mk", ddb[:, 1:], d)
-    R = Rc[:, 0].copy()
-    omega = np.zeros((len(u), 3))
-    alpha = np.zeros((len(u), 3))
-    for j in range(1, ORDER):
-        phi = geo.rotvecs_from_R(np.swapaxes(Rc[:, j - 1], 1, 2) @ Rc[:, j])
-        A = geo.R_from_rotvec(b[:, j, None] * phi)
-        At = np.swapaxes(A, 1, 2)
-        w_rot = np.einsum("mij,mj->mi", At, omega)
-        dphi = db[:, j, None] * phi
-        alpha = np.einsum("mij,mj->mi", At, alpha) + ddb[:, j, None] * phi + np.cross(w_rot, dphi)
-        omega = w_rot + dphi
-        R = R @ A
+    R, omega, alpha = rotation_chain(Rc[:, 0], *segment_rotations(Rc, b), db, ddb)
     return Motion(t, R, p, v, a, omega, alpha)
+
+
+def segment_rotations(Rc: np.ndarray, b: np.ndarray) -> tuple[list, list]:
+    """([phi_j], [A_j]), j = 1..3: the relative rotations phi_j = Log(R_{j-1}^T R_j) between
+    consecutive control rotations Rc (M, 4, 3, 3) and A_j = Exp(B~_j(u) phi_j) for the
+    cumulative basis b (M, 4)."""
+    phi = [geo.rotvecs_from_R(np.swapaxes(Rc[:, j - 1], 1, 2) @ Rc[:, j]) for j in range(1, ORDER)]
+    return phi, [geo.R_from_rotvec(b[:, j, None] * phi[j - 1]) for j in range(1, ORDER)]
+
+
+def rotation_chain(R0: np.ndarray, phi: list, A: list, db: np.ndarray, ddb: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(R_world_body, omega_body, alpha_body) of the cumulative spline from the first control
+    rotation R0 (M, 3, 3) and segment_rotations' phi_j, A_j."""
+    R = R0.copy()
+    omega = np.zeros((len(R0), 3))
+    alpha = np.zeros((len(R0), 3))
+    for j in range(1, ORDER):
+        At = np.swapaxes(A[j - 1], 1, 2)
+        w_rot = np.einsum("mij,mj->mi", At, omega)
+        dphi = db[:, j, None] * phi[j - 1]
+        alpha = np.einsum("mij,mj->mi", At, alpha) + ddb[:, j, None] * phi[j - 1] + np.cross(w_rot, dphi)
+        omega = w_rot + dphi
+        R = R @ A[j - 1]
+    return R, omega, alpha
 
 
 def knots_for(t_start: float, t_end: float, dt: float) -> tuple[float, int]:
