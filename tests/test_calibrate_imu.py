@@ -255,3 +255,18 @@ def test_report_has_the_imu_section(run):
     for cam in est.cameras:  # each camera's offset and its sigma, as in the YAML
         assert f"{1000 * cam.time_offset_s:+.4f}</td><td>{cam.calibration['sigma']['time_offset_ms']:.4f}" in page
     assert page.index('id="fig-imu-hist"') < page.rindex("</body>")
+
+
+@pytest.mark.parametrize("option, value", [("--gravity", 981), ("--gravity", 0), ("--offset-window", 0),
+                                           ("--offset-window", -0.1), ("--knot-spacing", 2)])
+def test_imu_option_out_of_range_is_refused_before_any_work(run, tmp_path, monkeypatch, option, value):
+    """One line naming the option and its range, exit 2, nothing written, and no detection
+    (a typo such as --gravity 981 used to surface after the camera-only calibration)."""
+    from rigcal import calibrate as cal_mod
+
+    def no_detection(*a, **k):
+        raise AssertionError("detection ran before the options were checked")
+
+    monkeypatch.setattr(cal_mod, "_detect_views", no_detection)
+    ds, _, _ = run
+    _refused(_variant(ds, tmp_path), 2, option, "expected", extra=(option, value))

@@ -93,6 +93,9 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     the console summary."""
     t0 = time.perf_counter()
     dataset = Path(dataset)
+    from .calibrate_imu import Options
+
+    Options.chosen("", imu_options or {})  # the IMU options' values, before any work
     inp = _read_inputs(dataset, out_path, report_path, rig_path, target_path, jobs)
     imu_name, reference, plan_notes = _imu_plan(inp, reference, camera_only)
     console = _err()

@@ -56,6 +56,22 @@ class Options:
     rolling_shutter: bool | None = None
     knot_dt: float | None = None
 
+    def __post_init__(self):
+        # calibrate.run builds these before detection: a typo (--gravity 981) is then one
+        # line at once, not an error after the camera-only calibration
+        for option, value, lo, hi, what in (
+                ("--gravity", self.gravity, 9.7, 9.9, "m/s^2 (on Earth 9.76-9.84)"),
+                ("--offset-window", self.window_s, 0.0, 10.0, "seconds"),
+                ("--knot-spacing", self.knot_dt, 0.0, 1.0, "seconds")):
+            if value is not None and not lo < value <= hi:
+                raise InputError(f"{option}: expected {what} in ({lo:g}, {hi:g}], got {value:g}")
+
+    @classmethod
+    def chosen(cls, imu: str, opts: dict) -> "Options":
+        """From calibrate's option dict (gravity, window_s, rolling_shutter, knot_dt; None:
+        the default)."""
+        return cls(imu, **{k: v for k, v in opts.items() if v is not None})
+
 
 @dataclass(frozen=True, eq=False)
 class Inputs:
@@ -378,8 +394,6 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     inp = build_inputs(cal, samples, imu, faces, time_offsets, line_delays)
     base = settings or ic.Settings()
     if options.knot_dt is not None:
-        if not 0 < options.knot_dt <= 1.0:
-            raise InputError(f"--knot-spacing: expected seconds in (0, 1], got {options.knot_dt:g}")
         base = replace(base, knot_dt=options.knot_dt)
     check_span(inp, list(cal.cam_names), base.knot_dt)
     # the camera-only RMS is of each corner's residual norm; the estimator's sigma_px is per

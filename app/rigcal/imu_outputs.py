@@ -135,7 +135,7 @@ def calibrate_with_imu(cal, out_rig: Rig, motion, imu_name: str, reference: str,
     window_s, rolling_shutter (None = default)."""
     declared = cal.declared if cal.declared is not None else cal.rig
     faces = {b.name: float(b.print_face) for b in target.boards}
-    options = Options(imu_name, **{k: v for k, v in opts.items() if v is not None})
+    options = Options.chosen(imu_name, opts)
     res = calibrate_imu(cal, motion.imus[imu_name], declared.imu(imu_name), options, [faces[b] for b in cal.boards],
                         {c.name: c.line_delay_s or 0.0 for c in declared.cameras},
                         {c.name: c.time_offset_s or 0.0 for c in declared.cameras})
