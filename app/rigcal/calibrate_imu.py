@@ -293,8 +293,7 @@ def jacobian(res: ic.CameraImuResult, inp: Inputs, T_world_board: np.ndarray, se
     """(J, layout) of the final estimate: the residual blocks imu_calib minimises, rebuilt
     from rigcal.imu_residuals' public functions (imu_calib keeps its list private)."""
     state, imu = res.state, inp.imu
-    held = frozenset({"imu_rot", "imu_pos"} | (set() if settings.line_delay else {"line_delay"}))
-    lay = ir.layout_for(state, held)
+    lay = ir.layout_for(state, ic.held_groups(settings))
     _, obs = _with_boards(inp, T_world_board)
     k = res.corners_used
     obs = ir.Corners(obs.cam[k], obs.t_cam[k], obs.uv[k], obs.p_world[k])
