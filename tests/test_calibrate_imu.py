@@ -252,7 +252,8 @@ def test_report_has_the_imu_section(run):
     page = out.with_suffix(".html").read_text(encoding="utf-8")
     est = load_rig(out)
     for needle in ("Camera-IMU: clocks and IMU residuals", 'id="fig-imu-series"', 'id="fig-imu-hist"',
-                   "declared noise (unit Gaussian)", "(IMU axes)", "gyroscope, rad/s</td>"):
+                   "declared noise (unit Gaussian)", "(IMU axes)", "gyroscope, rad/s</td>",
+                   "IMU model: calibrated (likelihood ratio"):
         assert needle in page, needle
     for cam in est.cameras:  # each camera's offset and its sigma, as in the YAML
         assert f"{1000 * cam.time_offset_s:+.4f}</td><td>{cam.calibration['sigma']['time_offset_ms']:.4f}" in page
@@ -289,7 +290,7 @@ def scaled(run, tmp_path_factory):
     doc["imus"]["imu0"]["accelerometer_scale_misalignment"] = M_ACCEL.tolist()
     (v / "truth.yaml").write_text(yaml.safe_dump(doc))
     out = tmp / "cal.yaml"
-    r = _cli("calibrate", v, "--out", out, "--jobs", 1, "--guided", "off")
+    r = _cli("calibrate", v, "--out", out, "--jobs", 1, "--guided", "off", "--report", out.with_suffix(".html"))
     assert r.exit_code == 0, r.output
     return v, out, r.output
 
@@ -322,6 +323,8 @@ def test_auto_finds_and_recovers_scale_and_misalignment(scaled):
         assert e["imu0_rot_deg"] < 0.1 and e["imu0_pos_mm"] < 5.0 and abs(e["offset_ms"]) < 0.3, (name, e)
     assert np.abs(res["imus"]["imu0"]["gyroscope_scale_misalignment"]).max() < 2e-3
     assert "scale and misalignment" in text
+    page = out.with_suffix(".html").read_text(encoding="utf-8")
+    assert "IMU model: scale-misalignment (likelihood ratio" in page and "gyroscope M - I (lower triangle" in page
 
 
 def test_forced_models(run, scaled, tmp_path):
