@@ -453,12 +453,14 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
             _, obs = _with_boards(inp, T_world_board)
             sm = ic.refine(res, [c.model for c in inp.cams], obs, inp.imu, replace(settings, scale_misalignment=True))
             test = imu_model_test(res, sm)
-            if test.significant:
+            if test.significant and len(np.unique(inp.board)) > 1:
                 # the whole estimate again with the larger model (as --imu-model scale-misalignment):
                 # the boards the calibrated passes re-fitted carry its trajectory's errors, and the
                 # refit on them alone biased M by up to 20 sigma (2 % scales, 4 s test recording)
                 res, T_world_board, settings, passes = estimate(inp, cal.state.T_world_board,
                                                                 replace(start, scale_misalignment=True))
+            elif test.significant:  # one board, the world frame: nothing was re-fitted, the test's fit is it
+                res, settings = sm, replace(settings, scale_misalignment=True)
     except CalibrationError as e:
         if "search window" in str(e):
             raise CalibrationError(f"{e} (calibrate --offset-window SECONDS; now {options.window_s:g} s)") from None
