@@ -5,6 +5,8 @@ keys, the kalibr-imu and euroc exports read back, and the bad inputs of issue 18
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -250,7 +252,8 @@ def test_report_has_the_imu_section(run):
     page = out.with_suffix(".html").read_text(encoding="utf-8")
     est = load_rig(out)
     for needle in ("Camera-IMU: clocks and IMU residuals", 'id="fig-imu-series"', 'id="fig-imu-hist"',
-                   "declared noise (unit Gaussian)", "(IMU axes)", "gyroscope, rad/s</td>"):
+                   "declared noise (unit Gaussian)", "(IMU axes)", "gyroscope, rad/s</td>",
+                   "IMU model: calibrated (likelihood ratio"):
         assert needle in page, needle
     for cam in est.cameras:  # each camera's offset and its sigma, as in the YAML
         assert f"{1000 * cam.time_offset_s:+.4f}</td><td>{cam.calibration['sigma']['time_offset_ms']:.4f}" in page
@@ -270,3 +273,102 @@ def test_imu_option_out_of_range_is_refused_before_any_work(run, tmp_path, monke
     monkeypatch.setattr(cal_mod, "_detect_views", no_detection)
     ds, _, _ = run
     _refused(_variant(ds, tmp_path), 2, option, "expected", extra=(option, value))
+
+
+# ----------------------------------------------------------------------------- --imu-model
+
+# scale-misalignment applied to the simulated readings: reads M @ ideal + bias (the biases
+# and noise are scaled too, which the model absorbs), M = I + lower-triangular
+M_GYRO = np.eye(3) + np.array([[0.015, 0, 0], [5e-3, -0.010, 0], [-4e-3, 6e-3, 0.020]])
+M_ACCEL = np.eye(3) + np.array([[-0.012, 0, 0], [-5e-3, 0.018, 0], [3e-3, 5e-3, 0.010]])
+LOWER = np.tril_indices(3)
+
+
+def _scaled_rows(rows):
+    out = []
+    for r in rows:
+        t, *v = r.split(",")
+        v = np.array(v, float)
+        out.append(t + "," + ",".join(repr(float(x)) for x in np.r_[M_GYRO @ v[:3], M_ACCEL @ v[3:]]))
+    return out
+
+
+@pytest.fixture(scope="module")
+def scaled(run, tmp_path_factory):
+    """The test recording with its gyroscope and accelerometer columns multiplied by M_GYRO,
+    M_ACCEL, calibrated with the default --imu-model auto."""
+    ds = run[0]
+    tmp = tmp_path_factory.mktemp("scaled")
+    v = _variant(ds, tmp, imu_rows=_scaled_rows)
+    doc = yaml.safe_load((ds / "truth.yaml").read_text())
+    doc["imus"]["imu0"]["gyroscope_scale_misalignment"] = M_GYRO.tolist()
+    doc["imus"]["imu0"]["accelerometer_scale_misalignment"] = M_ACCEL.tolist()
+    (v / "truth.yaml").write_text(yaml.safe_dump(doc))
+    out = tmp / "cal.yaml"
+    r = _cli("calibrate", v, "--out", out, "--jobs", 1, "--guided", "off", "--report", out.with_suffix(".html"))
+    assert r.exit_code == 0, r.output
+    return v, out, r.output
+
+
+def test_auto_keeps_the_calibrated_model_without_scale_errors(run):
+    _, out, text = run
+    cal = yaml.safe_load(out.read_text())["imus"]["imu0"]["calibration"]
+    assert cal["imu_model"] == "calibrated"
+    sel = cal["imu_model_selection"]
+    assert sel["test"] == "likelihood ratio" and sel["parameters"] == 12 and sel["level"] == 1e-4
+    assert sel["statistic"] < sel["threshold"] == pytest.approx(39.13, abs=0.01)  # chi-square(12) at 1e-4
+    assert not any("scale_misalignment" in k for k in cal) and "IMU model: calibrated" in text
+
+
+def test_auto_finds_and_recovers_scale_and_misalignment(scaled):
+    v, out, text = scaled
+    cal = yaml.safe_load(out.read_text())["imus"]["imu0"]["calibration"]
+    assert cal["imu_model"] == "scale-misalignment"
+    sel = cal["imu_model_selection"]
+    assert sel["statistic"] > 10 * sel["threshold"]
+    for key, M in (("gyroscope_scale_misalignment", M_GYRO), ("accelerometer_scale_misalignment", M_ACCEL)):
+        est, sig = np.array(cal[key]), np.array(cal["sigma"][key])
+        assert np.all(np.triu(est, 1) == 0) and np.all(np.triu(sig, 1) == 0)
+        z = (est - M)[LOWER] / sig[LOWER]
+        assert np.all(np.abs(z) < 4), (key, z)  # within 4 sigma (seen: up to 1.9)
+        assert np.all(sig[LOWER] < 2e-3), (key, sig)
+    # the cameras as well as on the unscaled recording (test_camera_imu_against_truth's bounds)
+    res = compare_imu(load_rig(out), load_truth(v / "truth.yaml").rig, yaml.safe_load((v / "truth.yaml").read_text()))
+    for name, e in res["cameras"].items():
+        assert e["imu0_rot_deg"] < 0.1 and e["imu0_pos_mm"] < 5.0 and abs(e["offset_ms"]) < 0.3, (name, e)
+    assert np.abs(res["imus"]["imu0"]["gyroscope_scale_misalignment"]).max() < 2e-3
+    assert "scale and misalignment" in text
+    page = out.with_suffix(".html").read_text(encoding="utf-8")
+    assert "IMU model: scale-misalignment (likelihood ratio" in page and "gyroscope M - I (lower triangle" in page
+
+
+def test_forced_models(run, scaled, tmp_path):
+    """--imu-model scale-misalignment on the unscaled recording finds M = I within its sigmas
+    (not tested: the selection says so); calibrated forced on the scaled one keeps M = I
+    and the cameras pay for it."""
+    ds, _, _ = run
+    out = tmp_path / "sm.yaml"
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--guided", "off", "--imu-model", "scale-misalignment")
+    assert r.exit_code == 0, r.output
+    cal = yaml.safe_load(out.read_text())["imus"]["imu0"]["calibration"]
+    assert cal["imu_model"] == "scale-misalignment"
+    assert cal["imu_model_selection"] == {"test": "none (--imu-model scale-misalignment)"}
+    for key in ("gyroscope_scale_misalignment", "accelerometer_scale_misalignment"):
+        z = (np.array(cal[key]) - np.eye(3))[LOWER] / np.array(cal["sigma"][key])[LOWER]
+        assert np.all(np.abs(z) < 4), (key, z)
+    v = scaled[0]
+    out = tmp_path / "cal.yaml"
+    r = _cli("calibrate", v, "--out", out, "--jobs", 1, "--guided", "off", "--imu-model", "calibrated")
+    assert r.exit_code == 0, r.output
+    cal = yaml.safe_load(out.read_text())["imus"]["imu0"]["calibration"]
+    assert cal["imu_model"] == "calibrated" and "gyroscope_scale_misalignment" not in cal
+    res = compare_imu(load_rig(out), load_truth(v / "truth.yaml").rig, yaml.safe_load((v / "truth.yaml").read_text()))
+    assert max(e["imu0_rot_deg"] for e in res["cameras"].values()) > 0.2  # seen 0.56 deg
+
+
+def test_a_bad_imu_model_is_one_line_and_exit_2(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "rigcal", "calibrate", "DATASET", "--out", "o.yaml",
+                           "--imu-model", "affine"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2 and len(lines) == 1 and "'--imu-model'" in lines[0], proc.stderr
+    assert not list(tmp_path.iterdir())

@@ -3,6 +3,8 @@ and the models they encode against rigcal.imu's simulator (an independent writin
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -11,6 +13,7 @@ from rigcal import imu as imu_model
 from rigcal import imu_residuals as ir
 from rigcal.camera import CameraModel
 from rigcal.spline import Spline, evaluate, fit
+from synthetic_obs import central_jacobian
 
 
 def _state(rng, n=9, dt=0.1, n_bias=3):
@@ -24,6 +27,13 @@ def _state(rng, n=9, dt=0.1, n_bias=3):
                     bias_t0=0.0, bias_dt=0.3, gyro_bias=rng.normal(0, 1e-2, (n_bias, 3)),
                     accel_bias=rng.normal(0, 0.1, (n_bias, 3)),
                     R_grav=geo.R_from_rotvec(rng.normal(0, 0.1, 3)))
+
+
+def _with_scale(state, seed=11):
+    """state with scale-misalignment matrices of a few per cent (scale-misalignment model)."""
+    rng = np.random.default_rng(seed)
+    return replace(state, M_gyro=np.eye(3) + ir.lower(rng.normal(0, 0.02, 6)),
+                   M_accel=np.eye(3) + ir.lower(rng.normal(0, 0.02, 6)))
 
 
 def _corners(rng, state, m=14):
@@ -58,7 +68,7 @@ def _global_fd(state, lay, blocks_of, h=1e-6):
 @pytest.mark.parametrize("kind", ["gyro", "accel", "corners", "prior"])
 def test_block_jacobians_match_whole_problem_differences(kind):
     rng = np.random.default_rng(7)
-    st = _state(rng)
+    st = _with_scale(_state(rng))  # every group free, the scale-misalignment columns included
     lay = ir.layout_for(st, held=frozenset())
     t = rng.uniform(0.0, 0.55, 12)
     meas = rng.normal(0, 1, (12, 3))
@@ -77,6 +87,34 @@ def test_block_jacobians_match_whole_problem_differences(kind):
     np.testing.assert_allclose(J, J_fd, atol=2e-5 * scale)
     # every column a block claims is one it really moves (no stray index)
     assert np.all((np.abs(J) > 0).sum(axis=0)[np.abs(J_fd).max(axis=0) > 1e-6 * scale] > 0)
+
+
+@pytest.mark.parametrize("sensor", ["gyro", "accel"])
+def test_scale_misalignment_jacobian_matches_central_differences(sensor):
+    """The analytic columns of the 6 + 6 parameters of L (M = I + L, lower-triangular)
+    against central differences of the residuals in those parameters alone, at M != I;
+    each sensor's block touches only its own 6, and the held group has no columns."""
+    rng = np.random.default_rng(4)
+    st = _with_scale(_state(rng))
+    lay = ir.layout_for(st, held=frozenset())
+    t = rng.uniform(0.0, 0.55, 15)
+    meas = rng.normal(0, 1, (15, 3))
+    block = ir.gyro_block if sensor == "gyro" else ir.accel_block
+
+    def residuals(x):
+        s = replace(st, M_gyro=np.eye(3) + ir.lower(x[:6]), M_accel=np.eye(3) + ir.lower(x[6:]))
+        return block(s, lay, t, meas, 0.02).r.ravel()
+
+    x0 = np.concatenate([(st.M_gyro - np.eye(3))[ir.SCALE_ROWS, ir.SCALE_COLS],
+                         (st.M_accel - np.eye(3))[ir.SCALE_ROWS, ir.SCALE_COLS]])
+    np.testing.assert_allclose(residuals(x0), block(st, lay, t, meas, 0.02).r.ravel(), atol=1e-12)
+    J_fd = central_jacobian(residuals, x0)
+    J = ir.assemble([block(st, lay, t, meas, 0.02)], lay.size)[0].toarray()[:, lay.scale:lay.scale + 12]
+    np.testing.assert_allclose(J, J_fd, atol=1e-6 * np.abs(J_fd).max())
+    mine, other = (slice(0, 6), slice(6, 12)) if sensor == "gyro" else (slice(6, 12), slice(0, 6))
+    assert np.all(np.abs(J_fd[:, mine]).max(axis=0) > 1.0) and np.all(J[:, other] == 0)
+    held = ir.layout_for(st)  # the calibrated model: the group held, no column
+    assert "scale" in held.held and np.all(block(st, held, t, meas, 0.02).cols[:, -6:] == -1)
 
 
 def test_time_offset_column_is_the_image_motion():

@@ -11,6 +11,11 @@ So the boards are re-fitted to the camera-IMU trajectory and the estimate repeat
 (`BOARD_PASSES`), the gauge board (most corners) held: it is the world frame whose
 gravity direction the estimator finds.
 
+The IMU model (`--imu-model`, rigcal.imu_residuals): `calibrated` (M = I) unless the data
+show scale and misalignment: `auto` fits `calibrated`, then `scale-misalignment` from that
+solution (imu_calib.refine), and keeps it only when the likelihood ratio of the 12 added
+parameters passes model_selection's test (select_imu_model).
+
 Times are seconds since the IMU's first sample, on each sensor's own clock, so the
 estimator's offsets are imu.md's `time_offset_s` (t_imu = t_cam + time_offset_s).
 """
@@ -31,6 +36,7 @@ from . import imu_start
 from . import spline as spl
 from .errors import CalibrationError, DatasetError, InputError
 from .initialise import pnp_views
+from .model_selection import IMU_MODEL_LEVEL, likelihood_ratio_test
 from .motion import ImuSamples
 from .rig import Imu
 from .solve import project_obs
@@ -42,19 +48,23 @@ MIN_KNOTS = 20  # the images and IMU must share at least this many knot spacings
 MIN_FRAMES = 10  # per camera: the clock-offset search needs rates over ~10 frame intervals
 MIN_PNP_CORNERS = 8
 NOISE_WARN_RATIO = 3.0  # residual RMS vs what the declared density predicts, either way
+IMU_MODELS = ("auto", "calibrated", "scale-misalignment")
+SCALE_PARAMETERS = 12  # L of M_gyro and of M_accel, 6 each
 
 
 @dataclass(frozen=True)
 class Options:
     """What the user chose: the IMU (name), gravity's magnitude, the clock-offset search
     half-width, whether every camera's line delay is estimated (None: where declared
-    non-zero), the spline's knot spacing (None: imu_calib.Settings' default)."""
+    non-zero), the spline's knot spacing (None: imu_calib.Settings' default), the IMU model
+    (IMU_MODELS; auto: chosen by imu_model_test)."""
 
     imu: str
     gravity: float = ir.GRAVITY
     window_s: float = 0.2
     rolling_shutter: bool | None = None
     knot_dt: float | None = None
+    imu_model: str = "auto"
 
     def __post_init__(self):
         # calibrate.run builds these before detection: a typo (--gravity 981) is then one
@@ -65,10 +75,12 @@ class Options:
                 ("--knot-spacing", self.knot_dt, 0.0, 1.0, "seconds")):
             if value is not None and not lo < value <= hi:
                 raise InputError(f"{option}: expected {what} in ({lo:g}, {hi:g}], got {value:g}")
+        if self.imu_model not in IMU_MODELS:
+            raise InputError(f"--imu-model: expected one of {', '.join(IMU_MODELS)}, got {self.imu_model!r}")
 
     @classmethod
     def chosen(cls, imu: str, opts: dict) -> "Options":
-        """From calibrate's option dict (gravity, window_s, rolling_shutter, knot_dt; None:
+        """From calibrate's option dict (gravity, window_s, rolling_shutter, knot_dt, imu_model; None:
         the default)."""
         return cls(imu, **{k: v for k, v in opts.items() if v is not None})
 
@@ -96,7 +108,8 @@ class ImuCalibration:
     world = the gauge board's frame), the 1-sigma of every reported parameter
     (parameter_sigmas, corners weighted by their measured noise), the mean biases over the
     recording, the residual RMS of the IMU in units
-    (rad/s, m/s^2) and what the declared densities predict, warnings and notes."""
+    (rad/s, m/s^2) and what the declared densities predict, the IMU model kept (`imu_model`)
+    with the test behind it (`model_test`: ImuModelTest or None when forced), warnings and notes."""
 
     result: ic.CameraImuResult
     imu: Imu
@@ -113,6 +126,43 @@ class ImuCalibration:
     seconds: float
     warnings: tuple[str, ...]
     notes: tuple[str, ...]
+    imu_model: str = "calibrated"
+    model_test: "ImuModelTest | None" = None
+
+
+@dataclass(frozen=True)
+class ImuModelTest:
+    """`--imu-model auto`'s test of scale-misalignment against calibrated: the likelihood
+    ratio of the two fits (statistic) against the chi-square threshold of SCALE_PARAMETERS
+    degrees of freedom at model_selection.IMU_MODEL_LEVEL, and the seconds the larger fit took."""
+
+    statistic: float
+    threshold: float
+    level: float
+    seconds: float
+
+    @property
+    def significant(self) -> bool:
+        return self.statistic > self.threshold
+
+    def line(self) -> str:
+        return (f"likelihood ratio {self.statistic:.1f} on {SCALE_PARAMETERS} parameters (needs "
+                f"{self.threshold:.1f}, p = {self.level:g}) -> "
+                f"{'scale-misalignment' if self.significant else 'calibrated'}")
+
+
+def imu_model_test(small: ic.CameraImuResult, large: ic.CameraImuResult) -> ImuModelTest:
+    """The likelihood ratio of `large` (scale-misalignment, fitted from `small`'s solution
+    on the same corners and weights) against `small` (calibrated): each block's drop in cost
+    in units of its measured noise, i.e. divided by the larger fit's mean squared normalised
+    residual (as select_structure divides by the measured corner noise sigma_px^2); the
+    bias random-walk prior's is taken as declared."""
+    stat = 0.0
+    for k, c in small.costs.items():
+        v = 1.0 if k == "bias_walk" else max(large.normalised_rms[k] ** 2, 1e-12)
+        stat += (c - large.costs[k]) / v
+    _, need = likelihood_ratio_test(stat, SCALE_PARAMETERS, IMU_MODEL_LEVEL)
+    return ImuModelTest(float(stat), need, IMU_MODEL_LEVEL, large.seconds)
 
 
 def imu_input(samples: ImuSamples, imu: Imu, t_base_ns: int) -> ic.ImuInput:
@@ -309,8 +359,7 @@ def jacobian(res: ic.CameraImuResult, inp: Inputs, T_world_board: np.ndarray, se
     """(J, layout) of the final estimate: the residual blocks imu_calib minimises, rebuilt
     from rigcal.imu_residuals' public functions (imu_calib keeps its list private)."""
     state, imu = res.state, inp.imu
-    held = frozenset({"imu_rot", "imu_pos"} | (set() if settings.line_delay else {"line_delay"}))
-    lay = ir.layout_for(state, held)
+    lay = ir.layout_for(state, ic.held_groups(settings))
     _, obs = _with_boards(inp, T_world_board)
     k = res.corners_used
     obs = ir.Corners(obs.cam[k], obs.t_cam[k], obs.uv[k], obs.p_world[k])
@@ -342,10 +391,12 @@ def mean_weights(n: int) -> np.ndarray:
     return w / w.sum()
 
 
-def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool) -> dict[str, np.ndarray]:
+def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bool = False
+                     ) -> dict[str, np.ndarray]:
     """1-sigma of each camera's pose (C, 6: rotation rad about body axes, position m) and
     clock offset (C,), the mean gyroscope and accelerometer biases (3,) and, when estimated,
-    every camera's line delay (C,)."""
+    every camera's line delay (C,) and the 12 scale-misalignment parameters (`scale`: L of
+    M_gyro, then of M_accel, in imu_residuals.SCALE_ROWS / SCALE_COLS order)."""
     w = mean_weights(lay.n_bias)
     C = lay.n_cam
 
@@ -361,10 +412,15 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool) -> dict[str, np.nd
     parts = [unit(lay.cam + np.arange(6 * C)), unit(lay.offset + np.arange(C)), mean]
     if estimate_delay:
         parts.append(unit(lay.line_delay + np.arange(C)))
+    if estimate_scale:
+        parts.append(unit(lay.scale + np.arange(SCALE_PARAMETERS)))
     sd = linear_sigmas(J, np.concatenate(parts), lay)
     out = {"pose": sd[:6 * C].reshape(C, 6), "offset": sd[6 * C:7 * C], "gyro_bias": sd[7 * C:7 * C + 3],
            "accel_bias": sd[7 * C + 3:7 * C + 6]}
-    out["line_delay"] = sd[7 * C + 6:] if estimate_delay else None
+    k = 7 * C + 6
+    out["line_delay"] = sd[k:k + C] if estimate_delay else None
+    k += C if estimate_delay else 0
+    out["scale"] = sd[k:k + SCALE_PARAMETERS] if estimate_scale else None
     return out
 
 
@@ -400,26 +456,45 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     # coordinate. Started at the norm's, a single-board recording needed a second full pass
     # to correct the weights (EuRoC: 2 x 60 s)
     settings = replace(base, sigma_px=max(float(cal.rms_px) / math.sqrt(2.0), 0.01), gravity=options.gravity,
-                       window_s=options.window_s, line_delay=estimate_delay)
+                       window_s=options.window_s, line_delay=estimate_delay,
+                       scale_misalignment=options.imu_model == "scale-misalignment")
+    start = settings
     try:
         res, T_world_board, settings, passes = estimate(inp, cal.state.T_world_board, settings)
+        test = None
+        if options.imu_model == "auto":
+            # scale-misalignment from the calibrated solution, on the same corners, boards and weights
+            _, obs = _with_boards(inp, T_world_board)
+            sm = ic.refine(res, [c.model for c in inp.cams], obs, inp.imu, replace(settings, scale_misalignment=True))
+            test = imu_model_test(res, sm)
+            if test.significant and len(np.unique(inp.board)) > 1:
+                # the whole estimate again with the larger model (as --imu-model scale-misalignment):
+                # the boards the calibrated passes re-fitted carry its trajectory's errors, and the
+                # refit on them alone biased M by up to 20 sigma (2 % scales, 4 s test recording)
+                res, T_world_board, settings, passes = estimate(inp, cal.state.T_world_board,
+                                                                replace(start, scale_misalignment=True))
+            elif test.significant:  # one board, the world frame: nothing was re-fitted, the test's fit is it
+                res, settings = sm, replace(settings, scale_misalignment=True)
     except CalibrationError as e:
         if "search window" in str(e):
             raise CalibrationError(f"{e} (calibrate --offset-window SECONDS; now {options.window_s:g} s)") from None
         raise
     # sigmas with the corners weighted by their measured noise (the variance factor)
     J, lay = jacobian(res, inp, T_world_board, _settings_with(settings, res))
-    sig = parameter_sigmas(J, lay, estimate_delay)
+    sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment)
     w = mean_weights(lay.n_bias)
     rate = math.sqrt(imu.update_rate)
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
     notes = [f"camera-IMU: {passes} estimate(s) with the boards re-fitted between them, {res.iterations} "
              f"Levenberg-Marquardt iterations in the last, corners weighted at {settings.sigma_px:.3g} px"]
+    chosen = "scale-misalignment" if settings.scale_misalignment else "calibrated"
+    notes.append(f"IMU model {chosen}: " + (test.line() + f" (the larger fit {test.seconds:.1f} s)" if test is not None
+                                            else f"--imu-model {chosen} (not tested)"))
     return ImuCalibration(res, imu, T_world_board, sig, w @ res.state.gyro_bias, w @ res.state.accel_bias,
                           rms[0], rms[1], pred[0], pred[1], settings.sigma_px * res.normalised_rms["corners"], passes,
                           time.perf_counter() - t0, tuple(noise_warnings(imu, (rms[0], pred[0]), (rms[1], pred[1]))),
-                          tuple(notes))
+                          tuple(notes), chosen, test)
 
 
 def plan(rig, imus_read: dict, reference: str | None, camera_only: bool = False) -> tuple[str | None, str]:

@@ -98,6 +98,14 @@ class IntrinsicsChoice(str, Enum):
     square_centred = "square-centred"
 
 
+class ImuModel(str, Enum):
+    """`calibrate --imu-model`: the IMU's measurement model (calibrate_imu), or auto (tested)."""
+
+    auto = "auto"
+    calibrated = "calibrated"
+    scale_misalignment = "scale-misalignment"
+
+
 class Guided(str, Enum):
     """`calibrate --guided`: the guided corner pass (guided.py); auto runs it on fisheye cameras."""
 
@@ -209,6 +217,11 @@ def calibrate(
                                                  "carried through unchanged, the reference is 'aligned')"),
     knot_spacing: Optional[float] = typer.Option(None, help="with imu/: the trajectory spline's knot spacing, s "
                                                             "(default 0.05; 0.01, Kalibr's, for fast hand-waved motion)"),
+    imu_model: ImuModel = typer.Option(
+        ImuModel.auto, help="with imu/: calibrated (gyro = omega + bias, accel = f + bias) or scale-misalignment "
+                            "(each sensor reads M @ ideal + bias, M = I + lower-triangular: 3 scales and 3 "
+                            "misalignments per sensor); auto: calibrated unless a likelihood-ratio test at the "
+                            "lens models' level (p = 1e-4) finds scale and misalignment"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from . import calibrate as cal
@@ -218,7 +231,7 @@ def calibrate(
                 allow_resize=allow_resize, guided=guided.value, intrinsics=intrinsics.value,
                 scheduler=scheduler, imu_options={"gravity": gravity, "window_s": offset_window,
                                                   "rolling_shutter": True if rolling_shutter else None,
-                                                  "knot_dt": knot_spacing},
+                                                  "knot_dt": knot_spacing, "imu_model": imu_model.value},
                 camera_only=camera_only))
 
 

@@ -15,7 +15,8 @@ import numpy as np
 from rich.table import Table
 
 from . import geometry as geo
-from .calibrate_imu import ImuCalibration, Options, calibrate_imu
+from . import imu_residuals as ir
+from .calibrate_imu import SCALE_PARAMETERS, ImuCalibration, Options, calibrate_imu
 from .errors import InputError
 from .rig import Rig
 
@@ -51,8 +52,39 @@ def _camera_block(old: dict | None, k: int, res: ImuCalibration) -> dict:
     return block
 
 
+SCALE_KEYS = ("gyroscope_scale_misalignment", "accelerometer_scale_misalignment")
+
+
+def _rows(M: np.ndarray, nd: int) -> list:
+    return [[_r(x, nd) for x in row] for row in M]
+
+
+def model_selection_entry(res: ImuCalibration) -> dict:
+    """`imu_model_selection`: the test behind `imu_model` (statistic and threshold), or
+    that it was forced."""
+    t = res.model_test
+    if t is None:
+        return {"test": f"none (--imu-model {res.imu_model})"}
+    return {"test": "likelihood ratio", "statistic": _r(t.statistic, 2), "threshold": _r(t.threshold, 2),
+            "parameters": SCALE_PARAMETERS, "level": float(t.level)}
+
+
+def _model_entries(res: ImuCalibration, block: dict) -> None:
+    """The spec addition (README): `imu_model`, `imu_model_selection` and, for the
+    scale-misalignment model, M of each sensor (3x3 rows, sensor reads M @ ideal + bias)
+    with its 1-sigma (the upper triangle is held at 0)."""
+    block["imu_model"] = res.imu_model
+    block["imu_model_selection"] = model_selection_entry(res)
+    if res.imu_model != "scale-misalignment":
+        return
+    st = res.result.state
+    for k, (key, M) in enumerate(zip(SCALE_KEYS, (st.M_gyro, st.M_accel))):
+        block[key] = _rows(M, 7)
+        block["sigma"][key] = _rows(ir.lower(res.sigma["scale"][6 * k:6 * k + 6]), 7)
+
+
 def imu_block(res: ImuCalibration, reference: str) -> dict:
-    """The IMU's `calibration` block (imu.md)."""
+    """The IMU's `calibration` block (imu.md, plus the IMU model: _model_entries)."""
     n = int(len(res.result.state.gyro_bias))
     block = {
         "gyroscope_bias": [_r(x, 9) for x in res.gyro_bias],
@@ -71,6 +103,7 @@ def imu_block(res: ImuCalibration, reference: str) -> dict:
         pose = res.sigma["pose"].min(axis=0)
         block["sigma"]["position_mm"] = [_r(1000 * x, 4) for x in pose[3:]]
         block["sigma"]["rotation_deg"] = [_r(np.degrees(x), 5) for x in pose[:3]]
+    _model_entries(res, block)
     return block
 
 
@@ -114,6 +147,13 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
     t.add_row("accelerometer (m/s^2)", f"{res.accel_rms:.3g}", f"{res.accel_predicted:.3g}",
               f"{res.accel_rms / res.accel_predicted:.2f}", " ".join(f"{x:+.2e}" for x in b["accelerometer_bias"]),
               " ".join(f"{x:.1e}" for x in b["sigma"]["accelerometer_bias"]))
+    sel = b["imu_model_selection"]
+    t.caption = f"IMU model: {b['imu_model']} (" + (
+        f"likelihood ratio {sel['statistic']:.1f} on {sel['parameters']} parameters, needs {sel['threshold']:.1f})"
+        if "statistic" in sel else sel["test"] + ")")
+    parts = [t]
+    if b["imu_model"] == "scale-misalignment":
+        parts.append(scale_table(res.imu.name, b))
     c = Table(title=f"cameras relative to {res.imu.name} (clocks: t_imu = t_cam + offset)")
     cols = ["camera", "time offset ms", "1-sigma ms", "line delay us/row", "1-sigma us", "sigma pos mm (F L U)",
             "sigma rot deg (F L U)"]
@@ -125,7 +165,21 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
                   f"{1e6 * cam.line_delay_s:.3f}" if cam.line_delay_s is not None else "-",
                   f"{s['line_delay_us']:.3f}" if "line_delay_us" in s else "-",
                   " ".join(f"{x:.3f}" for x in s["position_mm"]), " ".join(f"{x:.4f}" for x in s["rotation_deg"]))
-    return [t, c]
+    return parts + [c]
+
+
+def scale_table(name: str, b: dict) -> Table:
+    """M - I of each sensor: scale factors (diagonal) and misalignments (below it), with 1-sigma."""
+    t = Table(title=f"IMU {name} scale and misalignment (reads M @ ideal + bias)")
+    for col in ("", "scale - 1 (x y z), ppm", "1-sigma ppm", "misalignment (yx zx zy), mrad", "1-sigma mrad"):
+        t.add_column(col, justify="left" if col == "" else "right")
+    low = (ir.SCALE_ROWS[3:], ir.SCALE_COLS[3:])
+    for label, key in zip(("gyroscope", "accelerometer"), SCALE_KEYS):
+        M, S = np.array(b[key]), np.array(b["sigma"][key])
+        t.add_row(label, " ".join(f"{1e6 * (x - 1):+.0f}" for x in np.diag(M)),
+                  " ".join(f"{1e6 * x:.0f}" for x in np.diag(S)), " ".join(f"{1e3 * x:+.3f}" for x in M[low]),
+                  " ".join(f"{1e3 * x:.3f}" for x in S[low]))
+    return t
 
 
 def calibrate_with_imu(cal, out_rig: Rig, motion, imu_name: str, reference: str, target, opts: dict
@@ -155,10 +209,25 @@ def _mean_bias(doc: dict, imu: str, key: str, label: str) -> np.ndarray | None:
     return v.mean(axis=0)
 
 
+def _scale_truth(doc: dict, imu: str, key: str, label: str) -> np.ndarray | None:
+    try:
+        v = doc["imus"][imu][key]
+    except (KeyError, TypeError):
+        return None
+    try:
+        M = np.asarray(v, dtype=float)
+    except (TypeError, ValueError):
+        M = None
+    if M is None or M.shape != (3, 3) or not np.all(np.isfinite(M)):
+        raise InputError(f"{label}: imus.{imu}.{key}: expected 3 rows of 3 numbers")
+    return M
+
+
 def compare_imu(est: Rig, truth: Rig, truth_doc: dict | None, label: str = "<truth>") -> dict:
     """Per camera the error of T_imu_cam (rotation deg, translation mm) for every IMU both
     rigs have, of time_offset_s (ms) and line_delay_s (us/row); per IMU the error of the
-    mean biases against truth.yaml's sampled ones (when given)."""
+    mean biases against truth.yaml's sampled ones (when given) and, when truth.yaml gives
+    them, of the scale-misalignment matrices (3x3; a calibrated IMU counts as M = I)."""
     out = {"cameras": {}, "imus": {}}
     imus = [i.name for i in est.imus if i.name in {j.name for j in truth.imus}]
     for n in est.names:
@@ -183,6 +252,10 @@ def compare_imu(est: Rig, truth: Rig, truth_doc: dict | None, label: str = "<tru
             true = _mean_bias(truth_doc or {}, i, key, label)
             if key in cal and true is not None:
                 e[key] = np.asarray(cal[key], float) - true
+        for key in SCALE_KEYS:  # compared only when the truth has them (the simulator writes none)
+            true = _scale_truth(truth_doc or {}, i, key, label)
+            if true is not None:
+                e[key] = np.asarray(cal.get(key, np.eye(3)), float) - true
         out["imus"][i] = e
     return out
 
@@ -200,7 +273,8 @@ def compare_tables(res: dict) -> list:
     for n, e in res["cameras"].items():
         t.add_row(n, *(f"{e[k]:+.4f}" if k in e else "-" for k in keys))
     parts = [t]
-    rows = [(i, k, v) for i, e in res["imus"].items() for k, v in e.items()]
+    every = [(i, k, v) for i, e in res["imus"].items() for k, v in e.items()]
+    rows = [r for r in every if r[1] not in SCALE_KEYS]
     if rows:
         b = Table(title="IMU biases (calibrated mean - true mean)")
         for col in ("imu", "bias", "error x", "error y", "error z"):
@@ -208,4 +282,12 @@ def compare_tables(res: dict) -> list:
         for i, k, v in rows:
             b.add_row(i, k + (" rad/s" if k.startswith("gyro") else " m/s^2"), *(f"{x:+.2e}" for x in v))
         parts.append(b)
+    rows = [r for r in every if r[1] in SCALE_KEYS]
+    if rows:
+        m = Table(title="IMU scale-misalignment (calibrated M - true M)")
+        for col in ("imu", "matrix", "largest error", "scale errors (x y z)"):
+            m.add_column(col, justify="left" if col in ("imu", "matrix") else "right")
+        for i, k, v in rows:
+            m.add_row(i, k, f"{np.abs(v).max():.2e}", " ".join(f"{x:+.2e}" for x in np.diag(v)))
+        parts.append(m)
     return parts

@@ -11,7 +11,13 @@ State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
 - T_body_cam, time_offset_s and line_delay_s per camera (t_imu = t_cam + time_offset_s
   + row * line_delay_s);
 - gyroscope and accelerometer biases, piecewise linear between knots every bias_dt;
-- gravity g_world = R_grav @ [0, 0, -|g|], two tangent degrees of freedom.
+- gravity g_world = R_grav @ [0, 0, -|g|], two tangent degrees of freedom;
+- the IMU model (`--imu-model`): each sensor reads M @ (its ideal reading) + bias with
+  M = I + L, L lower-triangular (`scale-misalignment`: 3 scale factors on the diagonal,
+  3 misalignments below it, per sensor; `calibrated`: M = I, the group held). A general
+  small M - I is a lower-triangular matrix plus a small rotation; that rotation of the
+  sensor axes is a rotation of the IMU frame, which every camera's rotation (and the
+  trajectory) absorbs, so it is not estimated.
 
 Jacobians: the IMU blocks take central differences over each row's own local parameters,
 vectorised over the rows (2 K evaluations of the block, each over all rows); the corner
@@ -25,7 +31,7 @@ every block against differences of the whole problem (global state perturbed thr
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -37,6 +43,10 @@ from .spline import ORDER, Motion, Spline, basis, motion_from_controls, rotation
 
 GRAVITY = 9.80665
 STEP = 1e-6  # central-difference step (radians, metres, seconds, bias units)
+# the 6 parameters of L in M = I + L, in this order: the scales (diagonal), then the
+# misalignments below it ((1, 0), (2, 0), (2, 1))
+SCALE_ROWS = np.array([0, 1, 2, 1, 2, 2])
+SCALE_COLS = np.array([0, 1, 2, 0, 0, 1])
 
 
 @dataclass(frozen=True, eq=False)
@@ -55,6 +65,8 @@ class State:
     accel_bias: np.ndarray
     R_grav: np.ndarray
     gravity: float = GRAVITY
+    M_gyro: np.ndarray = field(default_factory=lambda: np.eye(3))  # gyro = M_gyro omega_imu + b_g
+    M_accel: np.ndarray = field(default_factory=lambda: np.eye(3))  # accel = M_accel f_imu + b_a
 
     @property
     def g_world(self) -> np.ndarray:
@@ -65,7 +77,8 @@ class State:
 class Layout:
     """Column offsets of each parameter group in the global vector; `held` names groups
     kept fixed (their columns are -1): any of 'imu_rot', 'imu_pos', 'cam', 'offset',
-    'line_delay' (held by default: estimated only for a declared rolling shutter).
+    'line_delay' (held by default: estimated only for a declared rolling shutter), 'scale'
+    (the 12 parameters of M_gyro and M_accel; held by default: the `calibrated` model).
     `bias_knot0` and `knots_per_bias`: where the bias knots fall among the spline's control
     points (bias knot j at control bias_knot0 + j knots_per_bias; 0: not known), for the
     solver's column order (imu_calib.band_order)."""
@@ -73,7 +86,7 @@ class Layout:
     n_ctrl: int
     n_cam: int
     n_bias: int
-    held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay"})
+    held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay", "scale"})
     bias_knot0: float = 0.0
     knots_per_bias: float = 0.0
 
@@ -114,8 +127,13 @@ class Layout:
         return self.imu + 6
 
     @property
-    def size(self) -> int:
+    def scale(self) -> int:
+        """12 columns: L of M_gyro (6, SCALE_ROWS / SCALE_COLS order), then of M_accel."""
         return self.line_delay + self.n_cam
+
+    @property
+    def size(self) -> int:
+        return self.scale + 12
 
     def group(self, name: str, start: np.ndarray | int, width: int) -> np.ndarray:
         """Columns start .. start + width - 1 (start (M,) or scalar), or -1 when `name` is held."""
@@ -123,7 +141,7 @@ class Layout:
         return np.full_like(cols, -1) if name in self.held else cols
 
 
-def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay"})) -> Layout:
+def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay", "scale"})) -> Layout:
     sp_ = state.spline
     return Layout(len(sp_.p), len(state.T_body_cam), len(state.gyro_bias), held,
                   (state.bias_t0 - sp_.t0) / sp_.dt, state.bias_dt / sp_.dt)
@@ -159,6 +177,21 @@ def huber(block: Block, k: float) -> Block:
 def tangent_basis(R_grav: np.ndarray) -> np.ndarray:
     """(3, 2): the two world directions orthogonal to gravity that its 2 dof turn about."""
     return R_grav[:, :2]
+
+
+def scale_jacobian(x: np.ndarray) -> np.ndarray:
+    """d (M x) / d L for M = I + L, L's 6 parameters in SCALE_ROWS / SCALE_COLS order:
+    (M, 3, 6) from the ideal readings x (M, 3). Linear, so exact."""
+    J = np.zeros((len(x), 3, 6))
+    J[:, SCALE_ROWS, np.arange(6)] = x[:, SCALE_COLS]
+    return J
+
+
+def lower(params: np.ndarray) -> np.ndarray:
+    """L (3, 3) from its 6 parameters (SCALE_ROWS / SCALE_COLS order)."""
+    L = np.zeros((3, 3))
+    L[SCALE_ROWS, SCALE_COLS] = params
+    return L
 
 
 def _controls(spline: Spline, t: np.ndarray):
@@ -252,21 +285,25 @@ def _per_control(M: np.ndarray, w: np.ndarray) -> np.ndarray:
 
 def gyro_block(state: State, lay: Layout, t: np.ndarray, gyro: np.ndarray, sigma: float,
                mj: MotionJacobian | None = None) -> Block:
-    """(R_body_imu^T omega_body(t) + b_g(t) - gyro) / sigma; local parameters: 4 control
-    rotations (12), R_body_imu (3), two gyro bias knots (6). `mj`: motion_jacobian(state, t)
-    when the caller has it (the accelerometer block shares it)."""
+    """(M_gyro R_body_imu^T omega_body(t) + b_g(t) - gyro) / sigma; local parameters: 4
+    control rotations (12), R_body_imu (3), two gyro bias knots (6), L of M_gyro (6).
+    `mj`: motion_jacobian(state, t) when the caller has it (the accelerometer block shares it)."""
     mj = mj or motion_jacobian(state, t)
     j, s = _bias_at(state, t)
     Rt_bi = state.T_body_imu[:3, :3].T
+    M = state.M_gyro
     w = mj.motion.omega_body
+    w_imu = w @ Rt_bi.T  # the ideal reading, IMU axes
     b = (1 - s)[:, None] * state.gyro_bias[j] + s[:, None] * state.gyro_bias[j + 1]
     eye = np.broadcast_to(np.eye(3), (len(t), 3, 3))
-    J = np.concatenate([Rt_bi @ mj.J_rot[:, 3:6], Rt_bi @ geo.skew(w), (1 - s)[:, None, None] * eye,
-                        s[:, None, None] * eye], axis=2) / sigma
+    MR = M @ Rt_bi
+    J = np.concatenate([MR @ mj.J_rot[:, 3:6], MR @ geo.skew(w), (1 - s)[:, None, None] * eye,
+                        s[:, None, None] * eye, scale_jacobian(w_imu)], axis=2) / sigma
     rot, _ = _spline_cols(lay, mj.i)
-    cols = np.concatenate([rot, lay.group("imu_rot", np.full(len(t), lay.imu), 3),
-                           lay.group("bg", lay.bg + 3 * j, 6)], axis=1)
-    return Block((w @ Rt_bi.T + b - gyro) / sigma, J, cols)
+    n = np.full(len(t), 0)
+    cols = np.concatenate([rot, lay.group("imu_rot", n + lay.imu, 3),
+                           lay.group("bg", lay.bg + 3 * j, 6), lay.group("scale", n + lay.scale, 6)], axis=1)
+    return Block((w_imu @ M.T + b - gyro) / sigma, J, cols)
 
 
 def specific_force(m, R_body_imu: np.ndarray, t_body_imu: np.ndarray, g_world: np.ndarray) -> np.ndarray:
@@ -280,13 +317,16 @@ def specific_force(m, R_body_imu: np.ndarray, t_body_imu: np.ndarray, g_world: n
 
 def accel_block(state: State, lay: Layout, t: np.ndarray, accel: np.ndarray, sigma: float,
                 mj: MotionJacobian | None = None) -> Block:
-    """(specific force(t) + b_a(t) - accel) / sigma; local parameters: 4 control rotations
-    (12) and positions (12), R_body_imu (3), t_body_imu (3), two accel bias knots (6),
-    gravity's direction (2). Chain rule on f_body = R^T (a - g) + alpha x r + omega x (omega x r)."""
+    """(M_accel specific force(t) + b_a(t) - accel) / sigma; local parameters: 4 control
+    rotations (12) and positions (12), R_body_imu (3), t_body_imu (3), two accel bias knots
+    (6), gravity's direction (2), L of M_accel (6). Chain rule on
+    f_body = R^T (a - g) + alpha x r + omega x (omega x r)."""
     mj = mj or motion_jacobian(state, t)
     m = mj.motion
     j, s = _bias_at(state, t)
     Rt_bi, r_lever = state.T_body_imu[:3, :3].T, state.T_body_imu[:3, 3]
+    M = state.M_accel
+    MR = M @ Rt_bi
     g0 = state.g_world
     w, al = m.omega_body, m.alpha_body
     Rt = np.swapaxes(m.R_world_body, 1, 2)
@@ -296,15 +336,17 @@ def accel_block(state: State, lay: Layout, t: np.ndarray, accel: np.ndarray, sig
     d_omega = -K_w @ K_r - geo.skew(np.cross(w, r_lever))
     d_rot = d_theta @ mj.J_rot[:, :3] - K_r @ mj.J_rot[:, 6:9] + d_omega @ mj.J_rot[:, 3:6]
     eye = np.broadcast_to(np.eye(3), (len(t), 3, 3))
-    J = np.concatenate([Rt_bi @ d_rot, Rt_bi @ _per_control(Rt, mj.w_a), Rt_bi @ geo.skew(f_body),
-                        Rt_bi @ (geo.skew(al) + K_w @ K_w), (1 - s)[:, None, None] * eye, s[:, None, None] * eye,
-                        Rt_bi @ Rt @ (geo.skew(g0) @ tangent_basis(state.R_grav))], axis=2) / sigma
+    f_imu = f_body @ Rt_bi.T  # the ideal reading, IMU axes
+    J = np.concatenate([MR @ d_rot, MR @ _per_control(Rt, mj.w_a), MR @ geo.skew(f_body),
+                        MR @ (geo.skew(al) + K_w @ K_w), (1 - s)[:, None, None] * eye, s[:, None, None] * eye,
+                        MR @ Rt @ (geo.skew(g0) @ tangent_basis(state.R_grav)), scale_jacobian(f_imu)], axis=2) / sigma
     b = (1 - s)[:, None] * state.accel_bias[j] + s[:, None] * state.accel_bias[j + 1]
     rot, pos = _spline_cols(lay, mj.i)
     n = np.full(len(t), 0)
     cols = np.concatenate([rot, pos, lay.group("imu_rot", n + lay.imu, 3), lay.group("imu_pos", n + lay.imu + 3, 3),
-                           lay.group("ba", lay.ba + 3 * j, 6), lay.group("grav", n + lay.grav, 2)], axis=1)
-    return Block((f_body @ Rt_bi.T + b - accel) / sigma, J, cols)
+                           lay.group("ba", lay.ba + 3 * j, 6), lay.group("grav", n + lay.grav, 2),
+                           lay.group("scale", n + lay.scale + 6, 6)], axis=1)
+    return Block((f_imu @ M.T + b - accel) / sigma, J, cols)
 
 
 @dataclass(frozen=True, eq=False)
@@ -443,7 +485,8 @@ def retract(state: State, lay: Layout, dx: np.ndarray) -> State:
     T_body_imu[:3, :3] = _turn(T_body_imu[:3, :3], dx[lay.imu:lay.imu + 3])
     T_body_imu[:3, 3] += dx[lay.imu + 3:lay.imu + 6]
     R_grav = geo.R_from_rotvec(tangent_basis(state.R_grav) @ dx[lay.grav:lay.grav + 2]) @ state.R_grav
-    return replace(state, spline=spline, T_body_cam=T_body_cam, T_body_imu=T_body_imu,
+    return replace(state, spline=spline, M_gyro=state.M_gyro + lower(dx[lay.scale:lay.scale + 6]),
+                   M_accel=state.M_accel + lower(dx[lay.scale + 6:lay.scale + 12]), T_body_cam=T_body_cam, T_body_imu=T_body_imu,
                    time_offset_s=state.time_offset_s + dx[lay.offset:lay.offset + c],
                    line_delay_s=state.line_delay_s + dx[lay.line_delay:lay.line_delay + c],
                    gyro_bias=state.gyro_bias + dx[lay.bg:lay.bg + 3 * k].reshape(k, 3),

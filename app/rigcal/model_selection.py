@@ -4,7 +4,8 @@ After the joint solve (pipeline.py), on its covariance: k3 is kept only when a W
 K3_LEVEL supports it (keep_k3), and with `--intrinsics auto` fx = fy and the principal
 point at its declared value are the model unless the data reject them (structure_tests
 screens by Wald, select_structure confirms by the likelihood ratio of a refit).
-`initialise` uses the same tests on one camera's own views.
+`initialise` uses the same tests on one camera's own views, and `--imu-model auto`
+(calibrate_imu) the same likelihood ratio and level for the IMU's scale and misalignment.
 """
 
 from __future__ import annotations
@@ -31,6 +32,9 @@ K3_LEVEL = 1e-4
 # board cannot pin a principal point (caliscope: 1-sigma 1.3-21 px); every rig whose data
 # resolve it keeps it free (the simulated rigs: Wald 9,100 and more).
 INTRINSICS_LEVEL = K3_LEVEL
+# `--imu-model auto`: the 12 scale-misalignment parameters are kept when the likelihood ratio
+# of the two fits passes the level of k3 and of the intrinsics' structure
+IMU_MODEL_LEVEL = K3_LEVEL
 # --intrinsics NAME -> (tie_focal, hold_centre); auto: tested per camera
 INTRINSICS_CHOICES = {"free": (False, False), "square": (True, False), "centred": (False, True),
                       "square-centred": (True, True)}
@@ -68,7 +72,20 @@ def structure_tests(it: Intrinsics, cov: np.ndarray, centre) -> tuple[bool, bool
 
 def _need(dof: int) -> float:
     """The chi-square threshold of the intrinsics' tests (INTRINSICS_LEVEL)."""
-    return float(chdtri(dof, INTRINSICS_LEVEL))
+    return chi2_threshold(dof, INTRINSICS_LEVEL)
+
+
+def chi2_threshold(dof: int, level: float) -> float:
+    """The chi-square quantile with `dof` degrees of freedom and upper tail `level`."""
+    return float(chdtri(dof, level))
+
+
+def likelihood_ratio_test(statistic: float, dof: int, level: float = IMU_MODEL_LEVEL) -> tuple[bool, float]:
+    """(the larger model is significant, the threshold): the likelihood ratio `statistic`
+    (the smaller model's cost minus the larger's, in units of the measured noise, as
+    select_structure's) against chi-square with `dof` degrees of freedom at `level`."""
+    need = chi2_threshold(dof, level)
+    return bool(statistic > need), need
 
 
 def refit(res: SolveResult, c: int, it: Intrinsics) -> SolveResult:

@@ -102,13 +102,28 @@ def clocks_table(out_rig: Rig, res: ImuCalibration) -> str:
     return cams + imu
 
 
+def model_caption(res: ImuCalibration) -> str:
+    """The IMU model kept (`--imu-model`) and the test behind it; for scale-misalignment
+    each sensor's M - I (scales on the diagonal, misalignments below it)."""
+    t = res.model_test
+    why = (f"likelihood ratio {t.statistic:.1f} on 12 parameters, needs {t.threshold:.1f} at p = {t.level:g}"
+           if t is not None else f"--imu-model {res.imu_model}, not tested")
+    text = f"IMU model: {res.imu_model} ({why})."
+    if res.imu_model == "scale-misalignment":
+        st = res.result.state
+        for label, M in (("gyroscope", st.M_gyro), ("accelerometer", st.M_accel)):
+            rows = "; ".join(" ".join(f"{x:+.5f}" for x in row[:k + 1]) for k, row in enumerate(M - np.eye(3)))
+            text += f" {label} M - I (lower triangle, rows): {rows}."
+    return f"<p class=\"caption\">{html.escape(text)}</p>"
+
+
 def imu_section(out_rig: Rig, res: ImuCalibration, samples: ImuSamples) -> str:
     """The section's HTML (plotly.js is the page's, embedded once by rigcal.report)."""
     r = readings(res, samples)
     cfg = {"displaylogo": False, "responsive": True}
     parts = ["<h2>Camera-IMU: clocks and IMU residuals</h2>", clocks_table(out_rig, res),
              "<p class=\"caption\">1-sigma from the camera-IMU estimate's normal equations, corners weighted by "
-             "their measured noise, the IMU by its declared densities.</p>",
+             "their measured noise, the IMU by its declared densities.</p>", model_caption(res),
              f"<h2>IMU {html.escape(res.imu.name)}: measured and predicted</h2>",
              series_figure(r).to_html(full_html=False, include_plotlyjs=False, div_id="fig-imu-series", config=cfg),
              f"<h2>IMU {html.escape(res.imu.name)}: residuals against the declared noise</h2>",
