@@ -133,22 +133,32 @@ class ImuCalibration:
 @dataclass(frozen=True)
 class ImuModelTest:
     """`--imu-model auto`'s test of scale-misalignment against calibrated: the likelihood
-    ratio of the two fits (statistic) against the chi-square threshold of SCALE_PARAMETERS
+    ratio of the two fits (statistic), the share of it in the IMU's own residuals (gyroscope,
+    accelerometer, bias walk: imu_statistic), the chi-square threshold of SCALE_PARAMETERS
     degrees of freedom at model_selection.IMU_MODEL_LEVEL, and the seconds the larger fit took."""
 
     statistic: float
+    imu_statistic: float
     threshold: float
     level: float
     seconds: float
 
     @property
     def significant(self) -> bool:
-        return self.statistic > self.threshold
+        # M describes the IMU: a gain that the IMU's own residuals do not show at the larger
+        # model's optimum is M absorbing a misfit elsewhere. On EuRoC the whole ratio was
+        # 3,358 from the corners (RMS 0.2999 -> 0.2992 px: the held intrinsics' error) while
+        # the IMU's residuals grew (-35), and keeping M moved the cameras 12.6 -> 14.5 mm
+        # from EuRoC's T_BS
+        return self.statistic > self.threshold and self.imu_statistic > self.threshold
 
     def line(self) -> str:
-        return (f"likelihood ratio {self.statistic:.1f} on {SCALE_PARAMETERS} parameters (needs "
-                f"{self.threshold:.1f}, p = {self.level:g}) -> "
+        return (f"likelihood ratio {self.statistic:.1f}, {self.imu_statistic:.1f} of it in the IMU's residuals, "
+                f"on {SCALE_PARAMETERS} parameters (both need {self.threshold:.1f}, p = {self.level:g}) -> "
                 f"{'scale-misalignment' if self.significant else 'calibrated'}")
+
+
+IMU_BLOCKS = ("gyro", "accel", "bias_walk")
 
 
 def imu_model_test(small: ic.CameraImuResult, large: ic.CameraImuResult) -> ImuModelTest:
@@ -156,13 +166,14 @@ def imu_model_test(small: ic.CameraImuResult, large: ic.CameraImuResult) -> ImuM
     on the same corners and weights) against `small` (calibrated): each block's drop in cost
     in units of its measured noise, i.e. divided by the larger fit's mean squared normalised
     residual (as select_structure divides by the measured corner noise sigma_px^2); the
-    bias random-walk prior's is taken as declared."""
-    stat = 0.0
-    for k, c in small.costs.items():
-        v = 1.0 if k == "bias_walk" else max(large.normalised_rms[k] ** 2, 1e-12)
-        stat += (c - large.costs[k]) / v
+    bias random-walk prior's is taken as declared. Also the drops of the IMU's blocks alone,
+    at `large`'s optimum (a fit stopped early gives another split: on EuRoC after 1-2
+    iterations the IMU's share was +790-840, converged -35)."""
+    drop = {k: (c - large.costs[k]) / (1.0 if k == "bias_walk" else max(large.normalised_rms[k] ** 2, 1e-12))
+            for k, c in small.costs.items()}
+    stat = sum(drop.values())
     _, need = likelihood_ratio_test(stat, SCALE_PARAMETERS, IMU_MODEL_LEVEL)
-    return ImuModelTest(float(stat), need, IMU_MODEL_LEVEL, large.seconds)
+    return ImuModelTest(float(stat), float(sum(drop[k] for k in IMU_BLOCKS)), need, IMU_MODEL_LEVEL, large.seconds)
 
 
 def imu_input(samples: ImuSamples, imu: Imu, t_base_ns: int) -> ic.ImuInput:

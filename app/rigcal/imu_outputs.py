@@ -65,8 +65,8 @@ def model_selection_entry(res: ImuCalibration) -> dict:
     t = res.model_test
     if t is None:
         return {"test": f"none (--imu-model {res.imu_model})"}
-    return {"test": "likelihood ratio", "statistic": _r(t.statistic, 2), "threshold": _r(t.threshold, 2),
-            "parameters": SCALE_PARAMETERS, "level": float(t.level)}
+    return {"test": "likelihood ratio", "statistic": _r(t.statistic, 2), "imu_statistic": _r(t.imu_statistic, 2),
+            "threshold": _r(t.threshold, 2), "parameters": SCALE_PARAMETERS, "level": float(t.level)}
 
 
 def _model_entries(res: ImuCalibration, block: dict) -> None:
@@ -149,7 +149,8 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
               " ".join(f"{x:.1e}" for x in b["sigma"]["accelerometer_bias"]))
     sel = b["imu_model_selection"]
     t.caption = f"IMU model: {b['imu_model']} (" + (
-        f"likelihood ratio {sel['statistic']:.1f} on {sel['parameters']} parameters, needs {sel['threshold']:.1f})"
+        f"likelihood ratio {sel['statistic']:.1f}, {sel['imu_statistic']:.1f} of it in the IMU's residuals, on "
+        f"{sel['parameters']} parameters; both need {sel['threshold']:.1f})"
         if "statistic" in sel else sel["test"] + ")")
     parts = [t]
     if b["imu_model"] == "scale-misalignment":

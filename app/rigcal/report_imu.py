@@ -106,7 +106,8 @@ def model_caption(res: ImuCalibration) -> str:
     """The IMU model kept (`--imu-model`) and the test behind it; for scale-misalignment
     each sensor's M - I (scales on the diagonal, misalignments below it)."""
     t = res.model_test
-    why = (f"likelihood ratio {t.statistic:.1f} on 12 parameters, needs {t.threshold:.1f} at p = {t.level:g}"
+    why = (f"likelihood ratio {t.statistic:.1f}, {t.imu_statistic:.1f} of it in the IMU's residuals, on 12 "
+           f"parameters; both need {t.threshold:.1f} at p = {t.level:g}"
            if t is not None else f"--imu-model {res.imu_model}, not tested")
     text = f"IMU model: {res.imu_model} ({why})."
     if res.imu_model == "scale-misalignment":
