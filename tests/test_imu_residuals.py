@@ -199,3 +199,25 @@ def test_corner_past_the_lens_fold_stays_finite():
     J_fd = _global_fd(st, lay, blocks_of)
     J = ir.assemble([b], lay.size)[0].toarray()
     np.testing.assert_allclose(J, J_fd, rtol=1e-4, atol=2e-5 * np.abs(J_fd).max())
+
+
+@pytest.mark.parametrize("held", [frozenset(), frozenset({"imu_rot", "imu_pos", "line_delay", "scale"})])
+def test_normal_rows_keep_the_normal_equations(held):
+    """normal_rows merges each image's corner rows (one camera, one spline segment: the same
+    columns) into at most K rows: J^T J, J^T r and the objective are unchanged, with and
+    without held columns, under a rolling shutter (rows of one image on several segments)."""
+    rng = np.random.default_rng(11)
+    st = _state(rng)
+    lay = ir.layout_for(st, held=held)
+    obs = _corners(rng, st, m=400)
+    obs = ir.Corners(obs.cam, np.round(obs.t_cam, 2), obs.uv, obs.p_world)  # ~45 images of ~9 corners
+    blocks = [ir.huber(ir.reprojection_block(st, lay, obs, CAMS, 0.5), 3.0),
+              ir.gyro_block(st, lay, rng.uniform(0.0, 0.55, 30), rng.normal(0, 1, (30, 3)), 0.01)]
+    merged = ir.normal_rows(blocks)
+    assert len(merged[0].r) < len(blocks[0].r) / 2 and merged[1] is blocks[1]
+    J, r = ir.assemble(blocks, lay.size)
+    Jm, rm = ir.assemble(merged, lay.size)
+    H, Hm = (J.T @ J).toarray(), (Jm.T @ Jm).toarray()
+    np.testing.assert_allclose(Hm, H, rtol=0, atol=1e-11 * np.abs(H).max())
+    np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-11 * np.abs(J.T @ r).max())
+    assert [b.objective for b in merged] == pytest.approx([b.objective for b in blocks], rel=1e-15)

@@ -381,7 +381,7 @@ def jacobian(res: ic.CameraImuResult, inp: Inputs, T_world_board: np.ndarray, se
               ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], imu.gyroscope_noise_density * r, mj),
               ir.accel_block(state, lay, imu.t[use], imu.accel[use], imu.accelerometer_noise_density * r, mj),
               ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
-    return ir.assemble(blocks, lay.size)[0], lay
+    return ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay
 
 
 def linear_sigmas(J, A: np.ndarray, lay: ir.Layout) -> np.ndarray:

@@ -270,7 +270,7 @@ def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: in
     lowers the cost by less than 1e-9 of it or by less than cost_tol."""
     blocks = blocks_of(state)
     order = band_order(lay)
-    J, r = ir.assemble(blocks, lay.size)
+    J, r = ir.assemble(ir.normal_rows(blocks), lay.size)
     cost, lam = sum(b.objective for b in blocks), 1e-4
     if not np.isfinite(cost):  # no trial cost compares below NaN: LM would return the start quietly
         bad = [i for i, b in enumerate(blocks) if not np.isfinite(b.objective)]
@@ -294,15 +294,16 @@ def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: in
             except ValueError:  # a step that moves a time off the spline: a smaller step
                 lam *= 10
                 continue
-            Jt, rt = ir.assemble(tb, lay.size)
             c = sum(b.objective for b in tb)
             if c < cost:  # False for NaN too
                 break
             lam *= 10
         done = cost - c < max(1e-9 * cost, cost_tol)
-        state, blocks, J, r, cost, lam = trial, tb, Jt, rt, c, max(lam / 10, 1e-9)
+        state, blocks, cost, lam = trial, tb, c, max(lam / 10, 1e-9)
         if done:
             return state, blocks, it
+        # the Jacobian only for a step taken (a rejected trial needs just its cost)
+        J, r = ir.assemble(ir.normal_rows(blocks), lay.size)
     return state, blocks, max_iter
 
 
@@ -378,6 +379,6 @@ def _solve(state: ir.State, starts: tuple, keep: np.ndarray, obs: ir.Corners, mo
     names = ("corners", "gyro", "accel", "bias_walk")
     rms = {k: float(np.sqrt(np.mean(b.r ** 2))) for k, b in zip(names, blocks)}
     T_imu_cam = geo.inv_T(state.T_body_imu)[None] @ state.T_body_cam
-    sigma = camera_sigmas(ir.assemble(blocks, lay.size)[0], lay) if sigmas else np.full((lay.n_cam, 7), np.nan)
+    sigma = camera_sigmas(ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay) if sigmas else np.full((lay.n_cam, 7), np.nan)
     return CameraImuResult(state, T_imu_cam, state.time_offset_s.copy(), sigma, starts, rms,
                            iters, time.perf_counter() - t0, keep, {k: b.objective for k, b in zip(names, blocks)})

@@ -151,12 +151,14 @@ def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", 
 class Block:
     """r (M, D) weighted residuals, J (M, D, K), cols (M, K) global columns (-1: held);
     cost: the block's share of the objective when it is not sum r^2 (a robust loss: r and J
-    are then the iteratively reweighted ones, whose gradient J^T r is half the cost's)."""
+    are then the iteratively reweighted ones, whose gradient J^T r is half the cost's);
+    group (M,): rows with the same group share their columns (normal_rows may merge them)."""
 
     r: np.ndarray
     J: np.ndarray
     cols: np.ndarray
     cost: float | None = None
+    group: np.ndarray | None = None
 
     @property
     def objective(self) -> float:
@@ -171,7 +173,7 @@ def huber(block: Block, k: float) -> Block:
     w = np.ones_like(s)
     w[far] = np.sqrt(k / s[far])
     cost = float(np.sum(np.where(far, 2 * k * s - k * k, s * s)))
-    return Block(block.r * w[:, None], block.J * w[:, None, None], block.cols, cost)
+    return Block(block.r * w[:, None], block.J * w[:, None, None], block.cols, cost, block.group)
 
 
 def tangent_basis(R_grav: np.ndarray) -> np.ndarray:
@@ -421,7 +423,36 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     rot, pos = _spline_cols(lay, mj.i[inv])
     cols = np.concatenate([rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
                            lay.group("line_delay", lay.line_delay + c, 1)], axis=1)
-    return Block((uv - obs.uv) / sigma_px, J, cols)
+    # an image's corners (one camera, one spline segment) share all 32 columns
+    group = np.unique(mj.i[inv] * len(state.T_body_cam) + c, return_inverse=True)[1]
+    return Block((uv - obs.uv) / sigma_px, J, cols, group=group)
+
+
+def normal_rows(blocks: list[Block]) -> list[Block]:
+    """The blocks with each group's rows replaced by at most K rows with the same normal
+    equations (J^T J and J^T r; the objective kept): R and Q^T r of a QR of the group's
+    [J | r]. What the solver and the covariance need, at a fraction of the entries: EuRoC's
+    corner block (351,000 corners in 2,828 images) 21.8 -> 2.8 million, its J^T J 0.8 ->
+    0.1 s for 0.45 s of QR."""
+    return [b if b.group is None or len(b.r) == 0 else _merge_groups(b) for b in blocks]
+
+
+def _merge_groups(b: Block) -> Block:
+    m, d, k = b.J.shape
+    order = np.argsort(b.group, kind="stable")
+    g = b.group[order]
+    starts = np.flatnonzero(np.r_[True, g[1:] != g[:-1]])
+    counts = np.diff(np.r_[starts, m])
+    slot = np.arange(m) - np.repeat(starts, counts)
+    which = np.repeat(np.arange(len(starts)), counts)
+    A = np.zeros((len(starts), counts.max(), d, k + 1))
+    A[which, slot, :, :k] = b.J[order]
+    A[which, slot, :, k] = b.r[order]
+    # zero rows (groups with fewer rows) change neither R^T R nor R^T (Q^T r)
+    R = np.linalg.qr(A.reshape(len(starts), -1, k + 1), mode="r")
+    n = min(R.shape[1], k)
+    return Block(R[:, :n, k], R[:, :n, :k], b.cols[order][starts], b.objective)
+
 
 
 def bias_prior_block(state: State, lay: Layout, gyro_random_walk: float, accel_random_walk: float) -> Block:
