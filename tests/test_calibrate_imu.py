@@ -391,3 +391,44 @@ def test_a_gain_only_in_the_corners_keeps_the_calibrated_model():
     assert not by_corners.significant and "-> calibrated" in by_corners.line()
     by_imu = imu_model_test(small, fit({"corners": 4990.0, "gyro": 600.0, "accel": 700.0, "bias_walk": 10.0}))
     assert by_imu.significant and by_imu.imu_statistic == pytest.approx(700.0)
+
+
+SECOND_IMU = """  imu1:
+    position: [0.04, -0.03, 0.02]
+    axes: [-L, F, U]
+    update_rate: 200.0
+    gyroscope_noise_density: 1.7e-4
+    gyroscope_random_walk: 1.9e-5
+    accelerometer_noise_density: 2.0e-3
+    accelerometer_random_walk: 3.0e-3
+cameras:
+"""
+
+
+def test_a_second_imu_is_calibrated_and_placed_by_the_cameras(tmp_path):
+    """imu.md: per IMU a calibration block, with the 1-sigma of its pose when it is not the
+    reference. The second IMU of the rig (another mount, its own noise and biases) is
+    calibrated against the cameras too and placed by them: its T_imu_cam as close to the
+    truth as the reference's (it used to keep its declared pose, off by the mount error)."""
+    rig = _small_rig(tmp_path)
+    rig.write_text(rig.read_text().replace("cameras:\n", SECOND_IMU, 1))
+    ds, out = tmp_path / "ds", tmp_path / "cal.yaml"
+    r = _cli("simulate", rig, "--out", ds, "--scene", "imu", "--duration", 4, "--camera-rate", 10, "--seed", 1,
+             "--jobs", 1)
+    assert r.exit_code == 0, r.output
+    assert (ds / "imu" / "imu1.csv").is_file()
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--guided", "off")
+    assert r.exit_code == 0, r.output
+    assert "imu1: calibrated against the cameras" in r.output
+    est, truth = load_rig(out), load_truth(ds / "truth.yaml").rig
+    declared = load_rig(rig)
+    assert geo.rotation_angle_deg(declared.imu("imu1").T_body_imu[:3, :3].T @ truth.imu("imu1").T_body_imu[:3, :3]) > 0.1
+    res = compare_imu(est, truth, yaml.safe_load((ds / "truth.yaml").read_text()))
+    for name, e in res["cameras"].items():
+        for i in ("imu0", "imu1"):
+            assert e[f"{i}_rot_deg"] < 0.1 and e[f"{i}_pos_mm"] < 5.0, (name, i, e)
+    cal = est.imu("imu1").calibration
+    assert abs(cal["clock_offset_s"]) < 3e-4 and 0 < cal["sigma"]["clock_offset_ms"] < 0.3
+    assert len(cal["sigma"]["position_mm"]) == 3 and len(cal["sigma"]["rotation_deg"]) == 3
+    g = res["imus"]["imu1"]["gyroscope_bias"]
+    assert np.abs(g).max() < 2e-3, g
