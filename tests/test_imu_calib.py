@@ -129,17 +129,23 @@ def test_rendered_recording_end_to_end(tmp_path):
         assert 0.8 < res.normalised_rms[k] < 1.2, res.normalised_rms
 
 
-def test_band_order_factor_solves_as_a_general_sparse_solver():
-    import scipy.sparse as sp
-    import scipy.sparse.linalg as spla
-
-    rec = isyn.synthetic_recording(load_rig(RIG), duration=2.0, seed=0)
-    state, _, use = ic.start_state(rec.cams, rec.imu, ic.Settings())
+def _start_problem(rig, duration: float, settings: ic.Settings):
+    """(layout, J, r) of every block at the start state of a synthetic recording."""
+    rec = isyn.synthetic_recording(rig, duration=duration, seed=0)
+    state, _, use = ic.start_state(rec.cams, rec.imu, settings)
     lay = ir.layout_for(state)
     J, r = ir.assemble([ir.gyro_block(state, lay, rec.imu.t[use], rec.imu.gyro[use], 1e-2),
                         ir.accel_block(state, lay, rec.imu.t[use], rec.imu.accel[use], 1e-1),
                         ir.reprojection_block(state, lay, rec.obs, [c.model for c in rec.cams], 0.3),
                         ir.bias_prior_block(state, lay, 1e-3, 1e-2)], lay.size)
+    return lay, J, r
+
+
+def test_band_order_factor_solves_as_a_general_sparse_solver():
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    lay, J, r = _start_problem(load_rig(RIG), 2.0, ic.Settings())
     H = (J.T @ J).tocsc()
     order = ic.band_order(lay)
     assert sorted(order) == list(range(lay.size))  # a permutation
@@ -162,14 +168,8 @@ def test_band_order_fill_per_knot_stays_constant_with_length():
     rig = load_rig(RIG)
     fill = []
     for duration in (4.0, 8.0):
-        rec = isyn.synthetic_recording(rig, duration=duration, seed=0)
-        state, _, use = ic.start_state(rec.cams, rec.imu, ic.Settings(bias_dt=0.5))
-        lay = ir.layout_for(state)
+        lay, J, _ = _start_problem(rig, duration, ic.Settings(bias_dt=0.5))
         assert lay.knots_per_bias == pytest.approx(10.0)
-        J, _ = ir.assemble([ir.gyro_block(state, lay, rec.imu.t[use], rec.imu.gyro[use], 1e-2),
-                            ir.accel_block(state, lay, rec.imu.t[use], rec.imu.accel[use], 1e-1),
-                            ir.reprojection_block(state, lay, rec.obs, [c.model for c in rec.cams], 0.3),
-                            ir.bias_prior_block(state, lay, 1e-3, 1e-2)], lay.size)
         H = (J.T @ J).tocsc()
         order = ic.band_order(lay)
         act = order[H.diagonal()[order] > 0]
