@@ -83,8 +83,9 @@ def _model_entries(res: ImuCalibration, block: dict) -> None:
         block["sigma"][key] = _rows(ir.lower(res.sigma["scale"][6 * k:6 * k + 6]), 7)
 
 
-def imu_block(res: ImuCalibration, reference: str) -> dict:
-    """The IMU's `calibration` block (imu.md, plus the IMU model: _model_entries)."""
+def imu_block(res: ImuCalibration, placed: bool) -> dict:
+    """The IMU's `calibration` block (imu.md, plus the IMU model: _model_entries); `placed`:
+    its pose comes from the cameras (it is not the reference), so its sigma is given."""
     n = int(len(res.result.state.gyro_bias))
     block = {
         "gyroscope_bias": [_r(x, 9) for x in res.gyro_bias],
@@ -97,7 +98,7 @@ def imu_block(res: ImuCalibration, reference: str) -> dict:
         "sigma": {"gyroscope_bias": [_r(x, 9) for x in res.sigma["gyro_bias"]],
                   "accelerometer_bias": [_r(x, 7) for x in res.sigma["accel_bias"]]},
     }
-    if reference != f"imu:{res.imu.name}":
+    if placed:
         # the IMU moves with the chosen body frame: its pose is known as well as the cameras'
         # relative to it, taken here from the reference (or best) camera
         pose = res.sigma["pose"].min(axis=0)
@@ -120,7 +121,8 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
         delay = float(est.state.line_delay_s[k]) if res.sigma["line_delay"] is not None else c.line_delay_s
         cams.append(replace(c, T_body_cam=T_body_imu @ est.T_imu_cam[k], time_offset_s=float(est.time_offset_s[k]),
                             line_delay_s=delay, calibration=_camera_block(c.calibration, k, res)))
-    imus = tuple(replace(i, T_body_imu=T_body_imu, calibration=imu_block(res, reference)) if i.name == res.imu.name
+    imus = tuple(replace(i, T_body_imu=T_body_imu, calibration=imu_block(res, reference != f"imu:{res.imu.name}"))
+                 if i.name == res.imu.name
                  else i for i in out_rig.imus)
     by_name = {c.name: c for c in cams}
     pairs = tuple(replace(p, baseline_m=_r(np.linalg.norm(by_name[p.left].T_body_cam[:3, 3]
@@ -219,7 +221,7 @@ def placed_imu(rig: Rig, other: ImuCalibration, ref: ImuCalibration) -> Rig:
     estimates' time offsets' difference) with its 1-sigma (spec addition)."""
     T_body_cam = np.stack([c.T_body_cam for c in rig.cameras])
     T_body_imu = geo.fit_rigid_to(other.result.T_imu_cam, T_body_cam)
-    block = imu_block(other, f"camera-placed:{other.imu.name}")
+    block = imu_block(other, placed=True)
     d = other.result.time_offset_s - ref.result.time_offset_s
     block["clock_offset_s"] = _r(float(np.mean(d)), 9)
     block["sigma"]["clock_offset_ms"] = _r(1000 * float(np.min(np.hypot(other.sigma["offset"], ref.sigma["offset"]))), 5)

@@ -420,11 +420,12 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     d_pos = np.einsum("mij,mk->mikj", -(A @ Rt), mj.w_p[inv]).reshape(len(q), 2, 12)
     J = np.concatenate([d_rot, d_pos, (J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A,
                         d_dt, d_dt * obs.uv[:, 1, None, None]], axis=2)
-    rot, pos = _spline_cols(lay, mj.i[inv])
+    seg = mj.i[inv]  # each corner's spline segment
+    rot, pos = _spline_cols(lay, seg)
     cols = np.concatenate([rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
                            lay.group("line_delay", lay.line_delay + c, 1)], axis=1)
     # an image's corners (one camera, one spline segment) share all 32 columns
-    group = np.unique(mj.i[inv] * len(state.T_body_cam) + c, return_inverse=True)[1]
+    group = np.unique(seg * len(state.T_body_cam) + c, return_inverse=True)[1]
     return Block((uv - obs.uv) / sigma_px, J, cols, group=group)
 
 
