@@ -38,6 +38,13 @@ def _cli(*args):
     return runner.invoke(app, [str(a) for a in args])
 
 
+def _calibrated_with_report(ds: Path, out: Path) -> tuple[Path, str]:
+    """(out, console) of `rigcal calibrate ds` with its HTML report beside out."""
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--guided", "off", "--report", out.with_suffix(".html"))
+    assert r.exit_code == 0, r.output
+    return out, r.output
+
+
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("calimu")
@@ -45,10 +52,7 @@ def run(tmp_path_factory):
     r = _cli("simulate", _small_rig(tmp), "--out", ds, "--scene", "imu", "--duration", 4, "--camera-rate", 10,
              "--seed", 0, "--jobs", 1)
     assert r.exit_code == 0, r.output
-    out = tmp / "cal.yaml"
-    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--guided", "off", "--report", out.with_suffix(".html"))
-    assert r.exit_code == 0, r.output
-    return ds, out, r.output
+    return ds, *_calibrated_with_report(ds, tmp / "cal.yaml")
 
 
 def test_camera_imu_against_truth(run):
@@ -304,10 +308,7 @@ def scaled(run, tmp_path_factory):
     doc["imus"]["imu0"]["gyroscope_scale_misalignment"] = M_GYRO.tolist()
     doc["imus"]["imu0"]["accelerometer_scale_misalignment"] = M_ACCEL.tolist()
     (v / "truth.yaml").write_text(yaml.safe_dump(doc))
-    out = tmp / "cal.yaml"
-    r = _cli("calibrate", v, "--out", out, "--jobs", 1, "--guided", "off", "--report", out.with_suffix(".html"))
-    assert r.exit_code == 0, r.output
-    return v, out, r.output
+    return v, *_calibrated_with_report(v, tmp / "cal.yaml")
 
 
 def test_auto_keeps_the_calibrated_model_without_scale_errors(run):
