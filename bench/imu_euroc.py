@@ -159,7 +159,7 @@ def corner_spread(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> dic
     """The corners' residual norms (px) at the estimate: RMS, 99th percentile, share beyond
     1 and 2 px (outliers would show here)."""
     k = res.corners_used
-    obs = ir.Corners(obs.cam[k], obs.t_cam[k], obs.uv[k], obs.p_world[k])
+    obs = obs.subset(k)
     b = ir.reprojection_block(res.state, ir.layout_for(res.state), obs, models, 1.0)
     e = np.linalg.norm(b.r, axis=1)
     return {"rms_px": float(np.sqrt(np.mean(e ** 2))), "p99_px": float(np.percentile(e, 99)),

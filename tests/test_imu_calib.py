@@ -230,7 +230,7 @@ def test_every_knot_is_observed_when_the_imu_starts_with_the_frames():
     assert state.spline.t0 >= imu.t[0] and state.spline.t_end <= imu.t[-1]
     keep = ic.frame_span(state, rec.obs)
     assert 0.9 * len(keep) < keep.sum() < len(keep)  # the first frames' corners are left out
-    obs = ir.Corners(rec.obs.cam[keep], rec.obs.t_cam[keep], rec.obs.uv[keep], rec.obs.p_world[keep])
+    obs = rec.obs.subset(keep)
     lay = ir.layout_for(state)
     rate = np.sqrt(imu.update_rate)
     J, _ = ir.assemble([ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], imu.gyroscope_noise_density * rate),

@@ -48,6 +48,17 @@ def _corners(rng, state, m=14):
     return ir.Corners(cam, t, uv, p_world)
 
 
+def _on_boards(rng, state, obs, n_boards=3):
+    """state with boards 1 .. n_boards - 1 at random poses (board 0 the world) and the
+    corners of obs spread over the boards, each at the same world point as before."""
+    T = np.stack([np.eye(4)] + [geo.make_T(geo.R_from_rotvec(rng.normal(0, 0.5, 3)), rng.normal(0, 0.5, 3))
+                                for _ in range(n_boards - 1)])
+    board = rng.integers(0, n_boards, len(obs.cam))
+    T_board_world = geo.inv_T(T)[board]
+    p_board = np.einsum("mij,mj->mi", T_board_world[:, :3, :3], obs.p_board) + T_board_world[:, :3, 3]
+    return replace(state, T_world_board=T), ir.Corners(obs.cam, obs.t_cam, obs.uv, p_board, board)
+
+
 CAMS = [CameraModel("pinhole", 640, 480, 300.0, 310.0, 320.0, 240.0, (0.05, -0.02, 0.001, 0.0, 0.0)),
         CameraModel("fisheye", 640, 480, 250.0, 250.0, 320.0, 240.0, (0.02, -0.01, 0.0, 0.0))]
 
@@ -65,18 +76,21 @@ def _global_fd(state, lay, blocks_of, h=1e-6):
     return J
 
 
-@pytest.mark.parametrize("kind", ["gyro", "accel", "corners", "prior"])
+@pytest.mark.parametrize("kind", ["gyro", "accel", "corners", "corners on boards", "prior"])
 def test_block_jacobians_match_whole_problem_differences(kind):
     rng = np.random.default_rng(7)
     st = _with_scale(_state(rng))  # every group free, the scale-misalignment columns included
-    lay = ir.layout_for(st, held=frozenset())
     t = rng.uniform(0.0, 0.55, 12)
     meas = rng.normal(0, 1, (12, 3))
     obs = _corners(rng, st)
+    if kind == "corners on boards":  # boards 1 and 2 estimated, board 0 the world
+        st, obs = _on_boards(rng, st, obs)
+    lay = ir.layout_for(st, held=frozenset())
     blocks_of = {
         "gyro": lambda s: [ir.gyro_block(s, lay, t, meas, 0.01)],
         "accel": lambda s: [ir.accel_block(s, lay, t, meas, 0.05)],
         "corners": lambda s: [ir.reprojection_block(s, lay, obs, CAMS, 0.5)],
+        "corners on boards": lambda s: [ir.reprojection_block(s, lay, obs, CAMS, 0.5)],
         "prior": lambda s: [ir.bias_prior_block(s, lay, 2e-5, 3e-3)],
     }[kind]
     J, _ = ir.assemble(blocks_of(st), lay.size)
@@ -87,6 +101,22 @@ def test_block_jacobians_match_whole_problem_differences(kind):
     np.testing.assert_allclose(J, J_fd, atol=2e-5 * scale)
     # every column a block claims is one it really moves (no stray index)
     assert np.all((np.abs(J) > 0).sum(axis=0)[np.abs(J_fd).max(axis=0) > 1e-6 * scale] > 0)
+    if kind == "corners on boards":
+        assert lay.n_board == 2 and np.all(np.abs(J_fd[:, lay.board:]).max(axis=0) > 10.0)  # every board column
+
+
+def test_boards_leave_the_corners_of_the_world_board_unchanged():
+    """Corners given on boards (board 0 the world, the others placed by T_world_board) give
+    the residuals of the same points given in the world, and board 0 has no columns."""
+    rng = np.random.default_rng(8)
+    st = _state(rng)
+    obs = _corners(rng, st, m=40)
+    st_b, obs_b = _on_boards(rng, st, obs)
+    r = ir.reprojection_block(st, ir.layout_for(st), obs, CAMS, 0.5).r
+    lay_b = ir.layout_for(st_b)
+    b = ir.reprojection_block(st_b, lay_b, obs_b, CAMS, 0.5)
+    np.testing.assert_allclose(b.r, r, atol=1e-9)
+    assert np.all(b.cols[obs_b.board == 0, -6:] == -1) and np.all(b.cols[obs_b.board > 0, -6:] >= lay_b.board)
 
 
 @pytest.mark.parametrize("sensor", ["gyro", "accel"])
@@ -131,7 +161,7 @@ def test_time_offset_column_is_the_image_motion():
     for dt_ in (h, -h):
         mo = evaluate(st.spline, t + dt_)
         T_cw = np.linalg.inv(mo.T_world_body @ st.T_body_cam[obs.cam])
-        p_cam = np.einsum("mij,mj->mi", T_cw[:, :3, :3], obs.p_world) + T_cw[:, :3, 3]
+        p_cam = np.einsum("mij,mj->mi", T_cw[:, :3, :3], obs.p_board) + T_cw[:, :3, 3]
         uv.append(np.stack([CAMS[c].project(p[None])[0][0] for c, p in zip(obs.cam, p_cam)]))
     vel = ((uv[0] - uv[1]) / (2 * h)).ravel()
     got = col[np.arange(len(vel)), np.repeat(obs.cam, 2)]
@@ -201,16 +231,20 @@ def test_corner_past_the_lens_fold_stays_finite():
     np.testing.assert_allclose(J, J_fd, rtol=1e-4, atol=2e-5 * np.abs(J_fd).max())
 
 
-@pytest.mark.parametrize("held", [frozenset(), frozenset({"imu_rot", "imu_pos", "line_delay", "scale"})])
-def test_normal_rows_keep_the_normal_equations(held):
-    """normal_rows merges each image's corner rows (one camera, one spline segment: the same
-    columns) into at most K rows: J^T J, J^T r and the objective are unchanged, with and
-    without held columns, under a rolling shutter (rows of one image on several segments)."""
+@pytest.mark.parametrize("held, boards", [(frozenset(), False), (frozenset(), True),
+                                          (frozenset({"imu_rot", "imu_pos", "line_delay", "scale"}), False)])
+def test_normal_rows_keep_the_normal_equations(held, boards):
+    """normal_rows merges each image's corner rows (one camera, one spline segment, one
+    board: the same columns) into at most K rows: J^T J, J^T r and the objective are
+    unchanged, with and without held columns, under a rolling shutter (rows of one image on
+    several segments), with corners on several estimated boards."""
     rng = np.random.default_rng(11)
     st = _state(rng)
-    lay = ir.layout_for(st, held=held)
     obs = _corners(rng, st, m=400)
-    obs = ir.Corners(obs.cam, np.round(obs.t_cam, 2), obs.uv, obs.p_world)  # ~45 images of ~9 corners
+    obs = ir.Corners(obs.cam, np.round(obs.t_cam, 2), obs.uv, obs.p_board)  # ~45 images of ~9 corners
+    if boards:
+        st, obs = _on_boards(rng, st, obs)
+    lay = ir.layout_for(st, held=held)
     blocks = [ir.huber(ir.reprojection_block(st, lay, obs, CAMS, 0.5), 3.0),
               ir.gyro_block(st, lay, rng.uniform(0.0, 0.55, 30), rng.normal(0, 1, (30, 3)), 0.01)]
     merged = ir.normal_rows(blocks)

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
@@ -203,7 +203,7 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
                             attitude=gyro_attitude(imu))
     imu_start.check_acceleration(spl.evaluate(spline, np.arange(t_all.min(), t_all.max(), 0.01)).a_world,
                                  "the camera trajectory")
-    use = (imu.t >= spline.t0 + 0.5 * spline.dt) & (imu.t <= spline.t_end - 0.5 * spline.dt)
+    use = imu_span(spline, imu.t)
     n_bias = int(math.ceil((spline.t_end - spline.t0) / settings.bias_dt)) + 1
     state = ir.State(spline=spline, T_body_imu=imu.T_body_imu.copy(), T_body_cam=np.stack(T_body_cam),
                      time_offset_s=np.array([s.time_offset_s for s in starts]),
@@ -211,7 +211,7 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
                      bias_dt=settings.bias_dt, gyro_bias=np.zeros((n_bias, 3)), accel_bias=np.zeros((n_bias, 3)),
                      R_grav=np.eye(3), gravity=settings.gravity)
     R_grav = gravity_start(spline, imu, imu.t[use], imu.accel[use])
-    return ir.State(**{**state.__dict__, "R_grav": R_grav}), tuple(starts), use
+    return replace(state, R_grav=R_grav), tuple(starts), use
 
 
 def _blocks(state, lay, obs, models, imu, use, settings):
@@ -338,15 +338,19 @@ def held_groups(settings: Settings) -> frozenset:
 
 
 def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput,
-                         settings: Settings = Settings()) -> CameraImuResult:
+                         settings: Settings = Settings(), T_world_board: np.ndarray | None = None) -> CameraImuResult:
     """Start (imu_start), then the joint estimate; raises CalibrationError on a recording
-    that cannot determine it or when the corners' times fall outside the IMU stream."""
+    that cannot determine it or when the corners' times fall outside the IMU stream.
+    T_world_board (B, 4, 4): the boards' start poses when obs has several (board 0 is the
+    world: held; the others are estimated); the cameras' T_world_cam must agree with it."""
     t0 = time.perf_counter()
     state, starts, use = start_state(cams, imu, settings)
+    if T_world_board is not None:
+        state = replace(state, T_world_board=np.array(T_world_board, float))
     keep = frame_span(state, obs)
     if not keep.any():
         raise CalibrationError("no corner falls inside the IMU stream")
-    obs = ir.Corners(obs.cam[keep], obs.t_cam[keep], obs.uv[keep], obs.p_world[keep])
+    obs = obs.subset(keep)
     t_obs = ir.corner_times(state, obs)
     if t_obs.min() < state.spline.t0 or t_obs.max() > state.spline.t_end:
         raise CalibrationError("corner times fall outside the camera frames' span; give every frame's pose")
@@ -354,20 +358,35 @@ def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput
 
 
 def refine(res: CameraImuResult, models: list[CameraModel], obs: ir.Corners, imu: ImuInput,
-           settings: Settings) -> CameraImuResult:
+           settings: Settings, cost_tol: float = REFINE_COST_TOL) -> CameraImuResult:
     """The estimate again from `res` (its state, starts and corners: obs as given to the
     estimate that gave res), e.g. with the scale-misalignment matrices freed: the larger
     model's fit for the likelihood ratio of `--imu-model auto`. It stops once a step lowers
-    the cost by less than REFINE_COST_TOL: the ratio is then known to that, far below the
-    test's threshold (39.1), and the last steps of the estimate's own 1e-9 criterion cost
-    4 of 5 iterations on the 30 s recording. Its `sigma` is NaN: not computed (one more
-    sparse LU), the test needs only the costs."""
+    the cost by less than cost_tol (REFINE_COST_TOL: the ratio is then known to that, far
+    below the test's threshold, 39.1, and the last steps of the estimate's own 1e-9
+    criterion cost 4 of 5 iterations on the 30 s recording; 0: to convergence). Its `sigma`
+    is NaN: not computed (one more sparse LU), the test needs only the costs."""
     t0 = time.perf_counter()
     k = res.corners_used
-    sub = ir.Corners(obs.cam[k], obs.t_cam[k], obs.uv[k], obs.p_world[k])
-    st = res.state.spline
-    use = (imu.t >= st.t0 + 0.5 * st.dt) & (imu.t <= st.t_end - 0.5 * st.dt)  # as start_state
-    return _solve(res.state, res.starts, k, sub, models, imu, use, settings, t0, REFINE_COST_TOL, sigmas=False)
+    return _solve(res.state, res.starts, k, obs.subset(k), models, imu, imu_span(res.state.spline, imu.t), settings, t0,
+                  cost_tol, sigmas=False)
+
+
+def solve_from(state: ir.State, obs: ir.Corners, models: list[CameraModel], imu: ImuInput, settings: Settings,
+               starts: tuple = ()) -> CameraImuResult:
+    """The joint estimate from a given state (e.g. a trajectory found on one board, the other
+    boards and cameras placed in it) on the corners whose frames the state's spline spans."""
+    t0 = time.perf_counter()
+    keep = frame_span(state, obs)
+    if not keep.any():
+        raise CalibrationError("no corner falls inside the IMU stream")
+    return _solve(state, starts, keep, obs.subset(keep), models, imu, imu_span(state.spline, imu.t), settings, t0)
+
+
+def imu_span(spline: spl.Spline, t: np.ndarray) -> np.ndarray:
+    """(N,) bool: the IMU samples the estimate uses, those inside the spline by half a knot
+    (a sample at its very end has no full segment of support)."""
+    return (t >= spline.t0 + 0.5 * spline.dt) & (t <= spline.t_end - 0.5 * spline.dt)
 
 
 def _solve(state: ir.State, starts: tuple, keep: np.ndarray, obs: ir.Corners, models: list, imu: ImuInput,

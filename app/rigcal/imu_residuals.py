@@ -10,6 +10,8 @@ State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
 - T_body_imu (the reference IMU; normally held: it defines the body frame);
 - T_body_cam, time_offset_s and line_delay_s per camera (t_imu = t_cam + time_offset_s
   + row * line_delay_s);
+- T_world_board per board: board 0's frame is the world (held: gravity's direction is
+  estimated in it), every other board's pose is estimated (static boards);
 - gyroscope and accelerometer biases, piecewise linear between knots every bias_dt;
 - gravity g_world = R_grav @ [0, 0, -|g|], two tangent degrees of freedom;
 - the IMU model (`--imu-model`): each sensor reads M @ (its ideal reading) + bias with
@@ -52,7 +54,8 @@ SCALE_COLS = np.array([0, 1, 2, 0, 0, 1])
 @dataclass(frozen=True, eq=False)
 class State:
     """Everything the estimator moves. T_body_cam (C, 4, 4), time_offset_s and line_delay_s
-    (C,), biases (K, 3) at knots bias_t0 + k * bias_dt, R_grav (3, 3), T_body_imu (4, 4)."""
+    (C,), biases (K, 3) at knots bias_t0 + k * bias_dt, R_grav (3, 3), T_body_imu (4, 4),
+    T_world_board (B, 4, 4) with board 0 the world frame."""
 
     spline: Spline
     T_body_imu: np.ndarray
@@ -67,6 +70,8 @@ class State:
     gravity: float = GRAVITY
     M_gyro: np.ndarray = field(default_factory=lambda: np.eye(3))  # gyro = M_gyro omega_imu + b_g
     M_accel: np.ndarray = field(default_factory=lambda: np.eye(3))  # accel = M_accel f_imu + b_a
+    # (B, 4, 4); board 0 is the world (identity), the others are estimated
+    T_world_board: np.ndarray = field(default_factory=lambda: np.eye(4)[None])
 
     @property
     def g_world(self) -> np.ndarray:
@@ -81,7 +86,8 @@ class Layout:
     (the 12 parameters of M_gyro and M_accel; held by default: the `calibrated` model).
     `bias_knot0` and `knots_per_bias`: where the bias knots fall among the spline's control
     points (bias knot j at control bias_knot0 + j knots_per_bias; 0: not known), for the
-    solver's column order (imu_calib.band_order)."""
+    solver's column order (imu_calib.band_order). `n_board`: the boards whose pose is
+    estimated (every board but board 0, the world; 'board' in `held` holds them all)."""
 
     n_ctrl: int
     n_cam: int
@@ -89,6 +95,7 @@ class Layout:
     held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay", "scale"})
     bias_knot0: float = 0.0
     knots_per_bias: float = 0.0
+    n_board: int = 0
 
     @property
     def rot(self) -> int:
@@ -132,8 +139,13 @@ class Layout:
         return self.line_delay + self.n_cam
 
     @property
-    def size(self) -> int:
+    def board(self) -> int:
+        """6 columns (rotation, position) per board 1 .. n_board: board b at board + 6 (b - 1)."""
         return self.scale + 12
+
+    @property
+    def size(self) -> int:
+        return self.board + 6 * self.n_board
 
     def group(self, name: str, start: np.ndarray | int, width: int) -> np.ndarray:
         """Columns start .. start + width - 1 (start (M,) or scalar), or -1 when `name` is held."""
@@ -144,7 +156,7 @@ class Layout:
 def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay", "scale"})) -> Layout:
     sp_ = state.spline
     return Layout(len(sp_.p), len(state.T_body_cam), len(state.gyro_bias), held,
-                  (state.bias_t0 - sp_.t0) / sp_.dt, state.bias_dt / sp_.dt)
+                  (state.bias_t0 - sp_.t0) / sp_.dt, state.bias_dt / sp_.dt, len(state.T_world_board) - 1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -354,13 +366,30 @@ def accel_block(state: State, lay: Layout, t: np.ndarray, accel: np.ndarray, sig
 @dataclass(frozen=True, eq=False)
 class Corners:
     """Corner observations: cam (M,) int, t_cam (M,) seconds on that camera's clock (the
-    image's first-row mid-exposure), uv (M, 2) pixels, p_world (M, 3) the corner's point
-    (boards static in the world)."""
+    image's first-row mid-exposure), uv (M, 2) pixels, p_board (M, 3) the corner's point in
+    its board's frame, board (M,) int (None: all board 0, whose frame is the world; the
+    boards are static, placed by State.T_world_board)."""
 
     cam: np.ndarray
     t_cam: np.ndarray
     uv: np.ndarray
-    p_world: np.ndarray
+    p_board: np.ndarray
+    board: np.ndarray | None = None
+
+    def boards(self) -> np.ndarray:
+        return np.zeros(len(self.cam), int) if self.board is None else self.board
+
+    def subset(self, keep: np.ndarray) -> "Corners":
+        return Corners(self.cam[keep], self.t_cam[keep], self.uv[keep], self.p_board[keep],
+                       None if self.board is None else self.board[keep])
+
+
+def world_points(state: State, obs: Corners) -> np.ndarray:
+    """(M, 3) each corner's point in the world (its board placed by state.T_world_board)."""
+    if obs.board is None:  # board 0, the world: the points as given
+        return obs.p_board
+    T = state.T_world_board[obs.board]
+    return np.einsum("mij,mj->mi", T[:, :3, :3], obs.p_board) + T[:, :3, 3]
 
 
 def corner_times(state: State, obs: Corners) -> np.ndarray:
@@ -381,10 +410,10 @@ def pose_jacobian(state: State, t: np.ndarray) -> tuple[Motion, np.ndarray, np.n
 
 def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float
                        ) -> Block:
-    """(project(T_body_cam^-1 T_world_body(t)^-1 p_world) - uv) / sigma_px at the corner's
-    IMU-clock time; local parameters: 4 control rotations (12) and positions (12), the
-    camera's rotation (3) and position (3) in the body, its time offset (1) and line delay
-    (1). The row time uses the measured row (v), as Kalibr and basalt do for rolling shutters.
+    """(project(T_body_cam^-1 T_world_body(t)^-1 T_world_board p_board) - uv) / sigma_px at
+    the corner's IMU-clock time; local parameters: 4 control rotations (12) and positions
+    (12), the camera's rotation (3) and position (3) in the body, its time offset (1) and
+    line delay (1), its board's rotation (3) and position (3) (held for board 0). The row time uses the measured row (v), as Kalibr and basalt do for rolling shutters.
 
     The spline is differentiated once per distinct time (an image's corners share it under
     a global shutter), the rest by the chain rule; d/d(offset) is the image motion from the
@@ -396,7 +425,8 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     R, p = m_u.R_world_body[inv], m_u.p_world[inv]
     c = obs.cam
     R_bc, t_bc = state.T_body_cam[c, :3, :3], state.T_body_cam[c, :3, 3]
-    dw = obs.p_world - p
+    p_world = world_points(state, obs)
+    dw = p_world - p
     p_body = np.einsum("mji,mj->mi", R, dw)
     q = p_body - t_bc
     p_cam = np.einsum("mji,mj->mi", R_bc, q)
@@ -418,15 +448,24 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     # than one (M, 2, 6) x (M, 6, 24) product that is half zeros: 2.2 -> 1.2 s on EuRoC
     d_rot = (A @ Rt_skew_dw) @ mj.J_rot[inv, :3]
     d_pos = np.einsum("mij,mk->mikj", -(A @ Rt), mj.w_p[inv]).reshape(len(q), 2, 12)
-    J = np.concatenate([d_rot, d_pos, (J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A,
-                        d_dt, d_dt * obs.uv[:, 1, None, None]], axis=2)
+    parts = [d_rot, d_pos, (J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A,
+             d_dt, d_dt * obs.uv[:, 1, None, None]]
     seg = mj.i[inv]  # each corner's spline segment
     rot, pos = _spline_cols(lay, seg)
-    cols = np.concatenate([rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
-                           lay.group("line_delay", lay.line_delay + c, 1)], axis=1)
-    # an image's corners (one camera, one spline segment) share all 32 columns
-    group = np.unique(seg * len(state.T_body_cam) + c, return_inverse=True)[1]
-    return Block((uv - obs.uv) / sigma_px, J, cols, group=group)
+    cols = [rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
+            lay.group("line_delay", lay.line_delay + c, 1)]
+    b = obs.boards()
+    if lay.n_board:
+        # the board turned about its own origin (R <- Exp(d) R, as the cameras) and moved:
+        # p_world changes by -skew(R_world_board p_board) d_rot + d_pos, r by A R^T times that
+        A_Rt = A @ Rt
+        R_wb_p = p_world - state.T_world_board[b, :3, 3]
+        parts.append(np.concatenate([-(A_Rt @ geo.skew(R_wb_p)), A_Rt], axis=2))
+        free = np.where(b > 0, lay.board + 6 * (b - 1), -1)
+        cols.append(np.where(free[:, None] >= 0, lay.group("board", free, 6), -1))
+    # an image's corners of one board (one camera, one spline segment) share all their columns
+    group = np.unique((seg * len(state.T_body_cam) + c) * len(state.T_world_board) + b, return_inverse=True)[1]
+    return Block((uv - obs.uv) / sigma_px, np.concatenate(parts, axis=2), np.concatenate(cols, axis=1), group=group)
 
 
 def normal_rows(blocks: list[Block]) -> list[Block]:
@@ -517,7 +556,12 @@ def retract(state: State, lay: Layout, dx: np.ndarray) -> State:
     T_body_imu[:3, :3] = _turn(T_body_imu[:3, :3], dx[lay.imu:lay.imu + 3])
     T_body_imu[:3, 3] += dx[lay.imu + 3:lay.imu + 6]
     R_grav = geo.R_from_rotvec(tangent_basis(state.R_grav) @ dx[lay.grav:lay.grav + 2]) @ state.R_grav
-    return replace(state, spline=spline, M_gyro=state.M_gyro + lower(dx[lay.scale:lay.scale + 6]),
+    T_world_board = state.T_world_board.copy()
+    if lay.n_board:
+        db = dx[lay.board:lay.board + 6 * lay.n_board].reshape(-1, 6)
+        T_world_board[1:, :3, :3] = _turn(T_world_board[1:, :3, :3], db[:, :3])
+        T_world_board[1:, :3, 3] += db[:, 3:]
+    return replace(state, spline=spline, T_world_board=T_world_board, M_gyro=state.M_gyro + lower(dx[lay.scale:lay.scale + 6]),
                    M_accel=state.M_accel + lower(dx[lay.scale + 6:lay.scale + 12]), T_body_cam=T_body_cam, T_body_imu=T_body_imu,
                    time_offset_s=state.time_offset_s + dx[lay.offset:lay.offset + c],
                    line_delay_s=state.line_delay_s + dx[lay.line_delay:lay.line_delay + c],
