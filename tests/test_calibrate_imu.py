@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from rigcal import geometry as geo
 from rigcal.cli import app
-from rigcal.compare import load_truth
+from rigcal.compare import load_truth, projection_difference_px
 from rigcal.imu_outputs import compare_imu
 from rigcal.ingest.euroc import read_sensor_yaml
 from rigcal.rig import load_rig
@@ -89,6 +89,28 @@ def test_output_keys_of_imu_md(run):
     for k in ("gyroscope", "accelerometer"):
         ratio = cal[f"{k}_residual_rms"] / cal[f"{k}_residual_rms_declared"]
         assert 0.7 < ratio < 1.5, (k, ratio)  # the simulator samples the declared noise
+
+
+def test_joint_intrinsics_agree_with_the_truth_within_their_sigma_and_held_keeps_the_camera_only_ones(run, tmp_path):
+    """--imu-intrinsics joint (the default) estimates the intrinsics with the trajectory and
+    clocks, and reports their 1-sigma from that estimate; held keeps the camera-only step's
+    (those of --camera-only) exactly."""
+    ds, out, _ = run
+    runs = {}
+    for name, extra in (("held", ("--imu-intrinsics", "held")), ("camera-only", ("--camera-only",))):
+        runs[name] = tmp_path / f"{name}.yaml"
+        r = _cli("calibrate", ds, "--out", runs[name], "--jobs", 1, "--guided", "off", *extra)
+        assert r.exit_code == 0, r.output
+    truth = load_truth(ds / "truth.yaml").rig
+    joint, held, camera_only = load_rig(out), load_rig(runs["held"]), load_rig(runs["camera-only"])
+    keys = ("fx", "fy", "cx", "cy")
+    for c in truth.cameras:
+        j, h, o = (rig.camera(c.name).intrinsics for rig in (joint, held, camera_only))
+        assert (h.fx, h.fy, h.cx, h.cy, h.dist) == (o.fx, o.fy, o.cx, o.cy, o.dist)
+        assert max(abs(getattr(j, k) - getattr(h, k)) for k in keys) > 1e-3  # the joint estimate moved them
+        sigma = joint.camera(c.name).calibration["sigma"]["intrinsics"]
+        z = [abs(getattr(j, k) - getattr(c.intrinsics, k)) / sigma[k] for k in keys]
+        assert all(0 < sigma[k] < 0.5 for k in keys) and max(z) < 5.0, (c.name, sigma, z)
 
 
 def test_kalibr_imu_and_euroc_exports_read_back(run, tmp_path):

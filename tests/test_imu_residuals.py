@@ -12,6 +12,7 @@ from rigcal import geometry as geo
 from rigcal import imu as imu_model
 from rigcal import imu_residuals as ir
 from rigcal.camera import CameraModel
+from rigcal.solve import Intrinsics
 from rigcal.spline import Spline, evaluate, fit
 from synthetic_obs import central_jacobian
 
@@ -76,7 +77,15 @@ def _global_fd(state, lay, blocks_of, h=1e-6):
     return J
 
 
-@pytest.mark.parametrize("kind", ["gyro", "accel", "corners", "corners on boards", "prior"])
+def _with_intrinsics(state):
+    """state carrying CAMS' intrinsics as parameters: the pinhole's fx, fy, cx, cy and its
+    five distortion terms free; the fisheye's focal tied (fx = fy) and centre held."""
+    vals = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in CAMS]
+    return replace(state, intrinsics=(Intrinsics("pinhole", vals[0]),
+                                      Intrinsics("fisheye", vals[1], tie_focal=True, hold_centre=True)))
+
+
+@pytest.mark.parametrize("kind", ["gyro", "accel", "corners", "corners on boards", "corners with intrinsics", "prior"])
 def test_block_jacobians_match_whole_problem_differences(kind):
     rng = np.random.default_rng(7)
     st = _with_scale(_state(rng))  # every group free, the scale-misalignment columns included
@@ -85,12 +94,15 @@ def test_block_jacobians_match_whole_problem_differences(kind):
     obs = _corners(rng, st)
     if kind == "corners on boards":  # boards 1 and 2 estimated, board 0 the world
         st, obs = _on_boards(rng, st, obs)
+    if kind == "corners with intrinsics":
+        st = _with_intrinsics(st)
     lay = ir.layout_for(st, held=frozenset())
     blocks_of = {
         "gyro": lambda s: [ir.gyro_block(s, lay, t, meas, 0.01)],
         "accel": lambda s: [ir.accel_block(s, lay, t, meas, 0.05)],
         "corners": lambda s: [ir.reprojection_block(s, lay, obs, CAMS, 0.5)],
         "corners on boards": lambda s: [ir.reprojection_block(s, lay, obs, CAMS, 0.5)],
+        "corners with intrinsics": lambda s: [ir.reprojection_block(s, lay, obs, CAMS, 0.5)],
         "prior": lambda s: [ir.bias_prior_block(s, lay, 2e-5, 3e-3)],
     }[kind]
     J, _ = ir.assemble(blocks_of(st), lay.size)
@@ -101,6 +113,8 @@ def test_block_jacobians_match_whole_problem_differences(kind):
     np.testing.assert_allclose(J, J_fd, atol=2e-5 * scale)
     # every column a block claims is one it really moves (no stray index)
     assert np.all((np.abs(J) > 0).sum(axis=0)[np.abs(J_fd).max(axis=0) > 1e-6 * scale] > 0)
+    if kind == "corners with intrinsics":  # 9 + 1 + 4 parameters, each moved by some corner
+        assert lay.n_intr == (9, 5) and np.all(np.abs(J_fd[:, lay.intr:]).max(axis=0) > 1e-3)
     if kind == "corners on boards":
         assert lay.n_board == 2 and np.all(np.abs(J_fd[:, lay.board:]).max(axis=0) > 10.0)  # every board column
 

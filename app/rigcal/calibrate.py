@@ -95,6 +95,8 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     dataset = Path(dataset)
     from .calibrate_imu import Options
 
+    if fix_intrinsics:  # the declared intrinsics stay in the camera-IMU estimate too
+        imu_options = {**(imu_options or {}), "intrinsics": "held"}
     Options.chosen("", imu_options or {})  # the IMU options' values, before any work
     inp = _read_inputs(dataset, out_path, report_path, rig_path, target_path, jobs)
     imu_name, reference, plan_notes = _imu_plan(inp, reference, camera_only)

@@ -34,7 +34,7 @@ from . import imu_residuals as ir
 from . import imu_start
 from .errors import CalibrationError, DatasetError, InputError
 from .initialise import pnp_views
-from .model_selection import IMU_MODEL_LEVEL, likelihood_ratio_test
+from .model_selection import IMU_MODEL_LEVEL, intrinsic_sigmas, likelihood_ratio_test
 from .motion import ImuSamples
 from .rig import Imu
 
@@ -46,6 +46,7 @@ MIN_FRAMES = 10  # per camera: the clock-offset search needs rates over ~10 fram
 MIN_PNP_CORNERS = 8
 NOISE_WARN_RATIO = 3.0  # residual RMS vs what the declared density predicts, either way
 IMU_MODELS = ("auto", "calibrated", "scale-misalignment")
+INTRINSICS = ("joint", "held")
 SCALE_PARAMETERS = 12  # L of M_gyro and of M_accel, 6 each
 
 
@@ -54,7 +55,8 @@ class Options:
     """What the user chose: the IMU (name), gravity's magnitude, the clock-offset search
     half-width, whether every camera's line delay is estimated (None: where declared
     non-zero), the spline's knot spacing (None: imu_calib.Settings' default), the IMU model
-    (IMU_MODELS; auto: chosen by imu_model_test)."""
+    (IMU_MODELS; auto: chosen by imu_model_test), the intrinsics (INTRINSICS: estimated with
+    the rest, or held at the camera-only step's)."""
 
     imu: str
     gravity: float = ir.GRAVITY
@@ -62,6 +64,7 @@ class Options:
     rolling_shutter: bool | None = None
     knot_dt: float | None = None
     imu_model: str = "auto"
+    intrinsics: str = "joint"
 
     def __post_init__(self):
         # calibrate.run builds these before detection: a typo (--gravity 981) is then one
@@ -74,11 +77,13 @@ class Options:
                 raise InputError(f"{option}: expected {what} in ({lo:g}, {hi:g}], got {value:g}")
         if self.imu_model not in IMU_MODELS:
             raise InputError(f"--imu-model: expected one of {', '.join(IMU_MODELS)}, got {self.imu_model!r}")
+        if self.intrinsics not in INTRINSICS:
+            raise InputError(f"--imu-intrinsics: expected one of {', '.join(INTRINSICS)}, got {self.intrinsics!r}")
 
     @classmethod
     def chosen(cls, imu: str, opts: dict) -> "Options":
-        """From calibrate's option dict (gravity, window_s, rolling_shutter, knot_dt, imu_model; None:
-        the default)."""
+        """From calibrate's option dict (gravity, window_s, rolling_shutter, knot_dt, imu_model,
+        intrinsics; None: the default)."""
         return cls(imu, **{k: v for k, v in opts.items() if v is not None})
 
 
@@ -97,6 +102,7 @@ class Inputs:
     p_board: np.ndarray
     imu: ic.ImuInput
     t_base_ns: int  # the IMU's first sample: time 0
+    intrinsics: tuple = ()  # per camera rigcal.solve.Intrinsics of the camera-only step
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,7 +112,8 @@ class ImuCalibration:
     (parameter_sigmas, corners weighted by their measured noise), the mean biases over the
     recording, the residual RMS of the IMU in units
     (rad/s, m/s^2) and what the declared densities predict, the IMU model kept (`imu_model`)
-    with the test behind it (`model_test`: ImuModelTest or None when forced), warnings and notes."""
+    with the test behind it (`model_test`: ImuModelTest or None when forced), the intrinsics
+    when estimated with the rest (their sigma under sigma['intrinsics']), warnings and notes."""
 
     result: ic.CameraImuResult
     imu: Imu
@@ -125,6 +132,7 @@ class ImuCalibration:
     notes: tuple[str, ...]
     imu_model: str = "calibrated"
     model_test: "ImuModelTest | None" = None
+    intrinsics: tuple = ()  # per camera rigcal.solve.Intrinsics when estimated with the rest
 
 
 @dataclass(frozen=True)
@@ -223,7 +231,7 @@ def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_decla
         boards_of.append(b)
         T_board_cam.append(T)
     return Inputs(tuple(cams), tuple(boards_of), tuple(T_board_cam), o.cam[ok], o.board[ok], t_frame[o.frame[ok]],
-                  o.uv[ok], o.p_board[ok], imu_input(samples, imu, t_base), t_base)
+                  o.uv[ok], o.p_board[ok], imu_input(samples, imu, t_base), t_base, tuple(cal.state.intrinsics))
 
 
 def check_span(inp: Inputs, names: list[str], knot_dt: float) -> None:
@@ -308,14 +316,18 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
     boards are in estimator_corners' order."""
     gauge, order, obs = estimator_corners(inp, len(T_world_board))
     models = [c.model for c in inp.cams]
+    joint = settings.intrinsics  # the gauge pass (some cameras only) holds them
+    intrinsics = inp.intrinsics if joint else ()
     if len(np.unique(inp.board)) > 1:
         # the corners weighted by the noise the gauge pass measured: the camera-only step's is
         # inflated by treating unsynchronised frames as one instant
-        start, settings = _gauge_pass(inp, T_world_board, gauge, settings)
-        res = ic.solve_from(replace(start, T_world_board=T_world_board[order]), obs, models, inp.imu, settings)
+        start, settings = _gauge_pass(inp, T_world_board, gauge, replace(settings, intrinsics=False))
+        settings = replace(settings, intrinsics=joint)
+        res = ic.solve_from(replace(start, T_world_board=T_world_board[order], intrinsics=intrinsics), obs, models,
+                            inp.imu, settings)
     else:
         res = ic.calibrate_camera_imu(_with_boards(inp, T_world_board), obs, inp.imu, settings,
-                                      T_world_board[order])
+                                      T_world_board[order], intrinsics)
     if abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
         return res, settings, 1
     settings = _settings_with(settings, res)
@@ -356,12 +368,14 @@ def mean_weights(n: int) -> np.ndarray:
     return w / w.sum()
 
 
-def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bool = False
-                     ) -> dict[str, np.ndarray]:
+def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bool = False,
+                     intrinsics: tuple = ()) -> dict:
     """1-sigma of each camera's pose (C, 6: rotation rad about body axes, position m) and
     clock offset (C,), the mean gyroscope and accelerometer biases (3,) and, when estimated,
-    every camera's line delay (C,) and the 12 scale-misalignment parameters (`scale`: L of
-    M_gyro, then of M_accel, in imu_residuals.SCALE_ROWS / SCALE_COLS order)."""
+    every camera's line delay (C,), the 12 scale-misalignment parameters (`scale`: L of
+    M_gyro, then of M_accel, in imu_residuals.SCALE_ROWS / SCALE_COLS order) and, given the
+    estimated `intrinsics`, each camera's intrinsic values (`intrinsics`: per camera
+    model_selection.intrinsic_sigmas' dict; held values 0)."""
     w = mean_weights(lay.n_bias)
     C = lay.n_cam
 
@@ -379,6 +393,12 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bo
         parts.append(unit(lay.line_delay + np.arange(C)))
     if estimate_scale:
         parts.append(unit(lay.scale + np.arange(SCALE_PARAMETERS)))
+    n_values = [len(i.values) for i in intrinsics]
+    for c, intr in enumerate(intrinsics):  # each value as a combination of its camera's parameters
+        E = intr.basis()
+        A = np.zeros((len(intr.values), lay.size))
+        A[:, lay.intr_start(c):lay.intr_start(c) + E.shape[1]] = E
+        parts.append(A)
     sd = linear_sigmas(J, np.concatenate(parts), lay)
     out = {"pose": sd[:6 * C].reshape(C, 6), "offset": sd[6 * C:7 * C], "gyro_bias": sd[7 * C:7 * C + 3],
            "accel_bias": sd[7 * C + 3:7 * C + 6]}
@@ -386,6 +406,9 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bo
     out["line_delay"] = sd[k:k + C] if estimate_delay else None
     k += C if estimate_delay else 0
     out["scale"] = sd[k:k + SCALE_PARAMETERS] if estimate_scale else None
+    k += SCALE_PARAMETERS if estimate_scale else 0
+    out["intrinsics"] = [intrinsic_sigmas(np.diag(part ** 2)) for part in np.split(sd[k:], np.cumsum(n_values)[:-1])
+                         ] if intrinsics else None
     return out
 
 
@@ -422,7 +445,8 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     # to correct the weights (EuRoC: 2 x 60 s)
     settings = replace(base, sigma_px=max(float(cal.rms_px) / math.sqrt(2.0), 0.01), gravity=options.gravity,
                        window_s=options.window_s, line_delay=estimate_delay,
-                       scale_misalignment=options.imu_model == "scale-misalignment")
+                       scale_misalignment=options.imu_model == "scale-misalignment",
+                       intrinsics=options.intrinsics == "joint")
     try:
         res, settings, passes = estimate(inp, cal.state.T_world_board, settings)
         test = None
@@ -442,14 +466,16 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
         raise
     # sigmas with the corners weighted by their measured noise (the variance factor)
     J, lay = jacobian(res, inp, _settings_with(settings, res))
-    sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment)
+    sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment,
+                           res.state.intrinsics if settings.intrinsics else ())
     w = mean_weights(lay.n_bias)
     rate = math.sqrt(imu.update_rate)
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
     notes = [f"camera-IMU: {passes} estimate(s) (the second with the corners re-weighted), {res.iterations} "
-             f"Levenberg-Marquardt iterations in the last, every board but the gauge estimated with it, corners "
-             f"weighted at {settings.sigma_px:.3g} px"]
+             f"Levenberg-Marquardt iterations in the last, every board but the gauge estimated with it, the "
+             f"intrinsics {'too' if settings.intrinsics else 'held at the camera-only ones (--imu-intrinsics held)'}, "
+             f"corners weighted at {settings.sigma_px:.3g} px"]
     chosen = "scale-misalignment" if settings.scale_misalignment else "calibrated"
     notes.append(f"IMU model {chosen}: " + (test.line() + f" (the larger fit {test.seconds:.1f} s)" if test is not None
                                             else f"--imu-model {chosen} (not tested)"))
@@ -458,7 +484,7 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     return ImuCalibration(res, imu, T_world_board, sig, w @ res.state.gyro_bias, w @ res.state.accel_bias,
                           rms[0], rms[1], pred[0], pred[1], settings.sigma_px * res.normalised_rms["corners"], passes,
                           time.perf_counter() - t0, tuple(noise_warnings(imu, (rms[0], pred[0]), (rms[1], pred[1]))),
-                          tuple(notes), chosen, test)
+                          tuple(notes), chosen, test, res.state.intrinsics if settings.intrinsics else ())
 
 
 def plan(rig, imus_read: dict, reference: str | None, camera_only: bool = False) -> tuple[str | None, str]:

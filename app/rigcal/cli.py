@@ -106,6 +106,13 @@ class ImuModel(str, Enum):
     scale_misalignment = "scale-misalignment"
 
 
+class ImuIntrinsics(str, Enum):
+    """`calibrate --imu-intrinsics`: the intrinsics in the camera-IMU estimate (calibrate_imu)."""
+
+    joint = "joint"
+    held = "held"
+
+
 class Guided(str, Enum):
     """`calibrate --guided`: the guided corner pass (guided.py); auto runs it on fisheye cameras."""
 
@@ -222,6 +229,10 @@ def calibrate(
                             "(each sensor reads M @ ideal + bias, M = I + lower-triangular: 3 scales and 3 "
                             "misalignments per sensor); auto: calibrated unless a likelihood-ratio test at the "
                             "lens models' level (p = 1e-4) finds scale and misalignment"),
+    imu_intrinsics: ImuIntrinsics = typer.Option(
+        ImuIntrinsics.joint, help="with imu/: joint = every camera's intrinsics are estimated again with the "
+                                  "trajectory, poses and clocks (their 1-sigma then includes it); held = kept at "
+                                  "the camera-only step's, as Kalibr does (--fix-intrinsics implies held)"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from . import calibrate as cal
@@ -231,7 +242,8 @@ def calibrate(
                 allow_resize=allow_resize, guided=guided.value, intrinsics=intrinsics.value,
                 scheduler=scheduler, imu_options={"gravity": gravity, "window_s": offset_window,
                                                   "rolling_shutter": True if rolling_shutter else None,
-                                                  "knot_dt": knot_spacing, "imu_model": imu_model.value},
+                                                  "knot_dt": knot_spacing, "imu_model": imu_model.value,
+                                                  "intrinsics": "held" if fix_intrinsics else imu_intrinsics.value},
                 camera_only=camera_only))
 
 

@@ -64,7 +64,8 @@ class Settings:
     """knot_dt: spline knot spacing (s); bias_dt: bias knot spacing (s); sigma_px: corner
     noise (px); gravity: |g|; window_s: the clock-offset search half-width; line_delay:
     estimate line delays (else held at the declared ones); scale_misalignment: estimate
-    the IMU's scale-misalignment matrices (the `scale-misalignment` model; else M = I)."""
+    the IMU's scale-misalignment matrices (the `scale-misalignment` model; else M = I);
+    intrinsics: estimate every camera's intrinsics (given to calibrate_camera_imu) jointly."""
 
     knot_dt: float = 0.05
     bias_dt: float = 1.0
@@ -75,6 +76,7 @@ class Settings:
     line_delay: bool = False  # estimate every camera's line delay (rolling shutter)
     huber: float | None = None  # Huber loss on each corner's residual beyond this many sigma_px
     scale_misalignment: bool = False
+    intrinsics: bool = False  # estimate the intrinsics the state carries (State.intrinsics)
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,21 +334,27 @@ def frame_span(state: ir.State, obs: ir.Corners) -> np.ndarray:
 
 def held_groups(settings: Settings) -> frozenset:
     """The parameter groups the estimate holds: the reference IMU's pose always, the line
-    delays and the scale-misalignment matrices unless settings estimate them."""
+    delays, the scale-misalignment matrices and the intrinsics unless settings estimate them."""
     return frozenset({"imu_rot", "imu_pos"} | (set() if settings.line_delay else {"line_delay"})
-                     | (set() if settings.scale_misalignment else {"scale"}))
+                     | (set() if settings.scale_misalignment else {"scale"})
+                     | (set() if settings.intrinsics else {"intrinsics"}))
 
 
 def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput,
-                         settings: Settings = Settings(), T_world_board: np.ndarray | None = None) -> CameraImuResult:
+                         settings: Settings = Settings(), T_world_board: np.ndarray | None = None,
+                         intrinsics: tuple = ()) -> CameraImuResult:
     """Start (imu_start), then the joint estimate; raises CalibrationError on a recording
     that cannot determine it or when the corners' times fall outside the IMU stream.
     T_world_board (B, 4, 4): the boards' start poses when obs has several (board 0 is the
-    world: held; the others are estimated); the cameras' T_world_cam must agree with it."""
+    world: held; the others are estimated); the cameras' T_world_cam must agree with it.
+    intrinsics: per camera rigcal.solve.Intrinsics to start from (settings.intrinsics: to
+    estimate; the cameras' models must agree with them)."""
     t0 = time.perf_counter()
     state, starts, use = start_state(cams, imu, settings)
     if T_world_board is not None:
         state = replace(state, T_world_board=np.array(T_world_board, float))
+    if intrinsics:
+        state = replace(state, intrinsics=tuple(intrinsics))
     keep = frame_span(state, obs)
     if not keep.any():
         raise CalibrationError("no corner falls inside the IMU stream")

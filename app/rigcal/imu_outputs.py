@@ -48,6 +48,8 @@ def _camera_block(old: dict | None, k: int, res: ImuCalibration) -> dict:
     sig["time_offset_ms"] = _r(1000 * res.sigma["offset"][k], 5)
     if res.sigma["line_delay"] is not None:
         sig["line_delay_us"] = _r(1e6 * res.sigma["line_delay"][k], 5)
+    if res.sigma.get("intrinsics") is not None:  # estimated with the rest: their sigma replaces the camera-only one
+        sig["intrinsics"] = {key: _r(res.sigma["intrinsics"][k][key], 4) for key in ("fx", "fy", "cx", "cy")}
     block["sigma"] = sig
     return block
 
@@ -110,8 +112,8 @@ def imu_block(res: ImuCalibration, placed: bool) -> dict:
 
 def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, reference: str) -> Rig:
     """The camera-only calibrated rig with every T_body_cam from the camera-IMU estimate,
-    time offsets (and line delays when estimated), the IMU's calibration block, the
-    stereo baselines from the new poses, and the reference."""
+    time offsets (and line delays when estimated), the intrinsics when estimated with them,
+    the IMU's calibration block, the stereo baselines from the new poses, and the reference."""
     est = res.result
     T_body_imu = body_from_imu(reference, res.imu.name, est.T_imu_cam, declared)
     names = list(out_rig.names)
@@ -119,8 +121,9 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
     for c in out_rig.cameras:
         k = names.index(c.name)
         delay = float(est.state.line_delay_s[k]) if res.sigma["line_delay"] is not None else c.line_delay_s
+        lens = c.intrinsics.with_values(res.intrinsics[k].values) if res.intrinsics else c.intrinsics
         cams.append(replace(c, T_body_cam=T_body_imu @ est.T_imu_cam[k], time_offset_s=float(est.time_offset_s[k]),
-                            line_delay_s=delay, calibration=_camera_block(c.calibration, k, res)))
+                            line_delay_s=delay, intrinsics=lens, calibration=_camera_block(c.calibration, k, res)))
     imus = tuple(replace(i, T_body_imu=T_body_imu, calibration=imu_block(res, reference != f"imu:{res.imu.name}"))
                  if i.name == res.imu.name
                  else i for i in out_rig.imus)

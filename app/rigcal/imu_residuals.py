@@ -12,6 +12,8 @@ State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
   + row * line_delay_s);
 - T_world_board per board: board 0's frame is the world (held: gravity's direction is
   estimated in it), every other board's pose is estimated (static boards);
+- optionally every camera's intrinsics (rigcal.solve.Intrinsics: the parameters the
+  camera-only calibration estimated, its focal tie and held principal point kept);
 - gyroscope and accelerometer biases, piecewise linear between knots every bias_dt;
 - gravity g_world = R_grav @ [0, 0, -|g|], two tangent degrees of freedom;
 - the IMU model (`--imu-model`): each sensor reads M @ (its ideal reading) + bias with
@@ -72,6 +74,9 @@ class State:
     M_accel: np.ndarray = field(default_factory=lambda: np.eye(3))  # accel = M_accel f_imu + b_a
     # (B, 4, 4); board 0 is the world (identity), the others are estimated
     T_world_board: np.ndarray = field(default_factory=lambda: np.eye(4)[None])
+    # per camera rigcal.solve.Intrinsics, when the estimate may move them (empty: the
+    # reprojection block's `cameras` are the intrinsics, held)
+    intrinsics: tuple = ()
 
     @property
     def g_world(self) -> np.ndarray:
@@ -87,7 +92,9 @@ class Layout:
     `bias_knot0` and `knots_per_bias`: where the bias knots fall among the spline's control
     points (bias knot j at control bias_knot0 + j knots_per_bias; 0: not known), for the
     solver's column order (imu_calib.band_order). `n_board`: the boards whose pose is
-    estimated (every board but board 0, the world; 'board' in `held` holds them all)."""
+    estimated (every board but board 0, the world; 'board' in `held` holds them all).
+    `n_intr`: per camera the number of its intrinsic parameters in the state (empty: no
+    intrinsics in the state); the group 'intrinsics'."""
 
     n_ctrl: int
     n_cam: int
@@ -96,6 +103,7 @@ class Layout:
     bias_knot0: float = 0.0
     knots_per_bias: float = 0.0
     n_board: int = 0
+    n_intr: tuple = ()
 
     @property
     def rot(self) -> int:
@@ -144,8 +152,16 @@ class Layout:
         return self.scale + 12
 
     @property
-    def size(self) -> int:
+    def intr(self) -> int:
+        """Each camera's intrinsic parameters in turn (n_intr[c] columns for camera c)."""
         return self.board + 6 * self.n_board
+
+    def intr_start(self, c: int) -> int:
+        return self.intr + int(sum(self.n_intr[:c]))
+
+    @property
+    def size(self) -> int:
+        return self.intr + int(sum(self.n_intr))
 
     def group(self, name: str, start: np.ndarray | int, width: int) -> np.ndarray:
         """Columns start .. start + width - 1 (start (M,) or scalar), or -1 when `name` is held."""
@@ -156,7 +172,8 @@ class Layout:
 def layout_for(state: State, held: frozenset = frozenset({"imu_rot", "imu_pos", "line_delay", "scale"})) -> Layout:
     sp_ = state.spline
     return Layout(len(sp_.p), len(state.T_body_cam), len(state.gyro_bias), held,
-                  (state.bias_t0 - sp_.t0) / sp_.dt, state.bias_dt / sp_.dt, len(state.T_world_board) - 1)
+                  (state.bias_t0 - sp_.t0) / sp_.dt, state.bias_dt / sp_.dt, len(state.T_world_board) - 1,
+                  tuple(i.basis().shape[1] for i in state.intrinsics))
 
 
 @dataclass(frozen=True, eq=False)
@@ -430,13 +447,15 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     p_body = np.einsum("mji,mj->mi", R, dw)
     q = p_body - t_bc
     p_cam = np.einsum("mji,mj->mi", R_bc, q)
-    vals = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in cameras]
-    kinds = [k.model for k in cameras]
+    if state.intrinsics:
+        vals, kinds = [i.values for i in state.intrinsics], [i.model for i in state.intrinsics]
+    else:
+        vals, kinds = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in cameras], [k.model for k in cameras]
     # the lens polynomial as the camera BA evaluates it, also past the radius where it folds
     # back (CameraModel.project gives NaN there): a start or a trial step may put a corner
     # there, and a NaN cost made LM refuse every step (EuRoC: the start returned as result)
     uv = project_obs(p_cam, c, vals, kinds)
-    J_uv = projection_jacobians(p_cam, c, vals, kinds)[0]  # (M, 2, 3)
+    J_uv, J_intr = projection_jacobians(p_cam, c, vals, kinds)  # (M, 2, 3), per camera (M_c, 2, n_values)
     Rt = np.swapaxes(R, 1, 2)
     Rt_skew_dw = Rt @ geo.skew(dw)  # d p_body / d theta (world-side rotation of R_world_body)
     A = J_uv @ np.swapaxes(R_bc, 1, 2) / sigma_px  # d r / d p_body (M, 2, 3)
@@ -463,9 +482,29 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
         parts.append(np.concatenate([-(A_Rt @ geo.skew(R_wb_p)), A_Rt], axis=2))
         free = np.where(b > 0, lay.board + 6 * (b - 1), -1)
         cols.append(np.where(free[:, None] >= 0, lay.group("board", free, 6), -1))
+    if lay.n_intr and "intrinsics" not in lay.held:
+        parts_i, cols_i = intrinsic_columns(state, lay, c, J_intr, sigma_px)
+        parts.append(parts_i)
+        cols.append(cols_i)
     # an image's corners of one board (one camera, one spline segment) share all their columns
     group = np.unique((seg * len(state.T_body_cam) + c) * len(state.T_world_board) + b, return_inverse=True)[1]
     return Block((uv - obs.uv) / sigma_px, np.concatenate(parts, axis=2), np.concatenate(cols, axis=1), group=group)
+
+
+def intrinsic_columns(state: State, lay: Layout, cam: np.ndarray, J_values: list, sigma_px: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The corners' columns (M, 2, K) and their indices (M, K) for their camera's intrinsic
+    parameters (K: the most any camera has; a camera with fewer pads with held columns):
+    d uv / d values (projection_jacobians) through each camera's parameter basis."""
+    k_max = max(lay.n_intr)
+    J = np.zeros((len(cam), 2, k_max))
+    cols = np.full((len(cam), k_max), -1)
+    for c, intr in enumerate(state.intrinsics):
+        m = cam == c
+        E = intr.basis()
+        J[m, :, :E.shape[1]] = J_values[c] @ E / sigma_px
+        cols[m, :E.shape[1]] = lay.intr_start(c) + np.arange(E.shape[1])
+    return J, cols
 
 
 def normal_rows(blocks: list[Block]) -> list[Block]:
@@ -561,7 +600,9 @@ def retract(state: State, lay: Layout, dx: np.ndarray) -> State:
         db = dx[lay.board:lay.board + 6 * lay.n_board].reshape(-1, 6)
         T_world_board[1:, :3, :3] = _turn(T_world_board[1:, :3, :3], db[:, :3])
         T_world_board[1:, :3, 3] += db[:, 3:]
-    return replace(state, spline=spline, T_world_board=T_world_board, M_gyro=state.M_gyro + lower(dx[lay.scale:lay.scale + 6]),
+    intrinsics = tuple(i.with_params(i.params() + dx[lay.intr_start(c):lay.intr_start(c) + n])
+                       for c, (i, n) in enumerate(zip(state.intrinsics, lay.n_intr)))
+    return replace(state, spline=spline, T_world_board=T_world_board, intrinsics=intrinsics, M_gyro=state.M_gyro + lower(dx[lay.scale:lay.scale + 6]),
                    M_accel=state.M_accel + lower(dx[lay.scale + 6:lay.scale + 12]), T_body_cam=T_body_cam, T_body_imu=T_body_imu,
                    time_offset_s=state.time_offset_s + dx[lay.offset:lay.offset + c],
                    line_delay_s=state.line_delay_s + dx[lay.line_delay:lay.line_delay + c],
