@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from rigcal import geometry as geo
 from rigcal.cli import app
-from rigcal.compare import load_truth, projection_difference_px
+from rigcal.compare import load_truth
 from rigcal.imu_outputs import compare_imu
 from rigcal.ingest.euroc import read_sensor_yaml
 from rigcal.rig import load_rig
