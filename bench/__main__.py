@@ -21,6 +21,8 @@ Sections (each also runs alone: python -m bench.<name>):
                with EuRoC's intrinsics and on each half of the recording; then `rigcal calibrate` on it
   imu_speed    `rigcal calibrate` on a simulated 30 s 3-camera IMU recording: whole time / detection time
                (issue 18: <= 1.5), errors via compare
+  imu_coverage `rigcal calibrate` end to end on 20 rendered 4 s IMU recordings: every reported camera-IMU
+               and intrinsic parameter's error / its 1-sigma (issue 18: 90-98 % within 2 sigma)
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
@@ -52,9 +54,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_euroc, imu_speed, indie, indie_noise, ingest,
-               intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu,
-               solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_coverage, imu_euroc, imu_speed, indie, indie_noise,
+               ingest, intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale,
+               simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -98,6 +100,7 @@ TABLE = (
             lambda q, d: imu_euroc.run(halves=not q, euroc_intrinsics=not q, calibrate=True),
             _only(imu_euroc)),
     Section("imu_speed", "imu_speed", lambda q, d: imu_speed.run(duration=8.0 if q else 30.0), _only(imu_speed)),
+    Section("imu_coverage", "imu_coverage", lambda q, d: imu_coverage.run(seeds=3 if q else 20), _only(imu_coverage)),
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),

@@ -20,8 +20,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 # checks run by hand, not benchmark sections (bench/__main__.py's docstring lists them)
 CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
-           "indie_noise", "simulate_imu", "imu_calib", "imu_euroc", "imu_speed", "solver_libraries", "ingest",
-           "aprilgrid_excess", "dome", "long_recording", "intrinsics_holdout", "__main__") + CHECKS
+           "indie_noise", "simulate_imu", "imu_calib", "imu_coverage", "imu_euroc", "imu_speed", "solver_libraries",
+           "ingest", "aprilgrid_excess", "dome", "long_recording", "intrinsics_holdout", "__main__") + CHECKS
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -324,3 +324,36 @@ def test_imu_speed_reads_the_console_stage_times():
 
     t = stage_times("note: x\ntime: detection 61.2 s, intrinsics 3.0 s, solve 9.5 s, guided pass 1.5 s, total 88.0 s\n")
     assert t == {"detection_s": 61.2, "intrinsics_s": 3.0, "solve_s": 9.5, "guided_pass_s": 1.5, "total_s": 88.0}
+
+
+def test_imu_coverage_scores_each_component_in_its_own_sigma():
+    """bench.imu_coverage's error / sigma: a rig against itself with one camera's cx moved by
+    2 of its sigmas, another turned by 3 sigma about body L and its clock 1.5 sigma late."""
+    from dataclasses import replace
+
+    from bench.imu_coverage import normalised_errors
+    from rigcal import geometry as geo
+    from rigcal.rig import load_rig
+
+    truth = load_rig(Path(__file__).resolve().parents[1] / "rigs" / "drone-stereo-back-imu.yaml")
+    truth = replace(truth, cameras=tuple(replace(c, time_offset_s=0.001) for c in truth.cameras))
+    sig = {"rotation_deg": [0.01, 0.02, 0.03], "position_mm": [0.5, 0.5, 0.5], "time_offset_ms": 0.04,
+           "intrinsics": {"fx": 0.1, "fy": 0.1, "cx": 0.2, "cy": 0.2}}
+    cams = []
+    for k, c in enumerate(truth.cameras):
+        T, lens, off = c.T_body_cam.copy(), c.intrinsics, c.time_offset_s
+        if k == 0:
+            lens = lens.with_(cx=lens.cx + 0.4)
+        if k == 1:
+            T[:3, :3] = geo.R_from_rotvec([0.0, np.radians(0.06), 0.0]) @ T[:3, :3]
+            off += 0.00006
+        cams.append(replace(c, T_body_cam=T, intrinsics=lens, time_offset_s=off, calibration={"sigma": sig}))
+    z = normalised_errors(replace(truth, cameras=tuple(cams)), truth)
+    expect_intr = np.zeros((3, 4))
+    expect_intr[0, 2] = 2.0
+    np.testing.assert_allclose(z["intrinsics"], expect_intr, atol=1e-9)
+    expect_rot = np.zeros((3, 3))
+    expect_rot[1, 1] = 3.0
+    np.testing.assert_allclose(z["rotation"], expect_rot, atol=1e-6)
+    np.testing.assert_allclose(z["time offset"].ravel(), [0.0, 1.5, 0.0], atol=1e-6)
+    np.testing.assert_allclose(z["translation"], 0.0, atol=1e-9)
