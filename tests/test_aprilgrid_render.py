@@ -57,7 +57,8 @@ FISHEYE_ROOM = pytest.mark.xfail(strict=True, reason=(
     "(6 of 6: frame 2's 13-16 px tags are decoded upsampled and their corners refined, "
     "test_fisheye_room_gives_as_many_aprilgrid_views_as_charuco). Accuracy: 0.029 px RMS against 0.0115 "
     "(frames 0-1 alone 0.027; before the small tags were found 0.021 on 4 views): at ~22 px tags the "
-    "point-symmetric box is +-3 px, at 16 px +-1.7, and even placed by the true lens a symmetric fit gives 0.019 (0.015 on the 4 views before); "
+    "point-symmetric box is +-3 px, at 16 px +-1.7, and even placed by the true lens a symmetric fit gives "
+    "0.019 (0.015 on the 4 views before); "
     "the long arms (tag edges, antisymmetric) give 0.0114 but are off: on the real EuRoC print they pull every "
     "corner 0.05 px towards its tag, and with that offset fitted still leave the corners twice as rough "
     "(0.07 against 0.03 px)"))
