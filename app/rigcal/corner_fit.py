@@ -36,6 +36,10 @@ MIN_MARGIN_PX = 1.0
 CROSS_KEEP_PX = 1.0
 STEP_PX = 0.8
 MAX_SAMPLES_PER_ARM = 24
+# A cross shorter than this many STEP_PX steps (an AprilGrid's box around a tag corner under
+# ~20 px tags: +-1.6 px at 16 px) is sampled this densely instead: at 0.8 px steps it held 4
+# pairs for 4 unknowns and a 16 px tag's corners did not converge (fisheye room, README).
+MIN_SAMPLES_PER_ARM = 3
 # Edge bends (lens distortion): arms end where the bend displaces them by this much.
 BEND_REACH_PX = 0.3
 
@@ -187,6 +191,10 @@ def _symmetric_cross(ax: np.ndarray, ay: np.ndarray, bend_u: np.ndarray, bend_v:
     idx = np.flatnonzero(good)
     sq_g, half_g = sq[idx], half_k[idx]
     delta = max(STEP_PX / float(np.median(sq_g)), arm / MAX_SAMPLES_PER_ARM)
+    if arm < MIN_SAMPLES_PER_ARM * delta:
+        # the last sample on the arm's end, a hair inside: at arm / MIN_SAMPLES_PER_ARM
+        # rounding put it just outside as often as not
+        delta = arm / (MIN_SAMPLES_PER_ARM + 1e-6)
     uvo = cross_offsets(min(half, arm), arm, delta)  # (P, 2)
     u, v = uvo[None, :, 0], uvo[None, :, 1]
     w = ((np.abs(u) <= half_g[:, None]) | (np.abs(v) <= half_g[:, None]))  # (M, P)
