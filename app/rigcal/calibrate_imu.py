@@ -472,7 +472,8 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     rate = math.sqrt(imu.update_rate)
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
-    notes = [f"camera-IMU: {passes} estimate(s) (the second with the corners re-weighted), {res.iterations} "
+    reweighted = " (the second with the corners re-weighted by the noise the first measured)" if passes > 1 else ""
+    notes = [f"camera-IMU: {passes} estimate(s){reweighted}, {res.iterations} "
              f"Levenberg-Marquardt iterations in the last, every board but the gauge estimated with it, the "
              f"intrinsics {'too' if settings.intrinsics else 'held at the camera-only ones (--imu-intrinsics held)'}, "
              f"corners weighted at {settings.sigma_px:.3g} px"]
