@@ -269,3 +269,29 @@ def test_normal_rows_keep_the_normal_equations(held, boards):
     np.testing.assert_allclose(Hm, H, rtol=0, atol=1e-11 * np.abs(H).max())
     np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-11 * np.abs(J.T @ r).max())
     assert [b.objective for b in merged] == pytest.approx([b.objective for b in blocks], rel=1e-15)
+
+
+@pytest.mark.parametrize("huber_k", [None, 1.5])
+def test_reprojection_rows_in_chunks_keep_the_normal_equations(monkeypatch, huber_k):
+    """reprojection_rows builds the corner block a chunk at a time (in time order) and merges
+    each chunk's rows: J^T J, J^T r, the objective and the residual RMS are those of the
+    whole block, with and without the Huber loss, chunks of any size (here 37 corners, so
+    images are split across chunks), boards and intrinsics estimated."""
+    rng = np.random.default_rng(12)
+    st = _with_intrinsics(_state(rng))
+    obs = _corners(rng, st, m=300)
+    obs = ir.Corners(obs.cam, np.round(obs.t_cam, 2), obs.uv, obs.p_board)
+    st, obs = _on_boards(rng, st, obs)
+    lay = ir.layout_for(st, held=frozenset())
+    whole = ir.reprojection_block(st, lay, obs, CAMS, 0.5)
+    whole = whole if huber_k is None else ir.huber(whole, huber_k)
+    monkeypatch.setattr(ir, "CHUNK_CORNERS", 37)
+    rows = ir.reprojection_rows(st, lay, obs, CAMS, 0.5, huber_k)
+    J, r = ir.assemble([whole], lay.size)
+    Jm, rm = ir.assemble([rows], lay.size)
+    H = (J.T @ J).toarray()
+    np.testing.assert_allclose((Jm.T @ Jm).toarray(), H, rtol=0, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-10 * np.abs(J.T @ r).max())
+    assert rows.objective == pytest.approx(whole.objective, rel=1e-12)
+    assert rows.residual_rms == pytest.approx(float(np.sqrt(np.mean(whole.r ** 2))), rel=1e-12)
+    assert len(rows.r) < len(whole.r)
