@@ -3,13 +3,14 @@ the camera-only calibration's corners, intrinsics and board poses in, every came
 T_imu_cam, clock offset (and line delay), the IMU's biases and gravity out, through the
 public API of rigcal.imu_calib.
 
-As Kalibr does, the intrinsics are held at the camera-only calibration's. Every board's
-pose is estimated with the trajectory but the gauge board's (most corners), which is the
-world frame whose gravity direction the estimator finds. The camera-only calibration's
-board poses are not a safe start: it treats images of different cameras with equal stems
-as the same instant, so with clock offsets of milliseconds a board seen by only some
-cameras is placed off by the motion in between. So the start is the trajectory from the
-gauge board and the IMU alone, the other boards re-fitted to it (`estimate`).
+The intrinsics (`--imu-intrinsics joint`, the default; `held` keeps the camera-only
+calibration's, as Kalibr does) and every board's pose but the gauge board's (most corners:
+the world frame whose gravity direction the estimator finds) are estimated with the
+trajectory. The camera-only calibration's board poses are not a safe start for the
+trajectory: it treats images of different cameras with equal stems as the same instant, so
+with clock offsets of milliseconds a board seen by only some cameras is placed off by the
+motion in between. So the start is the trajectory from the gauge board and the IMU alone
+(`estimate`).
 
 The IMU model (`--imu-model`, rigcal.imu_residuals): `calibrated` (M = I) unless the data
 show scale and misalignment: `auto` fits `calibrated`, then `scale-misalignment` from that

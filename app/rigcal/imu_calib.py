@@ -1,14 +1,16 @@
 """The camera-IMU estimator (issue 18): the body trajectory as a spline, every camera's
 T_body_cam and clock offset, gyroscope and accelerometer biases and gravity's direction,
-jointly, by Levenberg-Marquardt on the sparse residual blocks of rigcal.imu_residuals.
+and, when the state carries them, the boards' poses and the cameras' intrinsics, jointly,
+by Levenberg-Marquardt on the sparse residual blocks of rigcal.imu_residuals.
 
-`rigcal calibrate` calls it through rigcal.calibrate_imu. What it assumes: intrinsics known (a camera-only calibration), the corners' world points
-known (static boards at known poses: the board frame is the world), the reference IMU's
-T_body_imu held (it defines the body frame, imu.md), no outlier rejection, one IMU.
+`rigcal calibrate` calls it through rigcal.calibrate_imu. What it assumes: a start for the
+intrinsics (a camera-only calibration; held unless Settings.intrinsics), static boards
+with board 0 the world frame (held), the reference IMU's T_body_imu held (it defines the
+body frame, imu.md), no outlier rejection, one IMU.
 
 The cost is linear in recording length: each residual touches 4 consecutive control
-points, so J^T J is banded apart from the few camera, offset and gravity columns, and
-scipy's sparse LU factors it in time linear in the number of knots.
+points, so J^T J is banded apart from the few camera, offset, board, intrinsic and gravity
+columns, and scipy's sparse LU factors it in time linear in the number of knots.
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
 - T_body_imu (the reference IMU; normally held: it defines the body frame);
 - T_body_cam, time_offset_s and line_delay_s per camera (t_imu = t_cam + time_offset_s
   + row * line_delay_s);
-- T_world_board per board: board 0's frame is the world (held: gravity's direction is
-  estimated in it), every other board's pose is estimated (static boards);
+- T_world_board per board: board 0 is held (it fixes the world frame, in which gravity's
+  direction is estimated), every other board's pose is estimated (static boards);
 - optionally every camera's intrinsics (rigcal.solve.Intrinsics: the parameters the
   camera-only calibration estimated, its focal tie and held principal point kept);
 - gyroscope and accelerometer biases, piecewise linear between knots every bias_dt;
@@ -59,7 +59,7 @@ SCALE_COLS = np.array([0, 1, 2, 0, 0, 1])
 class State:
     """Everything the estimator moves. T_body_cam (C, 4, 4), time_offset_s and line_delay_s
     (C,), biases (K, 3) at knots bias_t0 + k * bias_dt, R_grav (3, 3), T_body_imu (4, 4),
-    T_world_board (B, 4, 4) with board 0 the world frame."""
+    T_world_board (B, 4, 4) with board 0 held (it fixes the world frame)."""
 
     spline: Spline
     T_body_imu: np.ndarray
@@ -74,7 +74,7 @@ class State:
     gravity: float = GRAVITY
     M_gyro: np.ndarray = field(default_factory=lambda: np.eye(3))  # gyro = M_gyro omega_imu + b_g
     M_accel: np.ndarray = field(default_factory=lambda: np.eye(3))  # accel = M_accel f_imu + b_a
-    # (B, 4, 4); board 0 is the world (identity), the others are estimated
+    # (B, 4, 4); board 0 is held (it fixes the world frame), the others are estimated
     T_world_board: np.ndarray = field(default_factory=lambda: np.eye(4)[None])
     # per camera rigcal.solve.Intrinsics, when the estimate may move them (empty: the
     # reprojection block's `cameras` are the intrinsics, held)
@@ -94,7 +94,7 @@ class Layout:
     `bias_knot0` and `knots_per_bias`: where the bias knots fall among the spline's control
     points (bias knot j at control bias_knot0 + j knots_per_bias; 0: not known), for the
     solver's column order (imu_calib.band_order). `n_board`: the boards whose pose is
-    estimated (every board but board 0, the world; 'board' in `held` holds them all).
+    estimated (every board but board 0, which fixes the world; 'board' in `held` holds them all).
     `n_intr`: per camera the number of its intrinsic parameters in the state (empty: no
     intrinsics in the state); the group 'intrinsics'."""
 
@@ -393,8 +393,8 @@ def accel_block(state: State, lay: Layout, t: np.ndarray, accel: np.ndarray, sig
 class Corners:
     """Corner observations: cam (M,) int, t_cam (M,) seconds on that camera's clock (the
     image's first-row mid-exposure), uv (M, 2) pixels, p_board (M, 3) the corner's point in
-    its board's frame, board (M,) int (None: all board 0, whose frame is the world; the
-    boards are static, placed by State.T_world_board)."""
+    its board's frame, board (M,) int indexing State.T_world_board (static boards; None:
+    p_board are world points, as with one board at the identity)."""
 
     cam: np.ndarray
     t_cam: np.ndarray
@@ -412,7 +412,7 @@ class Corners:
 
 def world_points(state: State, obs: Corners) -> np.ndarray:
     """(M, 3) each corner's point in the world (its board placed by state.T_world_board)."""
-    if obs.board is None:  # board 0, the world: the points as given
+    if obs.board is None:  # world points
         return obs.p_board
     T = state.T_world_board[obs.board]
     return np.einsum("mij,mj->mi", T[:, :3, :3], obs.p_board) + T[:, :3, 3]
