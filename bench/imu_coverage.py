@@ -7,7 +7,8 @@ with its defaults (detection, camera-only step, then the camera-IMU estimate wit
 board but the gauge and every camera's intrinsics estimated), then each reported parameter
 against truth.yaml in units of its own 1-sigma, per component in the axes the sigmas are
 given in: T_imu_cam's rotation (Log(R_est R_true^T), body axes) and translation (body axes),
-the time offset, and fx, fy, cx, cy. The three cameras of a seed share the IMU's errors, so
+the time offset, fx, fy, cx, cy, and the IMU's mean gyroscope and accelerometer biases
+(against truth.yaml's sampled biases, rigcal.imu_outputs.compare_imu). The three cameras of a seed share the IMU's errors, so
 the samples are not all independent: read the shares with that in mind.
 
     python -m bench.imu_coverage [--seeds N] [--duration S] [--camera-rate HZ]
@@ -22,9 +23,11 @@ import sys
 from types import SimpleNamespace
 
 import numpy as np
+import yaml
 
 from rigcal import geometry as geo
 from rigcal.compare import load_truth
+from rigcal.imu_outputs import compare_imu
 from rigcal.imu_synthetic import component_errors
 from rigcal.rig import load_rig
 
@@ -39,8 +42,9 @@ def _rigcal(*args: str) -> subprocess.CompletedProcess:
                           env={**os.environ, "COLUMNS": "250"})
 
 
-def normalised_errors(est, truth) -> dict[str, np.ndarray]:
-    """Per parameter kind, every component's error / its reported 1-sigma (cameras x axes)."""
+def normalised_errors(est, truth, truth_doc: dict | None = None) -> dict[str, np.ndarray]:
+    """Per parameter kind, every component's error / its reported 1-sigma (cameras x axes),
+    and with truth.yaml's document the IMU's mean biases (compare_imu's errors)."""
     imu = est.imus[0]
     T_imu_cam = np.stack([geo.inv_T(imu.T_body_imu) @ c.T_body_cam for c in est.cameras])
     offsets = np.array([c.time_offset_s for c in est.cameras])
@@ -54,6 +58,12 @@ def normalised_errors(est, truth) -> dict[str, np.ndarray]:
         true = {c.name: c.intrinsics for c in truth.cameras}
         out["intrinsics"] = np.array([[(getattr(c.intrinsics, k) - getattr(true[c.name], k)) / s["intrinsics"][k]
                                        for k in INTRINSICS] for c, s in zip(est.cameras, sig)])
+    if truth_doc is not None:
+        cal = imu.calibration
+        errs = compare_imu(est, truth, truth_doc)["imus"][imu.name]
+        for key, kind in (("gyroscope_bias", "gyroscope bias"), ("accelerometer_bias", "accelerometer bias")):
+            if key in errs:
+                out[kind] = (np.asarray(errs[key]) / np.asarray(cal["sigma"][key]))[None]
     return out
 
 
@@ -69,7 +79,8 @@ def one(seed: int, duration: float, rate: float, log=say) -> dict:
         r = _rigcal("calibrate", str(d), "--out", str(out), "--jobs", str(JOBS))
     if r.returncode != 0:
         raise RuntimeError(f"rigcal calibrate failed ({r.returncode}): {r.stderr.strip()[-2000:]}")
-    z = normalised_errors(load_rig(out), load_truth(d / "truth.yaml").rig)
+    z = normalised_errors(load_rig(out), load_truth(d / "truth.yaml").rig,
+                          yaml.safe_load((d / "truth.yaml").read_text()))
     log(f"  seed {seed}: calibrate {t.wall:.1f} s; max |error| / sigma "
         + ", ".join(f"{k} {np.abs(v).max():.2f}" for k, v in z.items()))
     return {"seed": seed, "wall_s": t.wall, "z": {k: v.tolist() for k, v in z.items()}}
