@@ -283,6 +283,11 @@ def test_report_has_the_imu_section(run):
         assert needle in page, needle
     for cam in est.cameras:  # each camera's offset and its sigma, as in the YAML
         assert f"{1000 * cam.time_offset_s:+.4f}</td><td>{cam.calibration['sigma']['time_offset_ms']:.4f}" in page
+        # the intrinsics and pose tables give the camera-IMU step's values with its sigmas (the
+        # camera-only step's sigmas were shown beside the joint values)
+        sig = cam.calibration["sigma"]
+        assert f"{cam.intrinsics.fx:.3f} &plusmn; {sig['intrinsics']['fx']:.3f}" in page
+        assert " ".join(f"{x:.3f}" for x in sig["position_mm"]) in page
     assert page.index('id="fig-imu-hist"') < page.rindex("</body>")
 
 

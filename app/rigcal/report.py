@@ -179,12 +179,21 @@ def _pm(value: float, sigma: dict | None, key: str, nd: int) -> str:
     return _f(value, nd) + (f" &plusmn; {_f(s, nd)}" if s is not None else "")
 
 
+def imu_step_sigma(out_rig: Rig, cam) -> dict | None:
+    """The camera's 1-sigma block when the rig came through the camera-IMU step (its poses,
+    and with --imu-intrinsics joint its intrinsics, are that step's, and so are their
+    sigmas), else None: the camera-only step's CameraStats hold them."""
+    if "camera_imu" not in (out_rig.calibration or {}):
+        return None
+    return (cam.calibration or {}).get("sigma")
+
+
 def intrinsics_table(cal: Calibration, out_rig: Rig) -> str:
     """Per camera its intrinsics and distortion with their 1-sigma."""
     rows = []
     for cam in out_rig.cameras:
         m, st = cam.intrinsics, cal.stats[cam.name]
-        sig = st.sigma_intrinsics
+        sig = (imu_step_sigma(out_rig, cam) or {}).get("intrinsics") or st.sigma_intrinsics
         rows.append([_e(cam.name), _e(m.model), _e(st.distortion_model), f"{m.width}x{m.height}",
                      _pm(m.fx, sig, "fx", 3), _pm(m.fy, sig, "fy", 3), _pm(m.cx, sig, "cx", 3),
                      _pm(m.cy, sig, "cy", 3), _e(_vec(m.dist, 5)), _f(st.rms_px, 3), str(st.observations),
@@ -210,9 +219,11 @@ def extrinsics_table(cal: Calibration, out_rig: Rig) -> str:
         st = cal.stats[cam.name]
         T = cam.T_body_cam
         axes, off = nearest_axes(T[:3, :3])
+        imu_sig = imu_step_sigma(out_rig, cam)
+        pos, rot = ((imu_sig["position_mm"], imu_sig["rotation_deg"]) if imu_sig and "position_mm" in imu_sig
+                    else (st.sigma_position_mm, st.sigma_rotation_deg))
         rows.append([_e(cam.name), _e(_vec(T[:3, 3], 4)), _e(axes), _f(off, 3),
-                     _e(_vec(geo.quat_from_R(T[:3, :3]), 5)), _e(_vec(st.sigma_position_mm, 3)),
-                     _e(_vec(st.sigma_rotation_deg, 4))])
+                     _e(_vec(geo.quat_from_R(T[:3, :3]), 5)), _e(_vec(pos, 3)), _e(_vec(rot, 4))])
     return _table(["camera", "position F L U (m)", "nearest axes (cam x, y, z)", "off axes (deg)",
                    "quaternion w x y z", "1-sigma position F L U (mm)", "1-sigma rotation about F L U (deg)"],
                   rows)
