@@ -287,7 +287,7 @@ def _gauge_pass(inp: Inputs, T_world_board: np.ndarray, gauge: int, settings: ic
     k = (inp.board == gauge) & sees[inp.cam]
     T = T_world_board[gauge]  # its corners in the world frame: this pass's only board
     sub = ir.Corners(remap[inp.cam[k]], inp.t_cam[k], inp.uv[k], inp.p_board[k] @ T[:3, :3].T + T[:3, 3])
-    res = ic.calibrate_camera_imu([cams[i] for i in idx], sub, inp.imu, settings)
+    res = ic.calibrate_camera_imu([cams[i] for i in idx], sub, inp.imu, settings, sigmas=False)
     st = res.state
     T_body_cam = np.stack([c.T_body_cam for c in cams])
     off = np.array([c.time_offset_guess_s for c in cams])
@@ -314,7 +314,8 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
     recording and cost 2.6 s on the 30 s one). The estimate is refined once more with the
     corners weighted by the noise it measured when that differs from the assumed by over
     REWEIGHT_ABOVE. Returns (result, the settings it used, estimates run); its state's
-    boards are in estimator_corners' order."""
+    boards are in estimator_corners' order, its `sigma` is not computed (parameter_sigmas
+    gives every sigma the output needs)."""
     gauge, order, obs = estimator_corners(inp, len(T_world_board))
     models = [c.model for c in inp.cams]
     joint = settings.intrinsics  # the gauge pass (some cameras only) holds them
@@ -325,10 +326,10 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
         start, settings = _gauge_pass(inp, T_world_board, gauge, replace(settings, intrinsics=False))
         settings = replace(settings, intrinsics=joint)
         res = ic.solve_from(replace(start, T_world_board=T_world_board[order], intrinsics=intrinsics), obs, models,
-                            inp.imu, settings)
+                            inp.imu, settings, sigmas=False)
     else:
         res = ic.calibrate_camera_imu(_with_boards(inp, T_world_board), obs, inp.imu, settings,
-                                      T_world_board[order], intrinsics)
+                                      T_world_board[order], intrinsics, sigmas=False)
     if abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
         return res, settings, 1
     settings = _settings_with(settings, res)
