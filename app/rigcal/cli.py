@@ -243,7 +243,7 @@ def calibrate(
                 scheduler=scheduler, imu_options={"gravity": gravity, "window_s": offset_window,
                                                   "rolling_shutter": True if rolling_shutter else None,
                                                   "knot_dt": knot_spacing, "imu_model": imu_model.value,
-                                                  "intrinsics": "held" if fix_intrinsics else imu_intrinsics.value},
+                                                  "intrinsics": imu_intrinsics.value},
                 camera_only=camera_only))
 
 
