@@ -161,6 +161,42 @@ def test_upsampled_regions_cover_the_small_missing_tags_only():
     assert april.upsampled_regions([b], found, quads(big, found), (6000, 6000)) == []
 
 
+@pytest.mark.parametrize("tag_px, blur, found", [(20.0, 0.5, 30), (14.0, 0.7, 3)])
+def test_a_board_none_of_whose_tags_decodes_at_full_size_is_found_upsampled(tag_px, blur, found):
+    """A flat print whose tags OpenCV decodes none of at full size (a 20 px tag at blur 0.5:
+    the corner squares' tips close its outline; 14 px: a bit is 1.4 px): the undecoded small
+    quads the passes saw point the upsampled search at it (april.candidate_region; measured
+    35 and 5 tags, 140 corners at 0.019 px RMS for the 20 px print; none before)."""
+    b, img, truth = _small_flat_print(tag_px, blur)
+    group = april.AprilGridGroup([b])
+    assert len(np.concatenate([_decoded(p, img) for p in group.passes])) == 0
+    ids, quads = group.tags(img)
+    assert len(ids) >= found and len(np.unique(ids)) == len(ids)
+    cid, uv = april.tag_corners_to_ids(ids - b.first_marker_id, quads)
+    assert np.abs(uv - truth[cid]).max() < 3.0  # each at Kalibr's id: a wrong one is a tag away
+    if tag_px >= 20:
+        views, _ = BoardDetector(parse_target(GRID)).detect_with_sigma(img)
+        _, vid, q, _, _ = views[0]
+        err = np.linalg.norm(q - truth[vid], axis=1)
+        assert len(vid) >= 120 and np.sqrt(np.mean(err ** 2)) < 0.03 and err.max() < 0.1, (len(vid), err.max())
+
+
+def test_candidate_region_needs_a_crowd_of_small_quads():
+    def squares(centres: np.ndarray, size: float) -> np.ndarray:
+        return centres[:, None, :] + 0.5 * size * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1.0]])
+
+    grid = np.stack(np.meshgrid(np.arange(6) * 20.0 + 100, np.arange(6) * 20.0 + 50), -1).reshape(-1, 2)
+    x0, y0, x1, y1 = april.candidate_region(squares(grid, 11.0), (480, 640))
+    # the quads' extent (94.5-205.5, 44.5-155.5 px) grown by two of their sizes, whole pixels
+    assert (x0, y0, x1, y1) == (72, 22, 229, 179)
+    assert april.candidate_region(squares(grid[:april.CANDIDATES_MIN - 1], 11.0), (480, 640)) is None
+    assert april.candidate_region(squares(grid, 2.0), (480, 640)) is None  # specks, not tags
+    assert april.candidate_region(squares(grid, 40.0), (480, 640)) is None  # large: decodable at full size
+    assert april.candidate_region(np.zeros((0, 4, 2)), (480, 640)) is None
+    # clipped to the image
+    assert april.candidate_region(squares(grid - 100, 11.0), (480, 640))[:2] == (0, 0)
+
+
 def test_kalibr_target_files_are_read_as_they_are():
     t = parse_target("target_type: 'aprilgrid'\ntagCols: 6\ntagRows: 5\ntagSize: 0.088\ntagSpacing: 0.3\n")
     b = t.boards[0]

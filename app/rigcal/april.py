@@ -92,6 +92,11 @@ REGION_MARGIN_PITCHES = 1.0
 # larger ones are missing for other reasons (cut by the image's edge, occluded) and the
 # pass costs four times the region's detection.
 UPSAMPLE_BELOW_PX = 32.0
+# With no tag decoded at full size, the undecoded quads of this size (px, sqrt of the area)
+# point at small tags (a tag's data area is 0.6 of it): their region is searched upsampled
+# when there are at least CANDIDATES_MIN of them (a board shows many tags at once).
+CANDIDATE_PX = (4.0, 0.6 * UPSAMPLE_BELOW_PX)
+CANDIDATES_MIN = 8
 
 
 def detector_parameters(thresh_constant: float = THRESH_CONSTANTS[0]) -> "cv2.aruco.DetectorParameters":
@@ -124,13 +129,18 @@ class AprilGridGroup:
         """Tag ids (M,) in the full dictionary and their corners (M, 4, 2) in OpenCV's order.
         Later passes run only while some tag is missing, and add only tags not yet found:
         THRESH_CONSTANTS on the image, then UPSAMPLED_THRESH_CONSTANTS on it upsampled
-        around the boards already seen (upsampled_regions)."""
-        ids, quads = np.zeros(0, np.int64), np.zeros((0, 4, 2))
+        around the boards already seen (upsampled_regions), or, while no tag at all is
+        found, around the small quads the passes saw but could not decode
+        (candidate_region)."""
+        ids, quads, rejected = np.zeros(0, np.int64), np.zeros((0, 4, 2)), []
         for aruco in self.passes:
-            ids, quads = self._add(aruco, gray, ids, quads, np.zeros(2), 1)
+            ids, quads = self._add(aruco, gray, ids, quads, np.zeros(2), 1, rejected)
             if self._complete(ids):
                 return ids, quads
-        for x0, y0, x1, y1 in upsampled_regions(self.boards, ids, quads, gray.shape):
+        regions = upsampled_regions(self.boards, ids, quads, gray.shape)
+        if not len(ids):
+            regions = [r for r in [candidate_region(np.concatenate(rejected), gray.shape)] if r is not None]
+        for x0, y0, x1, y1 in regions:
             big = cv2.resize(gray[y0:y1, x0:x1], None, fx=UPSAMPLE, fy=UPSAMPLE, interpolation=cv2.INTER_CUBIC)
             for aruco in self.upsampled_passes:
                 ids, quads = self._add(aruco, big, ids, quads, np.array([x0, y0], float), UPSAMPLE)
@@ -142,10 +152,13 @@ class AprilGridGroup:
         return len(np.unique(ids)) == len(self.ids)
 
     def _add(self, aruco: "cv2.aruco.ArucoDetector", image: np.ndarray, ids: np.ndarray, quads: np.ndarray,
-             origin: np.ndarray, scale: int) -> tuple[np.ndarray, np.ndarray]:
+             origin: np.ndarray, scale: int, rejected: list | None = None) -> tuple[np.ndarray, np.ndarray]:
         """ids, quads with the tags one detector pass finds in `image` that are not in ids
-        yet; image is the original's pixels from origin (x, y) upsampled `scale` times."""
-        corners, idx, _ = aruco.detectMarkers(image)
+        yet; image is the original's pixels from origin (x, y) upsampled `scale` times. The
+        quads it could not decode are appended to `rejected` (a list of (R, 4, 2)), if given."""
+        corners, idx, rej = aruco.detectMarkers(image)
+        if rejected is not None:
+            rejected.append(np.asarray(rej, np.float64).reshape(-1, 4, 2))
         if idx is None or not len(idx):
             return ids, quads
         new_ids = self.ids[np.asarray(idx).reshape(-1)]
@@ -210,6 +223,27 @@ def upsampled_regions(boards: Sequence[Board], ids: np.ndarray, quads: np.ndarra
         if x1 - x0 >= 8 and y1 - y0 >= 8:
             out.append((int(x0), int(y0), int(x1), int(y1)))
     return out
+
+
+def candidate_region(rejected: np.ndarray, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
+    """The pixel box (x0, y0, x1, y1) worth searching upsampled when no tag decoded at full
+    size: around the quads (R, 4, 2) the detector found but could not decode that could be
+    small tags (CANDIDATE_PX; a 20 px tag, blur 0.5, gives 36 of them at its data area's
+    outline, 11 px), if there are CANDIDATES_MIN of them, grown by two of their sizes. None
+    otherwise: an image of no board costs one upsampled search at most, and only if
+    something in it looks like a crowd of small squares."""
+    if not len(rejected):
+        return None
+    d1, d2 = rejected[:, 2] - rejected[:, 0], rejected[:, 3] - rejected[:, 1]
+    size = np.sqrt(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]))
+    small = (size >= CANDIDATE_PX[0]) & (size < CANDIDATE_PX[1])
+    if small.sum() < CANDIDATES_MIN:
+        return None
+    h, w = shape[:2]
+    pts, grow = rejected[small].reshape(-1, 2), 2.0 * float(np.median(size[small]))
+    x0, y0 = np.clip(np.floor(pts.min(0) - grow), 0, [w, h]).astype(int)
+    x1, y1 = np.clip(np.ceil(pts.max(0) + grow) + 1, 0, [w, h]).astype(int)
+    return (int(x0), int(y0), int(x1), int(y1)) if x1 - x0 >= 8 and y1 - y0 >= 8 else None
 
 
 def board_to_image(xy: np.ndarray, uv: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
