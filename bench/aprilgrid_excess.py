@@ -15,7 +15,8 @@ corner was restarted from its neighbours. Then the real EuRoC frames: PnP with E
 intrinsics, the residual of a smooth map of the board fitted to the corners (truth-free
 roughness), and how far the long arms move each corner towards its own tag's inside (the
 signature of a print whose edges are not where its junctions put them; the long arms
-estimate that offset per view, april.FIT_EDGE_SHIFT).
+estimate that offset per view, april.FIT_EDGE_SHIFT); also on the real frames averaged down
+1.5x and 2x, whose tags are then as small as the fisheye room's (EUROC_SCALES).
 """
 
 from __future__ import annotations
@@ -151,46 +152,63 @@ def charuco_errors(ds: Path) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def euroc() -> list[dict]:
+# The real print made small: EuRoC's frames averaged down (cv2.INTER_AREA) by these factors,
+# so its 28-34 px tags become 14-17 px ones (the fisheye room's third frame) with the print's
+# own edges and junctions; EuRoC's intrinsics are scaled with the pixel centres.
+EUROC_SCALES = (1.0, 1.5, 2.0)
+
+
+def euroc(scales=EUROC_SCALES) -> list[dict]:
     """PnP RMS with EuRoC's intrinsics, detector against long arms, and the long arms' move
-    towards each corner's own tag (px per board axis, mean and spread)."""
+    towards each corner's own tag (px per board axis, mean and spread), per camera and per
+    downscaling of the real frames (px in the downscaled image's own pixels)."""
     if not (EUROC / "kalibr_target.yaml").exists():
         return []
     target = load_target(EUROC / "kalibr_target.yaml")
     board = target.boards[0]
     ref = yaml.safe_load((EUROC / "reference.yaml").read_text())
     rows = []
-    for cam in (0, 1):
-        gray = cv2.imread(str(EUROC / "images" / f"cam{cam}_1403709395937837056.png"), cv2.IMREAD_GRAYSCALE)
-        (_, ids, uv, _), = BoardDetector(target).raw(gray)
-        order = np.argsort(ids, kind="stable")
-        ids, uv = ids[order], uv[order]
-        fx, fy, cx, cy = ref[f"cam{cam}"]["intrinsics"]
-        K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
-        D = np.array(ref[f"cam{cam}"]["distortion"], float)
-        row = {"camera": f"cam{cam}"}
-        got = {}
-        for name, long_arms in (("detector", False), ("long arms", True)):
-            q, ok, _ = _refine_with(gray, board, ids, uv, long_arms)
-            obj = board.corners[ids[ok]]
-            _, r, t = cv2.solvePnP(obj, q[ok], K, D)
-            r, t = cv2.solvePnPRefineLM(obj, q[ok], K, D, r, t)
-            e = np.linalg.norm(cv2.projectPoints(obj, r, t, K, D)[0].reshape(-1, 2) - q[ok], axis=1)
-            row[f"{name} corners"], row[f"{name} PnP px"] = int(ok.sum()), _rms(e)
-            # truth-free roughness: what a smooth map of the board (homography + quartic) leaves
-            m = april.view_map(ids[ok], q[ok], board)
-            row[f"{name} map residual px"] = _rms(np.linalg.norm(m(obj[:, :2]) - q[ok], axis=1)) if m else float("nan")
-            got[name] = (q, ok)
-        (qd, okd), (ql, okl) = got["detector"], got["long arms"]
-        both = okd & okl
-        ax, ay = april.corner_axes(ids, qd)
-        s = np.linalg.solve(np.stack([ax, ay], -1)[both], (ql - qd)[both][..., None])[..., 0]  # tag sizes
-        size = np.sqrt(np.abs(ax[both, 0] * ay[both, 1] - ax[both, 1] * ay[both, 0]))
-        inwards = s * april.TOWARDS_TAG[ids[both] % 4] * size[:, None]  # px along each board axis
-        row["move towards own tag px (mean)"] = float(inwards.mean())
-        row["move towards own tag px (std)"] = float(inwards.std())
-        row["tag size px"] = float(np.median(size))
-        rows.append(row)
+    for scale in scales:
+        for cam in (0, 1):
+            full = cv2.imread(str(EUROC / "images" / f"cam{cam}_1403709395937837056.png"), cv2.IMREAD_GRAYSCALE)
+            gray = full if scale == 1.0 else cv2.resize(full, None, fx=1 / scale, fy=1 / scale,
+                                                          interpolation=cv2.INTER_AREA)
+            found = BoardDetector(target).raw(gray)
+            if not found:
+                rows.append({"camera": f"cam{cam}", "scale": scale})
+                continue
+            (_, ids, uv, _), = found
+            order = np.argsort(ids, kind="stable")
+            ids, uv = ids[order], uv[order]
+            fx, fy, cx, cy = ref[f"cam{cam}"]["intrinsics"]
+            # cv2.resize's pixel centres: x' = (x + 0.5) / scale - 0.5
+            K = np.array([[fx / scale, 0, (cx + 0.5) / scale - 0.5], [0, fy / scale, (cy + 0.5) / scale - 0.5],
+                          [0, 0, 1.0]])
+            D = np.array(ref[f"cam{cam}"]["distortion"], float)
+            row = {"camera": f"cam{cam}", "scale": scale}
+            got = {}
+            for name, long_arms in (("detector", False), ("long arms", True)):
+                q, ok, _ = _refine_with(gray, board, ids, uv, long_arms)
+                obj = board.corners[ids[ok]]
+                _, r, t = cv2.solvePnP(obj, q[ok], K, D)
+                r, t = cv2.solvePnPRefineLM(obj, q[ok], K, D, r, t)
+                e = np.linalg.norm(cv2.projectPoints(obj, r, t, K, D)[0].reshape(-1, 2) - q[ok], axis=1)
+                row[f"{name} corners"], row[f"{name} PnP px"] = int(ok.sum()), _rms(e)
+                # truth-free roughness: what a smooth map of the board (homography + quartic) leaves
+                m = april.view_map(ids[ok], q[ok], board)
+                row[f"{name} map residual px"] = (_rms(np.linalg.norm(m(obj[:, :2]) - q[ok], axis=1)) if m
+                                                  else float("nan"))
+                got[name] = (q, ok)
+            (qd, okd), (ql, okl) = got["detector"], got["long arms"]
+            both = okd & okl
+            ax, ay = april.corner_axes(ids, qd)
+            s = np.linalg.solve(np.stack([ax, ay], -1)[both], (ql - qd)[both][..., None])[..., 0]  # tag sizes
+            size = np.sqrt(np.abs(ax[both, 0] * ay[both, 1] - ax[both, 1] * ay[both, 0]))
+            inwards = s * april.TOWARDS_TAG[ids[both] % 4] * size[:, None]  # px along each board axis
+            row["move towards own tag px (mean)"] = float(inwards.mean())
+            row["move towards own tag px (std)"] = float(inwards.std())
+            row["tag size px"] = float(np.median(size))
+            rows.append(row)
     return rows
 
 
@@ -233,8 +251,8 @@ def tables(r: dict) -> str:
     out.append(md_table(["case", "noise", "tag px", "n", "box", "detector", "long arms", "exact symmetric",
                          "exact long arms"], size_rows, "by tag size"))
     if r["euroc"]:
-        keys = list(r["euroc"][0])
-        out.append(md_table(keys, [[row[k] for k in keys] for row in r["euroc"]],
+        keys = list(max(r["euroc"], key=len))
+        out.append(md_table(keys, [[row.get(k, "-") for k in keys] for row in r["euroc"]],
                             "real EuRoC frames: PnP with EuRoC's intrinsics; the long arms' move towards each corner's tag"))
     return "\n\n".join(out)
 
