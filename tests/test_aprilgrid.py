@@ -165,7 +165,7 @@ def test_upsampled_regions_cover_the_small_missing_tags_only():
 def test_a_board_none_of_whose_tags_decodes_at_full_size_is_found_upsampled(tag_px, blur, found):
     """A flat print whose tags OpenCV decodes none of at full size (a 20 px tag at blur 0.5:
     the corner squares' tips close its outline; 14 px: a bit is 1.4 px): the undecoded small
-    quads the passes saw point the upsampled search at it (april.candidate_region; measured
+    quads the passes saw point the upsampled search at it (april.candidate_regions; measured
     35 and 5 tags, 140 corners at 0.019 px RMS for the 20 px print; none before)."""
     b, img, truth = _small_flat_print(tag_px, blur)
     group = april.AprilGridGroup([b])
@@ -181,20 +181,68 @@ def test_a_board_none_of_whose_tags_decodes_at_full_size_is_found_upsampled(tag_
         assert len(vid) >= 120 and np.sqrt(np.mean(err ** 2)) < 0.03 and err.max() < 0.1, (len(vid), err.max())
 
 
-def test_candidate_region_needs_a_crowd_of_small_quads():
-    def squares(centres: np.ndarray, size: float) -> np.ndarray:
-        return centres[:, None, :] + 0.5 * size * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1.0]])
+def _squares(centres: np.ndarray, size: float) -> np.ndarray:
+    return centres[:, None, :] + 0.5 * size * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1.0]])
 
+
+def test_candidate_regions_need_a_crowd_of_small_quads():
     grid = np.stack(np.meshgrid(np.arange(6) * 20.0 + 100, np.arange(6) * 20.0 + 50), -1).reshape(-1, 2)
-    x0, y0, x1, y1 = april.candidate_region(squares(grid, 11.0), (480, 640))
+    (x0, y0, x1, y1), = april.candidate_regions(_squares(grid, 11.0), (480, 640))
     # the quads' extent (94.5-205.5, 44.5-155.5 px) grown by two of their sizes, whole pixels
     assert (x0, y0, x1, y1) == (72, 22, 229, 179)
-    assert april.candidate_region(squares(grid[:april.CANDIDATES_MIN - 1], 11.0), (480, 640)) is None
-    assert april.candidate_region(squares(grid, 2.0), (480, 640)) is None  # specks, not tags
-    assert april.candidate_region(squares(grid, 40.0), (480, 640)) is None  # large: decodable at full size
-    assert april.candidate_region(np.zeros((0, 4, 2)), (480, 640)) is None
+    # two crowds, two regions; each detector pass reports the same quads: counted once
+    two = np.r_[_squares(grid[:3], 11.0), _squares(grid[:3] + 300, 11.0)]
+    assert len(april.candidate_regions(two, (480, 640))) == 2
+    assert april.candidate_regions(np.r_[two[:2], two[:2]], (480, 640)) == []
+    # scattered (clutter): no crowd, nothing searched
+    assert april.candidate_regions(_squares(grid * 6.0 - 500, 11.0), (480, 640)) == []
+    assert april.candidate_regions(_squares(grid, 2.0), (480, 640)) == []  # specks, not tags
+    assert april.candidate_regions(_squares(grid, 40.0), (480, 640)) == []  # large: decodable at full size
+    assert april.candidate_regions(np.zeros((0, 4, 2)), (480, 640)) == []
     # clipped to the image
-    assert april.candidate_region(squares(grid - 100, 11.0), (480, 640))[:2] == (0, 0)
+    assert april.candidate_regions(_squares(grid - 100, 11.0), (480, 640))[0][:2] == (0, 0)
+
+
+def test_undecoded_quads_of_a_board_already_found_are_left_to_its_own_search():
+    """away_from: quads at a found board's other tags (where its found tags put them) are
+    that board's; only those elsewhere can be a board with no tag found."""
+    b = _grid()
+    H = np.array([[300.0, 0.0, 50.0], [0.0, -300.0, 300.0], [0.0, 0.0, 1.0]])  # tags ~26 px
+    px = cv2.perspectiveTransform(b.corners[:, :2].reshape(-1, 1, 2), H).reshape(-1, 4, 2)
+    found = np.arange(8)
+    quads = px[found][:, april.CV_TO_KALIBR]
+    own = px[8:20]  # the same board's undecoded tags
+    elsewhere = _squares(np.array([[500.0, 400.0], [515.0, 400.0], [500.0, 415.0]]), 11.0)
+    kept = april.away_from(np.r_[own, elsewhere], [b], found, quads)
+    np.testing.assert_array_equal(kept, elsewhere)
+    assert len(april.away_from(np.r_[own, elsewhere], [b], found[:0], quads[:0])) == len(own) + 3
+
+
+def test_a_corner_squares_centre_does_not_look_like_a_tag_corner():
+    """The centre of a corner square is point-symmetric too: a corner refined onto it (a
+    board near the fisheye's edge squashes the square to a few pixels: three corners 3 px off
+    in a rendered room) must fail the check, where every true corner passes. There all four
+    samples fall on the square, and the contrast is the noise's."""
+    b, img, truth = _small_flat_print(40.0, 0.7)
+    ids = np.arange(b.n_corners)
+    ax, ay = april.corner_axes(ids, truth)
+    box = april.symmetric_box(b, ax, ay)
+    assert april.looks_like_a_tag_corner(img, ids, truth, ax, ay, box).all()
+    contrast, normal = april.junction_contrast(img, ids, truth, ax, ay, box)
+    assert normal and april.contrast_reference(contrast) > 100  # the print: 30 to 230 grey levels
+    inner = (ids // 4 % 6 > 0) & (ids // 4 % 6 < 5) & (ids // 24 > 0) & (ids // 24 < 5)
+    away = -april.TOWARDS_TAG[ids % 4] * (0.5 * b.tag_spacing)  # tag sizes along board x, y
+    centres = truth + away[:, :1] * ax + away[:, 1:] * ay
+    g, _ = april.junction_contrast(img, ids[inner], centres[inner], ax[inner], ay[inner], box, normal)
+    assert np.abs(g).max() < 20, np.abs(g).max()  # all four samples on the square
+    ok = april.looks_like_a_tag_corner(img, ids[inner], centres[inner], ax[inner], ay[inner], box, normal,
+                                       april.contrast_reference(contrast))
+    assert not ok.any(), ok.sum()
+    # mixed in with true corners (the median contrast is theirs), the centres still fail
+    both = np.r_[truth, centres[inner]]
+    ok = april.looks_like_a_tag_corner(img, np.r_[ids, ids[inner]], both, np.r_[ax, ax[inner]],
+                                       np.r_[ay, ay[inner]], box)
+    assert ok[:len(ids)].all() and not ok[len(ids):].any()
 
 
 def test_kalibr_target_files_are_read_as_they_are():

@@ -29,6 +29,8 @@ from typing import Callable, Sequence
 
 import cv2
 import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 from .target import APRIL_BORDER_BITS, APRIL_DICTIONARY, Board
 
@@ -72,6 +74,9 @@ LONG_ARMS_BELOW_PX = 0.0
 FIT_EDGE_SHIFT = True
 MAP_MIN_CORNERS = 40  # fewer refined corners in a view: no map, the affine cross instead
 MAP_MAX_RMS_PX = 0.3  # a map fitting the corners worse than this is not trusted
+# A tag corner's X-junction contrast (gaps against border and square) under this share of
+# the typical corner's is no tag corner (looks_like_a_tag_corner).
+MIN_CONTRAST = 0.25
 INVERTED_UNLESS = 4  # tags found as printed, below which the inverted image is searched too
 
 
@@ -94,11 +99,14 @@ REGION_MARGIN_PITCHES = 1.0
 # larger ones are missing for other reasons (cut by the image's edge, occluded) and the
 # pass costs four times the region's detection.
 UPSAMPLE_BELOW_PX = 32.0
-# With no tag decoded at full size, the undecoded quads of this size (px, sqrt of the area)
-# point at small tags (a tag's data area is 0.6 of it): their region is searched upsampled
-# when there are at least CANDIDATES_MIN of them (a board shows many tags at once).
+# For a board with no tag decoded at full size, the undecoded quads of this size (px, sqrt of
+# the area) point at small tags (the gaps between 20 px tags: 11 px): a crowd of at least
+# CANDIDATES_MIN distinct ones is searched upsampled (candidate_regions).
 CANDIDATE_PX = (4.0, 0.6 * UPSAMPLE_BELOW_PX)
-CANDIDATES_MIN = 8
+CANDIDATES_MIN = 3
+# Quads closer than this many of their sizes belong to one crowd (the gaps of a Kalibr grid,
+# spacing 0.3, are 0.55 tag in size at a pitch of 1.3: neighbours ~2.4 sizes apart).
+CANDIDATE_LINK = 3.0
 
 
 def detector_parameters(thresh_constant: float = THRESH_CONSTANTS[0]) -> "cv2.aruco.DetectorParameters":
@@ -131,17 +139,17 @@ class AprilGridGroup:
         """Tag ids (M,) in the full dictionary and their corners (M, 4, 2) in OpenCV's order.
         Later passes run only while some tag is missing, and add only tags not yet found:
         THRESH_CONSTANTS on the image, then UPSAMPLED_THRESH_CONSTANTS on it upsampled
-        around the boards already seen (upsampled_regions), or, while no tag at all is
-        found, around the small quads the passes saw but could not decode
-        (candidate_region)."""
+        around the boards already seen (upsampled_regions) and, while some board has no tag
+        found, around crowds of small quads the passes saw but could not decode away from
+        the boards found (candidate_regions, away_from)."""
         ids, quads, rejected = np.zeros(0, np.int64), np.zeros((0, 4, 2)), []
         for aruco in self.passes:
             ids, quads = self._add(aruco, gray, ids, quads, np.zeros(2), 1, rejected)
             if self._complete(ids):
                 return ids, quads
         regions = upsampled_regions(self.boards, ids, quads, gray.shape)
-        if not len(ids):
-            regions = [r for r in [candidate_region(np.concatenate(rejected), gray.shape)] if r is not None]
+        if not self._some_tag_of_every_board(ids):
+            regions += candidate_regions(away_from(np.concatenate(rejected), self.boards, ids, quads), gray.shape)
         for x0, y0, x1, y1 in regions:
             big = cv2.resize(gray[y0:y1, x0:x1], None, fx=UPSAMPLE, fy=UPSAMPLE, interpolation=cv2.INTER_CUBIC)
             for aruco in self.upsampled_passes:
@@ -152,6 +160,10 @@ class AprilGridGroup:
 
     def _complete(self, ids: np.ndarray) -> bool:
         return len(np.unique(ids)) == len(self.ids)
+
+    def _some_tag_of_every_board(self, ids: np.ndarray) -> bool:
+        return all(np.any((ids >= b.first_marker_id) & (ids < b.first_marker_id + b.n_markers))
+                   for b in self.boards)
 
     def _add(self, aruco: "cv2.aruco.ArucoDetector", image: np.ndarray, ids: np.ndarray, quads: np.ndarray,
              origin: np.ndarray, scale: int, rejected: list | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -227,25 +239,67 @@ def upsampled_regions(boards: Sequence[Board], ids: np.ndarray, quads: np.ndarra
     return out
 
 
-def candidate_region(rejected: np.ndarray, shape: tuple[int, ...]) -> tuple[int, int, int, int] | None:
-    """The pixel box (x0, y0, x1, y1) worth searching upsampled when no tag decoded at full
-    size: around the quads (R, 4, 2) the detector found but could not decode that could be
-    small tags (CANDIDATE_PX; a 20 px tag, blur 0.5, gives 36 of them at its data area's
-    outline, 11 px), if there are CANDIDATES_MIN of them, grown by two of their sizes. None
-    otherwise: an image of no board costs one upsampled search at most, and only if
-    something in it looks like a crowd of small squares."""
+def candidate_regions(rejected: np.ndarray, shape: tuple[int, ...]) -> list[tuple[int, int, int, int]]:
+    """Pixel boxes (x0, y0, x1, y1) worth searching upsampled for a board none of whose tags
+    decoded at full size: around each crowd of quads (R, 4, 2) the detector found but could
+    not decode that could belong to small tags (CANDIDATE_PX; a print of 20 px tags at blur
+    0.5 gives 60, the white gaps between its tags, 20 x 6 px): CANDIDATES_MIN or more
+    distinct ones, each within CANDIDATE_LINK of its size from another, grown by two of
+    their sizes. Scattered quads
+    (clutter, a board's corner squares cut by the image's edge) make none, so an image of
+    no board costs an upsampled search only where it shows a crowd of small squares."""
     if not len(rejected):
-        return None
-    d1, d2 = rejected[:, 2] - rejected[:, 0], rejected[:, 3] - rejected[:, 1]
-    size = np.sqrt(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]))
+        return []
+    size = np.sqrt(np.abs(_quad_area(rejected)))
     small = (size >= CANDIDATE_PX[0]) & (size < CANDIDATE_PX[1])
-    if small.sum() < CANDIDATES_MIN:
-        return None
+    quads, size = rejected[small], size[small]
+    c = quads.mean(axis=1)
+    d = np.linalg.norm(c[:, None] - c[None], axis=-1)
+    # each detector pass reports the same quads: one of each
+    first = ~np.any(np.tril(d < 0.5 * size[None], k=-1), axis=1)
+    quads, size, c, d = quads[first], size[first], c[first], d[np.ix_(first, first)]
+    if len(quads) < CANDIDATES_MIN:
+        return []
+    link = d < CANDIDATE_LINK * np.maximum(size[:, None], size[None])
+    n, label = connected_components(csr_matrix(link), directed=False)
     h, w = shape[:2]
-    pts, grow = rejected[small].reshape(-1, 2), 2.0 * float(np.median(size[small]))
-    x0, y0 = np.clip(np.floor(pts.min(0) - grow), 0, [w, h]).astype(int)
-    x1, y1 = np.clip(np.ceil(pts.max(0) + grow) + 1, 0, [w, h]).astype(int)
-    return (int(x0), int(y0), int(x1), int(y1)) if x1 - x0 >= 8 and y1 - y0 >= 8 else None
+    out = []
+    for k in range(n):
+        crowd = label == k
+        if crowd.sum() < CANDIDATES_MIN:
+            continue
+        pts, grow = quads[crowd].reshape(-1, 2), 2.0 * float(np.median(size[crowd]))
+        x0, y0 = np.clip(np.floor(pts.min(0) - grow), 0, [w, h]).astype(int)
+        x1, y1 = np.clip(np.ceil(pts.max(0) + grow) + 1, 0, [w, h]).astype(int)
+        if x1 - x0 >= 8 and y1 - y0 >= 8:
+            out.append((int(x0), int(y0), int(x1), int(y1)))
+    return out
+
+
+def away_from(rejected: np.ndarray, boards: Sequence[Board], ids: np.ndarray, quads: np.ndarray) -> np.ndarray:
+    """The undecoded quads (R, 4, 2) that are none of the found boards' tags: whose centres
+    lie over a tag size away from every tag of each board with a tag found (ids (M,), quads
+    (M, 4, 2)), as its found tags put them (board_to_image). Those near are that board's
+    missing tags (upsampled_regions looks for them) or its tags cut by the image's edge."""
+    if not len(rejected) or not len(ids):
+        return rejected
+    c = rejected.mean(axis=1)
+    keep = np.ones(len(rejected), bool)
+    for b in boards:
+        mine = (ids >= b.first_marker_id) & (ids < b.first_marker_id + b.n_markers)
+        if not mine.any():
+            continue
+        cid, uv = tag_corners_to_ids(ids[mine] - b.first_marker_id, quads[mine])
+        quad = board_to_image(b.corners[cid, :2], uv)(b.corners[:, :2]).reshape(-1, 4, 2)
+        centre, size = quad.mean(axis=1), np.sqrt(np.abs(_quad_area(quad)))  # (T, 2), (T,)
+        d = np.linalg.norm(c[:, None, :] - centre[None], axis=-1)  # (R, T)
+        keep &= ~np.any(d < size[None], axis=1)
+    return rejected[keep]
+
+
+def _quad_area(q: np.ndarray) -> np.ndarray:
+    d1, d2 = q[:, 2] - q[:, 0], q[:, 3] - q[:, 1]
+    return 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
 
 
 def board_to_image(xy: np.ndarray, uv: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
@@ -383,14 +437,15 @@ def neighbour_predictions(ids: np.ndarray, uv: np.ndarray, board: Board, trusted
 TOWARDS_TAG = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])
 
 
-def looks_like_a_tag_corner(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,
-                            box: float) -> np.ndarray:
-    """(N,) bool: the image around each corner is the X-junction of a tag corner: the tag's
-    border (towards the tag) and the corner square (away from it) one colour, the two gaps
-    on either side the other, sampled half-way across the symmetric box. A corner the
-    refinement placed on another junction (a bit's corner, the border's inner corner)
-    fails: there a side quadrant is the border's black. Both polarities count, the one of
-    the view's majority (inverted prints)."""
+def junction_contrast(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,
+                      box: float, normal: bool | None = None) -> tuple[np.ndarray, bool]:
+    """((N,) contrast, normal): how much the image around each corner is the X-junction of a
+    tag corner, sampled half-way across the symmetric box: the two gaps on either side
+    against the tag's border (towards the tag) and the corner square (away from it), grey
+    levels, > 0 for a tag corner. A corner the refinement placed on another junction (a
+    bit's corner, the border's inner corner) gets < 0: there a side quadrant is the
+    border's black. normal: the print's polarity (False: inverted, white tags on black),
+    the majority's when None."""
     t = TOWARDS_TAG[ids % 4] * (0.5 * box)  # (N, 2) board units (tag sizes)
     offs = np.stack([t, -t, t * [1.0, -1.0], t * [-1.0, 1.0]], axis=1)  # in, out, side, side: (N, 4, 2)
     pts = uv[:, None, :] + offs[..., :1] * ax[:, None, :] + offs[..., 1:] * ay[:, None, :]
@@ -399,8 +454,31 @@ def looks_like_a_tag_corner(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, a
                   borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)  # (N, 4)
     gap = np.minimum(v[:, 2], v[:, 3]) - np.maximum(v[:, 0], v[:, 1])  # > 0: gaps white, diagonal black
     inv = np.minimum(v[:, 0], v[:, 1]) - np.maximum(v[:, 2], v[:, 3])  # > 0: printed inverted
-    normal = np.nansum(gap > 0) >= np.nansum(inv > 0)
-    return (gap > 0) if normal else (inv > 0)
+    if normal is None:
+        normal = bool(np.nansum(gap > 0) >= np.nansum(inv > 0))
+    return (gap if normal else inv), normal
+
+
+def contrast_reference(contrast: np.ndarray) -> float:
+    """The typical tag corner's contrast among junction_contrast's: the median of the
+    positive ones (0 when none is)."""
+    pos = contrast[contrast > 0]
+    return float(np.median(pos)) if len(pos) else 0.0
+
+
+def looks_like_a_tag_corner(gray: np.ndarray, ids: np.ndarray, uv: np.ndarray, ax: np.ndarray, ay: np.ndarray,
+                            box: float, normal: bool | None = None, reference: float | None = None
+                            ) -> np.ndarray:
+    """(N,) bool: the image around each corner is a tag corner's X-junction
+    (junction_contrast > 0) with at least MIN_CONTRAST of the typical corner's contrast
+    (`reference`, contrast_reference of these corners' when None). The centre of a corner
+    square squashed to a few pixels is point-symmetric too, and there all four samples fall
+    on the square: a contrast of noise, where a tag corner has the print's (a rendered
+    fisheye room, a board near the image's edge: 0.1-1.5 grey levels at three corners 3 px
+    off, 40-100 at the others)."""
+    g, _ = junction_contrast(gray, ids, uv, ax, ay, box, normal)
+    ref = contrast_reference(g) if reference is None else reference
+    return g > max(MIN_CONTRAST * ref, 0.0)
 
 
 @dataclass(frozen=True, eq=False)

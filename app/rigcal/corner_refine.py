@@ -154,7 +154,9 @@ def aprilgrid_box_passes(gray: np.ndarray, stack: np.ndarray, board: Board, ids:
     looking like a tag corner), sigma, and restarted ((N,) bool: placed only from where the
     neighbouring tags' corners put it)."""
     q, ok, sigma = _aprilgrid_pass(gray, stack, uv, ax, ay, box)
-    ok &= april.looks_like_a_tag_corner(gray, ids, q, ax, ay, box)
+    contrast, normal = april.junction_contrast(gray, ids, q, ax, ay, box)
+    reference = april.contrast_reference(contrast)
+    ok &= contrast > max(april.MIN_CONTRAST * reference, 0.0)
     pred = april.neighbour_predictions(ids, q, board, ok)
     redo = ~ok & np.isfinite(pred).all(axis=1)
     restarted = np.zeros(len(ids), bool)
@@ -162,7 +164,8 @@ def aprilgrid_box_passes(gray: np.ndarray, stack: np.ndarray, board: Board, ids:
         # started again from where the neighbouring tags' corners put them
         r = np.flatnonzero(redo)
         q2, ok2, sigma2 = _aprilgrid_pass(gray, stack, pred[r], ax[r], ay[r], box)
-        ok2 &= april.looks_like_a_tag_corner(gray, ids[r], q2, ax[r], ay[r], box)
+        # the print's polarity and contrast from the first pass: the corners restarted may all be wrong
+        ok2 &= april.looks_like_a_tag_corner(gray, ids[r], q2, ax[r], ay[r], box, normal, reference)
         q[r[ok2]], ok[r[ok2]], sigma[r[ok2]], restarted[r[ok2]] = q2[ok2], True, sigma2[ok2], True
     return q, ok, sigma, restarted
 
