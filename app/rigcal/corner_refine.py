@@ -22,6 +22,11 @@ from .corner_grid import corner_grid
 from .target import Board
 
 REFINE_MODES = ("symmetric", "subpix", "none")
+# A corner the AprilGrid box passes left out still places its tag's axes for the last pass
+# unless it is farther than this from where the neighbouring tags' corners put it (px, or
+# tag sizes): OpenCV's small-tag corners are ~1 px off and still give usable axes.
+FAILED_NEAR_PX = 2.0
+FAILED_NEAR_TAG = 0.05
 MAX_PAIRS_PER_TAG_EDGE = 40  # AprilGrid's last pass: samples along an arm of one tag at most
 # A chessboard's cross half-width in squares: keeps clear of dot codes printed inside
 # white squares (BoofCV ECoCheck) while using most of a plain chessboard's edges.
@@ -121,7 +126,18 @@ def refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.nda
     q, ok, sigma, _ = aprilgrid_box_passes(crop, stack, board, ids, uv - origin, ax, ay, box)
     # Once more. Small tags (april.LONG_ARMS_BELOW_PX) with the tag edges out to the next
     # corner, along the view's map of the board (_aprilgrid_mapped) ...
-    ax2, ay2 = april.corner_axes(ids, q)
+    # The last pass's axes and bends come from the corners as refined, the failed ones
+    # included where they still are near where the neighbouring tags put them. A failed fit
+    # can leave a corner far off (18 px in a close pinhole view: its OpenCV quad corner),
+    # which would tilt its tag's other crosses (0.5 px errors at 0.03 px sigma); nothing
+    # else places those axes well enough (the neighbours' placing of the far corner, the
+    # lattice of refined corners, the tag's three others: 0.04-0.28 px), so they keep the
+    # box passes' result.
+    pred = april.neighbour_predictions(ids, q, board, ok)
+    tag_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    far = ~ok & (np.linalg.norm(q - pred, axis=1) > np.maximum(FAILED_NEAR_PX, FAILED_NEAR_TAG * tag_px))
+    placed = np.where(far[:, None], np.nan, q)
+    ax2, ay2 = april.corner_axes(ids, placed)
     fine = ok & np.isfinite(ax2).all(axis=1) & np.isfinite(ay2).all(axis=1)
     size = np.sqrt(np.abs(ax2[:, 0] * ay2[:, 1] - ax2[:, 1] * ay2[:, 0]))
     small = fine & (np.nan_to_num(size, nan=np.inf) < april.LONG_ARMS_BELOW_PX)
@@ -138,7 +154,7 @@ def refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.nda
     # fixed: fitting them inside so small a cross cost accuracy.
     if fine.any():
         f = np.flatnonzero(fine)
-        bu, bv = (np.nan_to_num(b[f]) for b in april.lattice_bends(ids, q, board))
+        bu, bv = (np.nan_to_num(b[f]) for b in april.lattice_bends(ids, placed, board))
         half, arm = april.symmetric_cross(board, ax2[f], ay2[f])
         q3, ok3, sigma3 = refine_symmetric(stack, q[f], ax2[f], ay2[f], bu, bv, half, arm=arm)
         q[f[ok3]], sigma[f[ok3]] = q3[ok3], sigma3[ok3]
