@@ -245,9 +245,9 @@ def candidate_regions(rejected: np.ndarray, shape: tuple[int, ...]) -> list[tupl
     not decode that could belong to small tags (CANDIDATE_PX; a print of 20 px tags at blur
     0.5 gives 60, the white gaps between its tags, 20 x 6 px): CANDIDATES_MIN or more
     distinct ones, each within CANDIDATE_LINK of its size from another, grown by two of
-    their sizes. Scattered quads
-    (clutter, a board's corner squares cut by the image's edge) make none, so an image of
-    no board costs an upsampled search only where it shows a crowd of small squares."""
+    their sizes. Scattered quads (clutter, a board's corner squares cut by the image's edge)
+    make none, so an image of no board costs an upsampled search only where it shows a
+    crowd of small squares."""
     if not len(rejected):
         return []
     size = np.sqrt(np.abs(_quad_area(rejected)))
