@@ -30,6 +30,15 @@ GRID = """boards:
 """
 
 
+CHARUCO_BOARD = """  - name: cb
+    type: charuco
+    dictionary: DICT_5X5_1000
+    squares: [5, 4]
+    square_length: 0.04
+    marker_length: 0.03
+"""
+
+
 def _grid(**kw) -> Board:
     d = dict(name="grid", tags=(6, 6), tag_size=0.088, tag_spacing=0.3, first_tag_id=0)
     d.update(kw)
@@ -243,6 +252,13 @@ def test_a_corner_squares_centre_does_not_look_like_a_tag_corner():
     ok = april.looks_like_a_tag_corner(img, np.r_[ids, ids[inner]], both, np.r_[ax, ax[inner]],
                                        np.r_[ay, ay[inner]], box)
     assert ok[:len(ids)].all() and not ok[len(ids):].any()
+
+
+def test_narrow_spacing_is_warned_about():
+    t = parse_target(GRID.replace("tag_spacing: 0.3", "tag_spacing: 0.12") + CHARUCO_BOARD)
+    (w,) = april.spacing_warnings(t.boards)
+    assert w.startswith("board grid: tag_spacing 0.12 is under 0.17")
+    assert april.spacing_warnings(parse_target(GRID).boards) == []
 
 
 def test_kalibr_target_files_are_read_as_they_are():

@@ -44,6 +44,16 @@ BOX_MARGIN_PX = 1.5
 # (the tag's border goes on), and perspective and blur bring it nearer than the affine
 # cross assumes. Measured on rendered grids: 3 px left 0.013 px RMS on close boards, 5 px 0.008.
 ARM_MARGIN_PX = 5.0
+# The cross's arms reach no further than this (tag sizes) whatever the spacing: Kalibr's usual
+# 0.3 is where the pass was measured, and longer arms along bigger corner squares cost
+# accuracy (spacing 1.0, 3 frames: pinhole board 0.058 -> 0.0078 px RMS, fisheye board
+# 0.159 -> 0.041; spacing 0.5: 0.0106 -> 0.0076, 0.0303 -> 0.0245, room 0.0066 -> 0.0072).
+MAX_ARM = 0.3
+# Below this tag_spacing the corner squares' gaps close under blur: OpenCV's tag outline runs
+# into a square and its quad corner lands on the square's far corner, and corners can then be
+# refined onto the squares' centres (3 rendered frames, pinhole room: spacing 0.15, 7 px off;
+# 0.1, up to 29 px; 0.18-1.0 clean). calibrate warns (spacing_warnings).
+MIN_RELIABLE_SPACING = 0.17
 # The last pass's pairs keep this far off every blurred edge that is not mirrored: the
 # bits inside the border (across the arms), the corner square's far edge and the next
 # corner (along them). Measured on the fisheye room (tags ~22 px): 1.0 px let the blur in
@@ -107,6 +117,14 @@ CANDIDATES_MIN = 3
 # Quads closer than this many of their sizes belong to one crowd (the gaps of a Kalibr grid,
 # spacing 0.3, are 0.55 tag in size at a pitch of 1.3: neighbours ~2.4 sizes apart).
 CANDIDATE_LINK = 3.0
+
+
+def spacing_warnings(boards: Sequence[Board]) -> list[str]:
+    """One warning per AprilGrid whose tag_spacing is under MIN_RELIABLE_SPACING."""
+    return [f"board {b.name}: tag_spacing {b.tag_spacing:g} is under {MIN_RELIABLE_SPACING:g}: the gaps "
+            f"between tags and corner squares close under blur, and some corners may be found on the corner "
+            f"squares' centres, pixels off (README, AprilGrid targets)"
+            for b in boards if b.type == "aprilgrid" and b.tag_spacing < MIN_RELIABLE_SPACING]
 
 
 def detector_parameters(thresh_constant: float = THRESH_CONSTANTS[0]) -> "cv2.aruco.DetectorParameters":
@@ -390,13 +408,15 @@ def _quad_homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 def symmetric_cross(board: Board, ax: np.ndarray, ay: np.ndarray) -> tuple[float, float]:
     """(half-width, arm) in tag sizes of the point-symmetric cross around a tag corner, for
     corner_fit.refine_symmetric: along a tag edge the corner square mirrors the border for a
-    gap's length (the arm, less ARM_MARGIN_PX), across it only as far as the 2-bit border
-    reaches (the half-width; refine_symmetric takes its own blur margin off it)."""
+    gap's length (the arm, at most MAX_ARM, less ARM_MARGIN_PX), across it only as far as
+    the 2-bit border reaches (the half-width; refine_symmetric takes its own blur margin off
+    it)."""
     half = min(BORDER_FRACTION, board.tag_spacing)
     size_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
     size_px = size_px[np.isfinite(size_px)]
     margin = ARM_MARGIN_PX / float(np.median(size_px)) if len(size_px) else 0.0
-    return half, max(board.tag_spacing - margin, 0.5 * board.tag_spacing)
+    reach = min(board.tag_spacing, MAX_ARM)
+    return half, max(reach - margin, 0.5 * reach)
 
 
 def symmetric_box(board: Board, ax: np.ndarray, ay: np.ndarray) -> float:

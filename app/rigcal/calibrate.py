@@ -195,7 +195,7 @@ def _imu_plan(inp: _Inputs, reference: str | None, camera_only: bool) -> tuple[s
 class _Detected:
     """Every board view of the dataset (detected, then those of corners/<camera>.csv), the
     detection's record, the rig with its image sizes applied (--allow-resize), the images
-    detection read, and warnings for boards never seen."""
+    detection read, and warnings for boards never seen or of a spacing too narrow."""
 
     views: list[BoardView]
     det: DetectionResult
@@ -217,7 +217,9 @@ def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_r
     rig = _apply_image_sizes(inp.rig, det, allow_resize)
     views = list(det.views) + given
     unseen = _check_detections(rig, det, views, images, inp.target, inp.target_file, fix_intrinsics)
-    return _Detected(views, det, rig, images, unseen)
+    from .april import spacing_warnings
+
+    return _Detected(views, det, rig, images, spacing_warnings(inp.target.boards) + unseen)
 
 
 def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, det, pairs: dict,
