@@ -33,7 +33,7 @@ from rigcal import april
 from rigcal import geometry as geo
 from rigcal.board_detectors import BoardDetector
 from rigcal.compare import load_truth
-from rigcal.corner_fit import STEP_PX, cross_offsets, image_gradients, refine_pairs
+from rigcal.corner_fit import STEP_PX, cell_px, cross_offsets, image_gradients, refine_pairs
 from rigcal.corner_refine import MAX_PAIRS_PER_TAG_EDGE, aprilgrid_box_passes, refine_corners
 from rigcal.image_read import read_gray
 from rigcal.rig import load_rig
@@ -78,7 +78,7 @@ def _exact_pass(stack, cam, T, board, ids, start, long_arms: bool):
     c0 = _project(cam, T, xy)
     h = 1e-3 * board.tag_size
     ax, ay = ((_project(cam, T, xy + s) - c0) / 1e-3 for s in ([h, 0.0], [0.0, h]))
-    size = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    size = cell_px(ax, ay)
     delta = max(STEP_PX / float(np.median(size)), 1.0 / MAX_PAIRS_PER_TAG_EDGE)
     cross = cross_offsets(min(april.BORDER_FRACTION, board.tag_spacing), 1.0, delta)
     w, anti = april.junction_pattern(ids, board, cross, size)
@@ -133,7 +133,7 @@ def aprilgrid_errors(ds: Path) -> dict[str, np.ndarray]:
             qs, oks = _exact_pass(stack, cam, T, board, ids[keep], qb[keep], False)
             qx, okx = _exact_pass(stack, cam, T, board, ids[keep], qb[keep], True)
             ax, ay = april.corner_axes(ids, qb)
-            size = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+            size = cell_px(ax, ay)
             for name, q in (("box", qb), ("detector", qd), ("long arms", ql)):
                 cols[name].append(np.linalg.norm(q - truth, axis=1)[keep])
             cols["exact symmetric"].append(np.where(oks, np.linalg.norm(qs - truth[keep], axis=1), np.nan))
@@ -203,7 +203,7 @@ def euroc(scales=EUROC_SCALES) -> list[dict]:
             both = okd & okl
             ax, ay = april.corner_axes(ids, qd)
             s = np.linalg.solve(np.stack([ax, ay], -1)[both], (ql - qd)[both][..., None])[..., 0]  # tag sizes
-            size = np.sqrt(np.abs(ax[both, 0] * ay[both, 1] - ax[both, 1] * ay[both, 0]))
+            size = cell_px(ax[both], ay[both])
             inwards = s * april.TOWARDS_TAG[ids[both] % 4] * size[:, None]  # px along each board axis
             row["move towards own tag px (mean)"] = float(inwards.mean())
             row["move towards own tag px (std)"] = float(inwards.std())

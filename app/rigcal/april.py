@@ -32,6 +32,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
+from .corner_fit import cell_px
 from .target import APRIL_BORDER_BITS, APRIL_DICTIONARY, Board
 
 # OpenCV's corner j of a decoded tag is Kalibr's corner CV_TO_KALIBR[j].
@@ -180,8 +181,7 @@ class AprilGridGroup:
         return len(np.unique(ids)) == len(self.ids)
 
     def _some_tag_of_every_board(self, ids: np.ndarray) -> bool:
-        return all(np.any((ids >= b.first_marker_id) & (ids < b.first_marker_id + b.n_markers))
-                   for b in self.boards)
+        return all(np.any(of_board(b, ids)) for b in self.boards)
 
     def _add(self, aruco: "cv2.aruco.ArucoDetector", image: np.ndarray, ids: np.ndarray, quads: np.ndarray,
              origin: np.ndarray, scale: int, rejected: list | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -210,12 +210,17 @@ class AprilGridGroup:
                 ids, corners = inv_ids, inv_corners
         out = []
         for b in self.boards:
-            keep = (ids >= b.first_marker_id) & (ids < b.first_marker_id + b.n_markers)
+            keep = of_board(b, ids)
             if not keep.any():
                 continue
             cid, uv = tag_corners_to_ids(ids[keep] - b.first_marker_id, corners[keep])
             out.append((b, cid, uv))
         return out
+
+
+def of_board(board: Board, ids: np.ndarray) -> np.ndarray:
+    """(M,) bool: which tag ids (full dictionary) are this board's."""
+    return (ids >= board.first_marker_id) & (ids < board.first_marker_id + board.n_markers)
 
 
 def upsampled_regions(boards: Sequence[Board], ids: np.ndarray, quads: np.ndarray, shape: tuple[int, ...]
@@ -230,7 +235,7 @@ def upsampled_regions(boards: Sequence[Board], ids: np.ndarray, quads: np.ndarra
     out = []
     h, w = shape[:2]
     for b in boards:
-        keep = (ids >= b.first_marker_id) & (ids < b.first_marker_id + b.n_markers)
+        keep = of_board(b, ids)
         missing = np.setdiff1d(np.arange(b.n_markers), ids[keep] - b.first_marker_id)
         if not keep.any() or not len(missing):
             continue
@@ -241,8 +246,7 @@ def upsampled_regions(boards: Sequence[Board], ids: np.ndarray, quads: np.ndarra
         corners = b.corners[:, :2].reshape(-1, 4, 2)[missing]  # (T, 4, 2) metres, k order
         quad = to_px(corners.reshape(-1, 2)).reshape(-1, 4, 2)
         centre = quad.mean(axis=1)
-        d1, d2 = quad[:, 2] - quad[:, 0], quad[:, 3] - quad[:, 1]
-        size = np.sqrt(0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]))
+        size = np.sqrt(np.abs(_quad_area(quad)))
         want = (np.all((centre >= 0) & (centre < [w, h]), axis=1) & (size < UPSAMPLE_BELOW_PX))
         if not want.any():
             continue
@@ -304,7 +308,7 @@ def away_from(rejected: np.ndarray, boards: Sequence[Board], ids: np.ndarray, qu
     c = rejected.mean(axis=1)
     keep = np.ones(len(rejected), bool)
     for b in boards:
-        mine = (ids >= b.first_marker_id) & (ids < b.first_marker_id + b.n_markers)
+        mine = of_board(b, ids)
         if not mine.any():
             continue
         cid, uv = tag_corners_to_ids(ids[mine] - b.first_marker_id, quads[mine])
@@ -412,7 +416,7 @@ def symmetric_cross(board: Board, ax: np.ndarray, ay: np.ndarray) -> tuple[float
     the 2-bit border reaches (the half-width; refine_symmetric takes its own blur margin off
     it)."""
     half = min(BORDER_FRACTION, board.tag_spacing)
-    size_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    size_px = cell_px(ax, ay)
     size_px = size_px[np.isfinite(size_px)]
     margin = ARM_MARGIN_PX / float(np.median(size_px)) if len(size_px) else 0.0
     reach = min(board.tag_spacing, MAX_ARM)
@@ -424,7 +428,7 @@ def symmetric_box(board: Board, ax: np.ndarray, ay: np.ndarray) -> float:
     or the corner square, whichever is narrower, less BOX_MARGIN_PX of blur at the median
     tag's scale (never below half of it)."""
     reach = min(BORDER_FRACTION, board.tag_spacing)
-    size_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    size_px = cell_px(ax, ay)
     size_px = size_px[np.isfinite(size_px)]
     if not len(size_px):
         return reach

@@ -55,6 +55,12 @@ def cross_offsets(half: float, arm: float, delta: float) -> np.ndarray:
     return np.column_stack([U[keep], V[keep]])
 
 
+def cell_px(ax: np.ndarray, ay: np.ndarray) -> np.ndarray:
+    """(N,) the image's size (px, square root of the area) of one board cell at each corner,
+    whose axes ax, ay (N, 2) are its images of one cell along board x and y."""
+    return np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+
+
 def image_gradients(gray: np.ndarray) -> np.ndarray:
     """(H, W, 3) float32: grey, d/dx, d/dy (Scharr, per pixel), stacked for one remap per sample set."""
     f = gray.astype(np.float32)
@@ -180,7 +186,7 @@ class _Cross:
 def _symmetric_cross(ax: np.ndarray, ay: np.ndarray, bend_u: np.ndarray, bend_v: np.ndarray, half: float,
                      arm: float, margin_px: float) -> _Cross | None:
     """refine_symmetric's cross for each corner with room for one (None: no corner has)."""
-    sq = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    sq = cell_px(ax, ay)
     good = np.isfinite(sq) & (sq > 4.0) & np.isfinite(bend_u) & np.isfinite(bend_v)
     sq_safe = np.where(good, sq, 1.0)
     margin_k = np.clip(half * sq_safe - CROSS_KEEP_PX, min(MIN_MARGIN_PX, margin_px), margin_px)

@@ -17,7 +17,8 @@ import cv2
 import numpy as np
 
 from . import april
-from .corner_fit import ARM_SQUARES, STEP_PX, cross_offsets, image_gradients, refine_pairs, refine_symmetric
+from .corner_fit import (ARM_SQUARES, STEP_PX, cell_px, cross_offsets, image_gradients, refine_pairs,
+                         refine_symmetric)
 from .corner_grid import corner_grid
 from .target import Board
 
@@ -134,12 +135,12 @@ def refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.nda
     # lattice of refined corners, the tag's three others: 0.04-0.28 px), so they keep the
     # box passes' result.
     pred = april.neighbour_predictions(ids, q, board, ok)
-    tag_px = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    tag_px = cell_px(ax, ay)
     far = ~ok & (np.linalg.norm(q - pred, axis=1) > np.maximum(FAILED_NEAR_PX, FAILED_NEAR_TAG * tag_px))
     placed = np.where(far[:, None], np.nan, q)
     ax2, ay2 = april.corner_axes(ids, placed)
     fine = ok & np.isfinite(ax2).all(axis=1) & np.isfinite(ay2).all(axis=1)
-    size = np.sqrt(np.abs(ax2[:, 0] * ay2[:, 1] - ax2[:, 1] * ay2[:, 0]))
+    size = cell_px(ax2, ay2)
     small = fine & (np.nan_to_num(size, nan=np.inf) < april.LONG_ARMS_BELOW_PX)
     if small.any():
         mapped = _aprilgrid_mapped(stack, ids[ok], q[ok], board, small[ok])
@@ -203,7 +204,7 @@ def _aprilgrid_mapped(stack: np.ndarray, ids: np.ndarray, uv: np.ndarray, board:
     c0 = m(xy)
     h = 1e-3 * board.tag_size
     ax, ay = ((m(xy + step) - c0) / 1e-3 for step in ([h, 0.0], [0.0, h]))
-    size = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    size = cell_px(ax, ay)
     if not np.isfinite(size).all() or size.min() <= 4.0:
         return None
     delta = max(STEP_PX / float(np.median(size)), 1.0 / MAX_PAIRS_PER_TAG_EDGE)

@@ -32,7 +32,7 @@ import numpy as np
 
 from .camera import CameraModel
 from .corner_fit import (ARM_SQUARES, CROSS_KEEP_PX, MARGIN_PX, MAX_SAMPLES_PER_ARM, MIN_MARGIN_PX, STEP_PX,
-                         cross_offsets, image_gradients, refine_pairs)
+                         cell_px, cross_offsets, image_gradients, refine_pairs)
 from .corner_refine import symmetric_half_width
 from .image_read import read_gray
 from .workers import interrupts_deferred, pool
@@ -89,7 +89,7 @@ def cross_samples(model: CameraModel, bc: BoardCorners, arm: float = ARM_SQUARES
     c0, du, dv = _project(model, bc.T_cam_board, np.concatenate(
         [P, P + [FD_STEP * s, 0.0, 0.0], P + [0.0, FD_STEP * s, 0.0]])).reshape(3, n, 2)
     ax, ay = (du - c0) / FD_STEP, (dv - c0) / FD_STEP  # px per square along the board's axes
-    sq = np.sqrt(np.abs(ax[:, 0] * ay[:, 1] - ax[:, 1] * ay[:, 0]))
+    sq = cell_px(ax, ay)
     sq = np.where(np.isfinite(sq) & (sq > 0), sq, np.nan)
     margin = np.clip(bc.half * sq - CROSS_KEEP_PX, MIN_MARGIN_PX, MARGIN_PX)
     half_k = bc.half - margin / sq
