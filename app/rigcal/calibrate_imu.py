@@ -286,7 +286,7 @@ def _gauge_pass(inp: Inputs, T_world_board: np.ndarray, gauge: int, settings: ic
     cams = _with_boards(inp, T_world_board)
     k = (inp.board == gauge) & sees[inp.cam]
     T = T_world_board[gauge]  # its corners in the world frame: this pass's only board
-    sub = ir.Corners(remap[inp.cam[k]], inp.t_cam[k], inp.uv[k], inp.p_board[k] @ T[:3, :3].T + T[:3, 3])
+    sub = ir.Corners(remap[inp.cam[k]], inp.t_cam[k], inp.uv[k], geo.transform(T, inp.p_board[k]))
     res = ic.calibrate_camera_imu([cams[i] for i in idx], sub, inp.imu, settings, sigmas=False)
     st = res.state
     T_body_cam = np.stack([c.T_body_cam for c in cams])
@@ -337,18 +337,13 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
 
 
 def jacobian(res: ic.CameraImuResult, inp: Inputs, settings: ic.Settings):
-    """(J, layout) of the final estimate: the residual blocks imu_calib minimises, rebuilt
-    from rigcal.imu_residuals' public functions (imu_calib keeps its list private)."""
+    """(J, layout) of the final estimate: the residual blocks imu_calib minimises
+    (imu_calib.residual_blocks) at its state, with `settings`' corner weights."""
     state, imu = res.state, inp.imu
     lay = ir.layout_for(state, ic.held_groups(settings))
     obs = estimator_corners(inp, len(state.T_world_board))[2].subset(res.corners_used)
-    use = ic.imu_span(state.spline, imu.t)
-    r = math.sqrt(imu.update_rate)
-    mj = ir.motion_jacobian(state, imu.t[use])
-    blocks = [ir.reprojection_rows(state, lay, obs, [c.model for c in inp.cams], settings.sigma_px),
-              ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], imu.gyroscope_noise_density * r, mj),
-              ir.accel_block(state, lay, imu.t[use], imu.accel[use], imu.accelerometer_noise_density * r, mj),
-              ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
+    blocks = ic.residual_blocks(state, lay, obs, [c.model for c in inp.cams], imu, ic.imu_span(state.spline, imu.t),
+                                settings)
     return ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay
 
 

@@ -222,7 +222,10 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
     return replace(state, R_grav=R_grav), tuple(starts), use
 
 
-def _blocks(state, lay, obs, models, imu, use, settings):
+def residual_blocks(state: ir.State, lay: ir.Layout, obs: ir.Corners, models: list, imu: ImuInput,
+                    use: np.ndarray, settings: Settings) -> list:
+    """The blocks the estimate minimises at `state`: corners (normal_rows' form), gyroscope,
+    accelerometer and the biases' random walk, on the IMU samples `use` (imu_span)."""
     sg, sa = _imu_sigmas(imu)
     mj = ir.motion_jacobian(state, imu.t[use])  # shared by both IMU blocks
     return [ir.reprojection_rows(state, lay, obs, models, settings.sigma_px, settings.huber),
@@ -410,7 +413,7 @@ def _solve(state: ir.State, starts: tuple, keep: np.ndarray, obs: ir.Corners, mo
            use: np.ndarray, settings: Settings, t0: float, cost_tol: float = 0.0, sigmas: bool = True
            ) -> CameraImuResult:
     lay = ir.layout_for(state, held_groups(settings))
-    state, blocks, iters = levenberg_marquardt(state, lay, lambda s: _blocks(s, lay, obs, models, imu, use, settings),
+    state, blocks, iters = levenberg_marquardt(state, lay, lambda s: residual_blocks(s, lay, obs, models, imu, use, settings),
                                                settings.max_iter, cost_tol)
     names = ("corners", "gyro", "accel", "bias_walk")
     rms = {k: b.residual_rms for k, b in zip(names, blocks)}
