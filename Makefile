@@ -24,7 +24,7 @@ test: $(STAMP) browser-deps
 test-pythons:
 	bash scripts/test-pythons.sh
 
-# Headless Chromium for tests/test_browser.py (Debian's chromium + chromium-driver, ~90 s
+# Headless Chromium for tests/results/test_browser.py (Debian's chromium + chromium-driver, ~90 s
 # to install). Never fails the build: where it cannot be installed (no root, no apt-get,
 # no network) the browser tests skip and say why.
 browser-deps:

@@ -12,7 +12,7 @@ Sections (each also runs alone: python -m bench.<name>):
   long_recording  `rigcal calibrate` end to end on 4 cameras x 1,500 rendered frames (render cached)
   real         real photographs vs published references
   holdout      caliscope's webcams: intrinsics and whole rigs scored on held-out frames (2-fold)
-  indie        scenes from an independent renderer (tests/indie_render.py) vs its truth
+  indie        scenes from an independent renderer (tests/support/indie_render.py) vs its truth
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures

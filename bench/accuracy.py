@@ -17,7 +17,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from rigcal.bounds import measured_corner_noise
+from rigcal.camcal.bounds import measured_corner_noise
 
 from .common import (JOBS, SCENARIOS, Timer, calibrate_dataset, crb_pairs, get_dataset, md_table, rig_errors, say, scenario,
                      write_json)

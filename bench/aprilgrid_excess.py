@@ -3,7 +3,7 @@
 
     python -m bench.aprilgrid_excess [--frames 3] [--seed 1]
 
-The four rendered cases of tests/test_aprilgrid_render.py (same 6x6 targets, same seed and
+The four rendered cases of tests/detect/test_aprilgrid_render.py (same 6x6 targets, same seed and
 frames), each noise-free and at noise 2, with the AprilGrid and with the ChArUco board.
 Every detected AprilGrid corner is measured against the render's truth three ways, from
 the same OpenCV tags: the corner square's box pass alone ("box"), today's detector (box,
@@ -29,16 +29,16 @@ import cv2
 import numpy as np
 import yaml
 
-from rigcal import april
-from rigcal import geometry as geo
-from rigcal.board_detectors import BoardDetector
-from rigcal.compare import load_truth
-from rigcal.corner_fit import STEP_PX, cell_px, cross_offsets, image_gradients, refine_pairs
-from rigcal.corner_refine import MAX_PAIRS_PER_TAG_EDGE, aprilgrid_box_passes, refine_corners
-from rigcal.image_read import read_gray
-from rigcal.rig import load_rig
-from rigcal.simulate import simulate_dataset
-from rigcal.target import load_target, parse_target
+from rigcal.detect import april
+from rigcal.core import geometry as geo
+from rigcal.detect.board_detectors import BoardDetector
+from rigcal.data.truth import load_truth
+from rigcal.detect.corner_fit import STEP_PX, cell_px, cross_offsets, image_gradients, refine_pairs
+from rigcal.detect.corner_refine import MAX_PAIRS_PER_TAG_EDGE, aprilgrid_box_passes, refine_corners
+from rigcal.data.image_read import read_gray
+from rigcal.core.rig import load_rig
+from rigcal.sim.simulate import simulate_dataset
+from rigcal.core.target import load_target, parse_target
 
 from .common import RIGS, md_table, say, write_json
 

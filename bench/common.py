@@ -1,6 +1,6 @@
 """Shared pieces of the benchmarks: scenarios, the render + detect cache, calibration
 runs, table printing and JSON output. Synthetic corner observations (no rendering) come
-from rigcal.synthetic.
+from rigcal.sim.synthetic.
 
 Every random draw is seeded. Renders and detections are cached per (scenario, frames,
 seed) under bench/out/cache, keyed by a hash of the code that produces them
@@ -23,12 +23,13 @@ from pathlib import Path
 import numpy as np
 
 import rigcal
-from rigcal import geometry as geo
-from rigcal.compare import Truth, compare_rigs, load_truth
-from rigcal.body_frame import reference_transform
-from rigcal.pipeline import Calibration, calibrate_views
-from rigcal.observations import BoardView
-from rigcal.rig import Rig
+from rigcal.core import geometry as geo
+from rigcal.results.compare import compare_rigs
+from rigcal.data.truth import Truth, load_truth
+from rigcal.camcal.body_frame import reference_transform
+from rigcal.camcal.pipeline import Calibration, calibrate_views
+from rigcal.core.observations import BoardView
+from rigcal.core.rig import Rig
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "bench" / "out"
@@ -128,14 +129,14 @@ def get_dataset(scn: Scenario, seed: int, keep_images: bool | None = None, log=N
     for the guided pass); otherwise only rig.yaml, target.yaml, truth.yaml and the
     detections are kept. None (default): keep them when `--guided auto` would read
     them again (a rig with fisheye cameras)."""
-    from rigcal.guided import guided_cameras
+    from rigcal.detect.guided import guided_cameras
 
     if keep_images is None:
         keep_images = bool(guided_cameras(rigcal.load_rig(scn.rig_path), "auto"))
-    from rigcal.dataset import list_dataset
-    from rigcal.detect import detect_dataset
-    from rigcal.simulate import simulate_dataset
-    from rigcal.target import load_target
+    from rigcal.data.dataset import list_dataset
+    from rigcal.detect.detect import detect_dataset
+    from rigcal.sim.simulate import simulate_dataset
+    from rigcal.core.target import load_target
 
     d = dataset_dir(scn, seed)
     meta_path = d / "detections.pkl"
@@ -172,7 +173,7 @@ def view_tuples(views) -> list[tuple]:
 
 
 def _dataset_from(scn: Scenario, seed: int, d: Path, meta: dict, cached: bool, images_kept: bool) -> Dataset:
-    from rigcal.target import load_target
+    from rigcal.core.target import load_target
 
     rig = rigcal.load_rig(d / "rig.yaml")
     target = load_target(d / "target.yaml")
@@ -195,9 +196,9 @@ def calibrate(views: list[BoardView], rig: Rig, corners: dict, distortion: str =
 def folder_hook(folder: Path, rig: Rig, mode: str = "auto", jobs: int = 1):
     """The rerefine hook `rigcal calibrate --guided MODE` builds for the dataset in `folder`
     (its images and target.yaml), or None when MODE guides none of rig's cameras."""
-    from rigcal.dataset import list_dataset
-    from rigcal.guided import guided_cameras, rerefiner
-    from rigcal.target import load_target
+    from rigcal.data.dataset import list_dataset
+    from rigcal.detect.guided import guided_cameras, rerefiner
+    from rigcal.core.target import load_target
 
     if not guided_cameras(rig, mode):
         return None
@@ -208,7 +209,7 @@ def guided_hook(ds: Dataset, mode: str = "auto", jobs: int = 1):
     """folder_hook for a rendered dataset. Raises if it would guide a camera but the
     render's images were not kept: a benchmark must not quietly measure the detector's
     corners where the command line would re-measure them."""
-    from rigcal.guided import guided_cameras
+    from rigcal.detect.guided import guided_cameras
 
     if guided_cameras(ds.rig, mode) and not ds.images_kept:
         raise RuntimeError(f"{ds.path}: --guided {mode} needs the images; get_dataset(keep_images=True)")
@@ -248,14 +249,14 @@ MIN_FRAME_CORNERS = 4
 
 
 def crb_pairs(cal: Calibration, truth: Truth, sigma_px: float) -> tuple[dict, int]:
-    """rigcal.bounds.pair_bounds, robust to frames the calibration left with fewer than
+    """rigcal.camcal.bounds.pair_bounds, robust to frames the calibration left with fewer than
     MIN_FRAME_CORNERS inlier corners: such a frame's 6 pose unknowns absorb its few
     residuals exactly, so it carries no information about the cameras, but its singular
-    block makes pair_bounds raise (rigcal.solve.camera_covariance inverts every frame
+    block makes pair_bounds raise (rigcal.camcal.solve.camera_covariance inverts every frame
     block). Their corners are left out of the bound. Returns (bounds, frames left out)."""
     from dataclasses import replace
 
-    from rigcal.bounds import pair_bounds
+    from rigcal.camcal.bounds import pair_bounds
 
     o = cal.obs
     n = np.bincount(o.frame[cal.inliers], minlength=len(cal.frames))
@@ -283,8 +284,8 @@ def rig_scale_ppm(cal: Calibration, truth_rig: Rig) -> float:
 def true_projections(cal: Calibration, truth: Truth) -> np.ndarray | None:
     """(M, 2) exact projections of every observation the calibration was given,
     through the true rig and true board/frame poses (None when truth has no poses)."""
-    from rigcal.bounds import true_state
-    from rigcal.solve import Problem
+    from rigcal.camcal.bounds import true_state
+    from rigcal.camcal.solve import Problem
 
     st = true_state(cal, truth)
     if st is None:
@@ -329,7 +330,7 @@ def rig_errors(est: Rig, truth_rig: Rig) -> dict:
 
 def perturbed_truth(rig: Rig, seed: int) -> Rig:
     """The library's own mounting/lens perturbation (what `rigcal simulate` applies)."""
-    from rigcal.simulate import perturb_rig
+    from rigcal.sim.simulate import perturb_rig
 
     return perturb_rig(rig, np.random.default_rng([seed, 1]))
 

@@ -5,11 +5,11 @@ Targets at 300 frames: solve < 3 min, peak memory < 4 GB.
 The dome: 60 pinhole cameras (1024x768, f = 1100 px, mild radial-tangential distortion)
 spread evenly (a Fibonacci lattice) over the band of a 3.5 m sphere from 5 deg below to
 65 deg above the horizon, all looking at its centre; the declared rig is perturbed
-(rigcal.simulate.perturb_rig, seed 0) into the truth. The target: five ChArUco boards
+(rigcal.sim.simulate.perturb_rig, seed 0) into the truth. The target: five ChArUco boards
 (8 x 6 squares of 8 cm, 35 corners each) fixed on the four sides and the top of a box,
 printed faces out, carried through the volume: per frame a random heading, tilt +-25 deg,
 offset +-1.2 m across and +-0.5 m up. A camera keeps a board only from its printed side,
-with >= 8 corners inside the image and not seen grazing (rigcal.synthetic.board_view);
+with >= 8 corners inside the image and not seen grazing (rigcal.sim.synthetic.board_view);
 corners are the exact projections plus 0.1 px Gaussian noise.
 
 Each size is written as a dataset (rig.yaml, target.yaml, corners/<camera>.csv,
@@ -35,11 +35,11 @@ import numpy as np
 import yaml
 
 import rigcal
-from rigcal import geometry as geo
-from rigcal.io import atomic_write_texts
-from rigcal.synthetic import board_view, with_noise
-from rigcal.observations import BoardView
-from rigcal.target import parse_target
+from rigcal.core import geometry as geo
+from rigcal.core.io import atomic_write_texts
+from rigcal.sim.synthetic import board_view, with_noise
+from rigcal.core.observations import BoardView
+from rigcal.core.target import parse_target
 
 from .common import CACHE, OUT, Timer, md_table, perturbed_truth, rig_errors, run_sizes, say, sizes_main
 
@@ -141,7 +141,7 @@ def make_dataset(frames: int, n_cameras: int = N_CAMERAS, root: Path = CACHE, lo
     the truth."""
     d = root / f"dome-{n_cameras}x{frames}"
     rig_text = yaml.safe_dump(dome_rig_dict(n_cameras), sort_keys=False)
-    truth = perturbed_truth(rigcal.rig.parse_rig(rig_text, "dome"), 0)
+    truth = perturbed_truth(rigcal.core.rig.parse_rig(rig_text, "dome"), 0)
     if (d / "corners").is_dir() and (d / "rig.yaml").is_file():
         return d, truth
     log(f"dome: writing {n_cameras} cameras x {frames} frames of corners ...")

@@ -40,10 +40,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rigcal import render
-from rigcal.compare import compare_rigs, load_truth
-from rigcal.rig import load_rig
-from rigcal.simulate import simulate_dataset
+from rigcal.sim import render
+from rigcal.results.compare import compare_rigs
+from rigcal.data.truth import load_truth
+from rigcal.core.rig import load_rig
+from rigcal.sim.simulate import simulate_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 RIG = ROOT / "rigs" / "drone-stereo-back.yaml"

@@ -1,4 +1,4 @@
-"""Benchmark: the prototype camera-IMU estimator (rigcal.imu_calib; not yet used by
+"""Benchmark: the prototype camera-IMU estimator (rigcal.imucal.estimator; not yet used by
 `rigcal calibrate`) on synthetic corner recordings of rigs/drone-stereo-back-imu.yaml:
 3 cameras x 30 s x 20 Hz + a 200 Hz IMU, the `simulate --scene imu` truth projected
 (not rendered) with 0.3 px corner noise, true intrinsics, known board poses.
@@ -18,10 +18,10 @@ import time
 
 import numpy as np
 
-from rigcal import geometry as geo
-from rigcal import imu_calib as ic
-from rigcal import imu_synthetic as isyn
-from rigcal.rig import load_rig
+from rigcal.core import geometry as geo
+from rigcal.imucal import estimator as ic
+from rigcal.sim import imu_corners as isyn
+from rigcal.core.rig import load_rig
 
 from .common import RIGS, md_table, write_json
 
@@ -52,14 +52,14 @@ def run_seed(seed: int, duration: float) -> dict:
 
 def run_rendered(duration: float, camera_rate: float = 20.0, seed: int = 0) -> dict:
     """The same on a rendered `simulate --scene imu` recording: detection and PnP by
-    rigcal.imu_dataset, true intrinsics and board poses (the prototype's assumptions)."""
+    rigcal.imucal.inputs, true intrinsics and board poses (the prototype's assumptions)."""
     import shutil
     import tempfile
     from dataclasses import replace
     from pathlib import Path
 
-    from rigcal import imu_dataset
-    from rigcal.simulate_imu import simulate_motion_dataset
+    from rigcal.imucal import inputs as imu_dataset
+    from rigcal.sim.imu_scene import simulate_motion_dataset
 
     rig = load_rig(RIG)
     tmp = Path(tempfile.mkdtemp(prefix="rigcal-bench-imucal-"))
@@ -122,7 +122,7 @@ def tables(r: dict) -> str:
         d = r["results"][0]["duration_s"]
         t = md_table(["seed", "camera", "rotation err deg (1-sigma)", "translation err mm (1-sigma)",
                       "offset err ms (1-sigma)", "start: rot deg / offset ms", "start + solve s", "LM iterations"],
-                     rows, title=f"camera-IMU prototype (rigcal.imu_calib), drone-stereo-back-imu, {d:g} s synthetic "
+                     rows, title=f"camera-IMU prototype (rigcal.imucal.estimator), drone-stereo-back-imu, {d:g} s synthetic "
                                  f"corners, 0.3 px noise (issue 18 targets: 0.01 deg, 1 mm, 0.05 ms)")
         rms = r["results"][0]["normalised_rms"]
         t += ("\nresidual RMS / declared noise (seed 0): " + ", ".join(f"{k} {v:.2f}" for k, v in rms.items()) +

@@ -8,7 +8,7 @@ board but the gauge and every camera's intrinsics estimated), then each reported
 against truth.yaml in units of its own 1-sigma, per component in the axes the sigmas are
 given in: T_imu_cam's rotation (Log(R_est R_true^T), body axes) and translation (body axes),
 the time offset, fx, fy, cx, cy, and the IMU's mean gyroscope and accelerometer biases
-(against truth.yaml's sampled biases, rigcal.imu_outputs.compare_imu). The three cameras of a seed share the IMU's errors, so
+(against truth.yaml's sampled biases, rigcal.results.imu_outputs.compare_imu). The three cameras of a seed share the IMU's errors, so
 the samples are not all independent: read the shares with that in mind.
 
     python -m bench.imu_coverage [--seeds N] [--duration S] [--camera-rate HZ]
@@ -25,11 +25,11 @@ from types import SimpleNamespace
 import numpy as np
 import yaml
 
-from rigcal import geometry as geo
-from rigcal.compare import load_truth
-from rigcal.imu_outputs import compare_imu
-from rigcal.imu_synthetic import component_errors
-from rigcal.rig import load_rig
+from rigcal.core import geometry as geo
+from rigcal.data.truth import load_truth
+from rigcal.results.imu_outputs import compare_imu
+from rigcal.sim.imu_corners import component_errors
+from rigcal.core.rig import load_rig
 
 from .common import JOBS, OUT, RIGS, Timer, md_table, say, write_json
 

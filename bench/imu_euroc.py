@@ -1,4 +1,4 @@
-"""Benchmark: the camera-IMU estimator (rigcal.imu_calib) on EuRoC's real calibration
+"""Benchmark: the camera-IMU estimator (rigcal.imucal.estimator) on EuRoC's real calibration
 recording `imu_april` (../shared/data/real/euroc_imu_april: 72 s, stereo MT9V034 at 20 Hz,
 yac's AprilGrid corners, ADIS16448 at 200 Hz), against EuRoC's published T_BS (Kalibr's
 result, not ground truth).
@@ -24,9 +24,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rigcal import geometry as geo
-from rigcal import imu_calib as ic
-from rigcal import imu_residuals as ir
+from rigcal.core import geometry as geo
+from rigcal.imucal import estimator as ic
+from rigcal.imucal import residuals as ir
 
 from .common import OUT, Timer, md_table, say, write_json
 from .real import SHARED, linked
@@ -58,10 +58,10 @@ def load(log=say) -> EurocData | None:
     import yaml
 
     import rigcal
-    from rigcal.observations import BoardView
-    from rigcal.corners import read_corners
-    from rigcal.motion import read_imu_csv
-    from rigcal.target import load_target
+    from rigcal.core.observations import BoardView
+    from rigcal.data.corners import read_corners
+    from rigcal.data.imu_csv import read_imu_csv
+    from rigcal.core.target import load_target
 
     d = linked("euroc", log)
     if d is None:
@@ -86,7 +86,7 @@ def load(log=say) -> EurocData | None:
 
 def camera_only(data: EurocData):
     """rigcal's camera-only calibration of the corners: (models by camera, RMS px, seconds)."""
-    from rigcal.pipeline import calibrate_views
+    from rigcal.camcal.pipeline import calibrate_views
 
     b = data.target.boards[0]
     with Timer() as t:
@@ -106,7 +106,7 @@ def euroc_models(data: EurocData, like: dict) -> dict:
 def inputs(data: EurocData, models: dict, t_lo: float = -np.inf, t_hi: float = np.inf):
     """(cameras, corners, imu) for calibrate_camera_imu: PnP per frame with `models`, every
     corner of the frames whose time lies in [t_lo, t_hi), the IMU samples over that span."""
-    from rigcal.initialise import pnp_views
+    from rigcal.camcal.initialise import pnp_views
 
     board = data.board_corners
     cams, parts = [], []

@@ -22,9 +22,9 @@ from pathlib import Path
 
 import yaml
 
-from rigcal.compare import load_truth
-from rigcal.imu_outputs import compare_imu
-from rigcal.rig import load_rig
+from rigcal.data.truth import load_truth
+from rigcal.results.imu_outputs import compare_imu
+from rigcal.core.rig import load_rig
 
 from .common import JOBS, OUT, RIGS, Timer, md_table, say, write_json
 

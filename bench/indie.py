@@ -1,4 +1,4 @@
-"""rigcal on scenes from an independent renderer (tests/indie_render.py: OpenCV and the spec
+"""rigcal on scenes from an independent renderer (tests/support/indie_render.py: OpenCV and the spec
 only, no rigcal code), errors against its truth.
 
 Three scenes, rendered with 4 x 4 samples per pixel into bench/out/indie/ and calibrated
@@ -29,13 +29,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from rigcal.compare import compare_rigs, load_truth
-from rigcal.rig import load_rig
+from rigcal.results.compare import compare_rigs
+
+from rigcal.data.truth import load_truth
+from rigcal.core.rig import load_rig
 
 from .common import OUT, md_table, say, write_json
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-import indie_render as ir  # noqa: E402
+from tests.support import indie_render as ir
 
 BIN = Path(sys.executable).parent / "rigcal"
 SCENES = (
@@ -82,7 +83,7 @@ def run(log=say) -> dict:
 
 
 def tables(results: dict) -> str:
-    out = ["\n## Independent renderer (tests/indie_render.py)\n"]
+    out = ["\n## Independent renderer (tests/support/indie_render.py)\n"]
     rows, cams = [], []
     for name, r in results.items():
         if "error" in r:

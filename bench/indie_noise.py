@@ -1,13 +1,13 @@
 """The fisheye noise-limit excess, re-measured on images from the independent renderer.
 
 This measures the DETECTOR's corners (`rigcal calibrate --guided off`): it was written to
-find where the fisheye excess came from, before the guided pass (rigcal.guided, the
+find where the fisheye excess came from, before the guided pass (rigcal.detect.guided, the
 default for fisheye cameras) removed it; bench.noise_limit and bench.archive.guided measure that.
 
 bench.noise_limit finds the fisheye stereo pair's relative rotation 1.6x its Cramér-Rao
 bound on rigcal's own renders (pinhole rigs 0.7-1.3x). Is that rigcal's renderer
 (texture level choice, sampling of the compressed periphery) or its detector? Here the
-images come from tests/indie_render.py (OpenCV and the spec only, exact rays, S x S
+images come from tests/support/indie_render.py (OpenCV and the spec only, exact rays, S x S
 box-filtered supersampling) and everything after the render is noise_limit's own
 machinery: rigcal detects (detect_dataset on list_dataset), bench.common.calibrate
 calibrates, the bound is crb_pairs with the measured corner noise (detected vs true
@@ -27,7 +27,7 @@ board and board poses rendered by indie_render:
   rigcal-poses   indie_render's images of that very scene
 and the cross cell, which separates the planner's geometry from the renderer:
   fisheye-rigcal-render  indie's waved fisheye truth (cameras, board, the 20 poses of
-                 `fisheye` above) rendered by rigcal's own renderer (rigcal.simulate's
+                 `fisheye` above) rendered by rigcal's own renderer (rigcal.sim.simulate's
                  board-scene rendering, simulate_dataset's noise 2 and no blur)
 
 Ratios are RMS(error over seeds) / RMS(bound over seeds), as noise_limit reports them;
@@ -35,7 +35,7 @@ one seed's error / bound strays a lot (0.2-2.6 over 10 seeds), so a third table 
 the per-seed quartiles and a 90 % bootstrap interval (over seeds) of the RMS ratio.
 The truth's distortion is cut to the length of the model rigcal chose when the cut
 coefficients are zero (indie's pinhole truth has k3 = 0, rigcal picks radtan4):
-rigcal.bounds.true_state takes the truth's length, and a bound with a free k3 the
+rigcal.camcal.bounds.true_state takes the truth's length, and a bound with a free k3 the
 calibration did not have is too large (the ratio comes out too small).
 
 S = 4 (4 x 4 samples per pixel) by default: 10 seeds of the first four scenes take ~10 min
@@ -57,16 +57,15 @@ from pathlib import Path
 import numpy as np
 
 import rigcal
-from rigcal.bounds import measured_corner_noise
-from rigcal.compare import load_truth
+from rigcal.camcal.bounds import measured_corner_noise
+from rigcal.data.truth import load_truth
 from rigcal.errors import RigcalError
 
 from .common import (OUT, Timer, calibrate, gaussian_views, md_table, run_pool, say, true_projections,
                      write_json)
 from .noise_limit import error_to_bound, pair_stats, view_offsets
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-import indie_render as ir  # noqa: E402
+from tests.support import indie_render as ir
 
 FRAMES = 20
 SCENES = ("fisheye", "pinhole", "rigcal-render", "rigcal-poses", "fisheye-rigcal-render")
@@ -102,12 +101,12 @@ def scene_from_rigcal(seed: int) -> tuple:
 
 def render_indie_scene_with_rigcal(scene, out: Path, seed: int) -> None:
     """Write `scene` (an indie_render Scene: true cameras, board, per-frame poses) as a
-    dataset under `out` whose images come from rigcal's own renderer (rigcal.simulate's
+    dataset under `out` whose images come from rigcal's own renderer (rigcal.sim.simulate's
     board-scene rendering with simulate_dataset's defaults: noise 2, no blur) instead of
     rigcal's planner: the scene's truth.yaml is read back as rigcal's truth and its poses
     become a simulate.Scene. rig.yaml, target.yaml and truth.yaml are indie_render's."""
-    from rigcal.simulate import RenderSettings, Scene, render_all
-    from rigcal.target import load_target
+    from rigcal.sim.simulate import RenderSettings, Scene, render_all
+    from rigcal.core.target import load_target
 
     out.mkdir(parents=True)
     ir._write_yaml(out / "rig.yaml", scene.declared)
@@ -132,9 +131,9 @@ def _rigcal_dataset(seed: int) -> None:
 def render_and_detect(kind: str, seed: int, S: int) -> tuple:
     """Render one seeded scene with indie_render and detect it with rigcal.
     Returns (declared rig, truth, board corners {name: (N, 3)}, views, render s, detect s)."""
-    from rigcal.dataset import list_dataset
-    from rigcal.detect import detect_dataset
-    from rigcal.target import load_target
+    from rigcal.data.dataset import list_dataset
+    from rigcal.detect.detect import detect_dataset
+    from rigcal.core.target import load_target
 
     if kind == "rigcal-render":
         ds = scene_from_rigcal(seed)[0]

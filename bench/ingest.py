@@ -39,8 +39,8 @@ cameras:
 
 
 def _frames(tmp: Path, n: int = 20, scale: float = 1.0) -> dict[str, list[np.ndarray]]:
-    from rigcal.rig import parse_rig
-    from rigcal.simulate import simulate_dataset
+    from rigcal.core.rig import parse_rig
+    from rigcal.sim.simulate import simulate_dataset
 
     text = RIG
     if scale != 1.0:  # the smoke test renders tiny images
@@ -52,8 +52,7 @@ def _frames(tmp: Path, n: int = 20, scale: float = 1.0) -> dict[str, list[np.nda
 
 
 def _bag(tmp: Path, kind: str, frames: dict[str, list[np.ndarray]], seconds: float) -> tuple[Path, float]:
-    sys.path.insert(0, str(ROOT / "tests"))
-    import recordings as R
+    from tests.support import recordings as R
 
     n = int(round(seconds * 20))
     images = {c: [(R.T0_NS + i * R.DT_NS, imgs[i % len(imgs)]) for i in range(n)] for c, imgs in frames.items()}

@@ -26,8 +26,8 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from rigcal import geometry as geo
-from rigcal.pipeline import calibrate_views
+from rigcal.core import geometry as geo
+from rigcal.camcal.pipeline import calibrate_views
 
 from .common import md_table, say, write_json
 from .real import caliscope_centre_rig, caliscope_intrinsics_rig, caliscope_reference, detections, linked

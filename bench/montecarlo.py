@@ -27,7 +27,7 @@ import argparse
 import numpy as np
 
 import rigcal
-from rigcal.synthetic import room_scene, with_noise
+from rigcal.sim.synthetic import room_scene, with_noise
 
 from .common import RIGS, Timer, calibrate, md_table, perturbed_truth, pose_errors_body, run_pool, say, write_json
 from .noise_limit import truth_model

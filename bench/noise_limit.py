@@ -3,7 +3,7 @@
 For each scenario and seed: render (seeded), detect, calibrate; the bound is the
 Fisher information of the bundle adjustment at the TRUE state, for the corners the
 calibration used, with the measured corner noise (detected corners vs their true
-projections), pushed through each pair's relative pose (rigcal.bounds). The ratio
+projections), pushed through each pair's relative pose (rigcal.camcal.bounds). The ratio
 reported per pair is RMS(error over seeds) / RMS(bound over seeds); 1.0 is an
 efficient estimator, the goal is <= 1.2 (issue 4: within 1.3x).
 
@@ -16,14 +16,14 @@ first seeds two more diagnostics run: distortion fixed to the truth's own model
 state on the detected corners (did the solver stop at the minimum?).
 
 Every seed is calibrated as `rigcal calibrate` calibrates (--guided auto: a fisheye
-camera's corners are measured again once the rig is solved, rigcal.guided); where that
+camera's corners are measured again once the rig is solved, rigcal.detect.guided); where that
 guides a camera, the same detections are also calibrated with the guided pass off, each
 with the bound for its own measured corner noise. The white-noise and restart diagnostics
 start from the default calibration; corner weighting and the hetero CRB are about the
 detector's own sigma, so they use the detector's corners.
 
-Corner weighting (rigcal.pipeline.calibrate_views(weight_corners=True): each corner weighted
-by the detector's own sigma, calibrated per camera on the residuals, rigcal.solve's
+Corner weighting (rigcal.camcal.pipeline.calibrate_views(weight_corners=True): each corner weighted
+by the detector's own sigma, calibrated per camera on the residuals, rigcal.camcal.solve's
 NoiseModel) runs on the same detections as a variant, with its own restart and the
 honesty of its reported sigmas. The 'hetero CRB' is the bound for corners whose noise
 differs as the detector's sigma can tell (the NoiseModel fitted on the TRUE errors):
@@ -43,12 +43,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from rigcal import geometry as geo
+from rigcal.core import geometry as geo
 from rigcal.errors import RigcalError
-from rigcal.bounds import relative_pose_jacobian, measured_corner_noise, true_state
-from rigcal.pipeline import weighted_solve
-from rigcal.solve import (Intrinsics, Problem, SolveResult, State, bundle_adjust, camera_covariance, fit_noise_model,
-                          noise_weights)
+from rigcal.camcal.bounds import relative_pose_jacobian, measured_corner_noise, true_state
+from rigcal.camcal.pipeline import weighted_solve
+from rigcal.camcal.solve import (Intrinsics, Problem, SolveResult, State, bundle_adjust, camera_covariance,
+                                 fit_noise_model, noise_weights)
 
 from .common import (SCENARIOS, Timer, calibrate, calibrate_dataset, crb_pairs, gaussian_views, get_dataset, md_table, pose_errors_body,
                      rig_errors, rig_scale_ppm, run_pool, say, scenario, true_projections, write_json)
@@ -71,7 +71,7 @@ def pair_stats(cal, truth, sigma: float) -> dict:
 
 
 def hetero_weights(cal, uv_true: np.ndarray) -> np.ndarray | None:
-    """(M,) 1 / s^2 per corner, s the NoiseModel (rigcal.solve) fitted per camera on the
+    """(M,) 1 / s^2 per corner, s the NoiseModel (rigcal.camcal.solve) fitted per camera on the
     TRUE corner errors against the detector's own sigma: the best a weighting by that
     sigma can know. None without detector sigmas."""
     s_det = cal.corner_sigma_detected
@@ -87,7 +87,7 @@ def hetero_weights(cal, uv_true: np.ndarray) -> np.ndarray | None:
 
 
 def hetero_pair_bounds(cal, truth, weights: np.ndarray) -> dict:
-    """rigcal.bounds.pair_bounds for corners whose noise differs (1 / weights px^2 each):
+    """rigcal.camcal.bounds.pair_bounds for corners whose noise differs (1 / weights px^2 each):
     the Cramér-Rao bound of the weighted solve with those very weights (variance factor 1)."""
     st = true_state(cal, truth)
     obs = replace(cal.obs, weight=weights).subset(cal.inliers)
@@ -158,7 +158,7 @@ def _relative(T_cam_body: np.ndarray, i: int, j: int) -> np.ndarray:
 
 def restart_from_truth(cal, truth) -> dict | None:
     """Bundle adjustment of the same detected corners started at the true state (the
-    calibrated distortion model, true values; corner weighting as rigcal.pipeline does it,
+    calibrated distortion model, true values; corner weighting as rigcal.camcal.pipeline does it,
     pipeline.weighted_solve): the largest difference from the
     calibration's own relative poses (deg, mm) says whether the solver stopped short."""
     st = true_state(cal, truth)

@@ -35,9 +35,9 @@ import time
 import cv2
 import numpy as np
 
-from rigcal import geometry as geo
-from rigcal.camera import CameraModel
-from rigcal.rig import Camera
+from rigcal.core import geometry as geo
+from rigcal.core.camera import CameraModel
+from rigcal.core.rig import Camera
 
 from .common import JOBS, SCENARIOS, Timer, calibrate_dataset, get_dataset, md_table, rig_errors, say, scenario, write_json
 

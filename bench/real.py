@@ -38,9 +38,9 @@ from typing import NamedTuple
 import numpy as np
 
 import rigcal
-from rigcal import geometry as geo
-from rigcal.pipeline import calibrate_views
-from rigcal.observations import BoardView
+from rigcal.core import geometry as geo
+from rigcal.camcal.pipeline import calibrate_views
+from rigcal.core.observations import BoardView
 
 from .common import (CACHE, JOBS, OUT, ROOT, Timer, calibrate, code_hash, folder_hook, md_table, say, view_tuples,
                      write_json)
@@ -57,9 +57,9 @@ TRINOCULAR_REF_SQUARES = {("left", "middle"): 4.909, ("middle", "right"): 4.749,
 
 def detections(dataset: Path, tag: str, log=say):
     """(rig, corners, views, n_images, detection seconds), detections cached."""
-    from rigcal.dataset import list_dataset
-    from rigcal.detect import detect_dataset
-    from rigcal.target import load_target
+    from rigcal.data.dataset import list_dataset
+    from rigcal.detect.detect import detect_dataset
+    from rigcal.core.target import load_target
 
     rig = rigcal.load_rig(dataset / "rig.yaml")
     target = load_target(dataset / "target.yaml")
@@ -172,8 +172,8 @@ def caliscope_reference(name: str = "caliscope") -> dict[str, np.ndarray]:
 def caliscope_intrinsics_rig(rig, name: str = "caliscope"):
     """The declared rig with caliscope's own intrinsics (its camera_array.toml, calibrated by
     caliscope from separate recordings that are not in the set; the same in both sets)."""
-    from rigcal.camera import CameraModel
-    from rigcal.rig import Camera
+    from rigcal.core.camera import CameraModel
+    from rigcal.core.rig import Camera
 
     doc = _caliscope_doc(name)["cameras"]
     cams = []
@@ -246,9 +246,9 @@ def centre_lr(rig, corners: dict, views: list, ref_rig) -> dict:
     likelihood ratio (chi-square, 2 degrees of freedom; 18.4 at rigcal's level 1e-4) of a
     one-camera bundle adjustment (radtan4) with cx, cy held at caliscope's values against
     cx, cy free, on the same corners."""
-    from rigcal.initialise import one_camera_solve
-    from rigcal.model_selection import refit, with_structure
-    from rigcal.solve import Intrinsics
+    from rigcal.camcal.initialise import one_camera_solve
+    from rigcal.camcal.model_selection import refit, with_structure
+    from rigcal.camcal.solve import Intrinsics
 
     out = {}
     for c in rig.cameras:
@@ -280,8 +280,8 @@ def euroc(log=say) -> dict | None:
     its corners/ files (no images, so no detection and no guided pass)."""
     import yaml
 
-    from rigcal.corners import read_corners
-    from rigcal.target import load_target
+    from rigcal.data.corners import read_corners
+    from rigcal.core.target import load_target
 
     d = linked("euroc", log)
     if d is None:

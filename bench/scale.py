@@ -4,7 +4,7 @@ Peak memory per corner (issue 21: <= 1 kB) is the process's peak RSS over the co
 table also gives it above the RSS before calibrating (interpreter, libraries, the views).
 
 Detections are synthetic (exact projections of four wall boards around rigs/surround-6
-plus 0.1 px Gaussian noise, rigcal.synthetic.room_scene): rendering 3000 images would
+plus 0.1 px Gaussian noise, rigcal.sim.synthetic.room_scene): rendering 3000 images would
 measure the renderer, not the solver. Each size runs in its own process so the peak
 resident memory (ru_maxrss) belongs to that calibration alone.
 
@@ -19,7 +19,7 @@ import resource
 import numpy as np
 
 import rigcal
-from rigcal.synthetic import room_scene, with_noise
+from rigcal.sim.synthetic import room_scene, with_noise
 
 from .common import RIGS, Timer, calibrate, md_table, perturbed_truth, rig_errors, run_sizes, say, sizes_main
 

@@ -22,8 +22,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from rigcal.rig import load_rig
-from rigcal.simulate_imu import simulate_motion_dataset
+from rigcal.core.rig import load_rig
+from rigcal.sim.imu_scene import simulate_motion_dataset
 
 from .common import JOBS, OUT, RIGS, md_table, write_json
 

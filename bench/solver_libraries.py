@@ -11,7 +11,7 @@ The rig (shared extrinsics per camera) is not a factor gtsam ships for Python, s
 gtsam side is one `gtsam.CustomFactor` per board view (all its corners, Jacobians
 vectorised in numpy, gtsam's right-multiplied pose retraction); gtsam does the graph,
 the ordering, the sparse Cholesky and Levenberg-Marquardt. Gauge: camera 0 and board 0
-are constants on both sides. The scene is rigcal.synthetic's room (drone-stereo-back,
+are constants on both sides. The scene is rigcal.sim.synthetic's room (drone-stereo-back,
 four wall boards, 0.3 px noise): what the two solvers find must agree to far below the
 noise-limited error, which makes this a cross-check of rigcal's solver as well.
 
@@ -27,9 +27,9 @@ from dataclasses import replace
 import numpy as np
 
 import rigcal
-from rigcal import geometry as geo
-from rigcal.solve import LS_LAM0, Intrinsics, Observations, Problem, State, levenberg_marquardt, projection_jacobians
-from rigcal.synthetic import room_scene, with_noise
+from rigcal.core import geometry as geo
+from rigcal.camcal.solve import LS_LAM0, Intrinsics, Observations, Problem, State, levenberg_marquardt, projection_jacobians
+from rigcal.sim.synthetic import room_scene, with_noise
 
 from .common import RIGS, md_table, perturbed_truth, say
 
@@ -123,7 +123,7 @@ def _view_factor(gtsam, keys: dict, noise, p_board: np.ndarray, uv: np.ndarray, 
         k = m["K"].vector()  # fx fy s u0 v0 k1 k2 p1 p2
         v = np.array([k[0], k[1], k[3], k[4], *k[5:]])
         J_p, (J_i,) = projection_jacobians(p_cam, np.zeros(len(p_cam), int), [v], ["pinhole"])
-        from rigcal.solve import project_obs
+        from rigcal.camcal.solve import project_obs
         r = (project_obs(p_cam, np.zeros(len(p_cam), int), [v], ["pinhole"]) - uv).ravel()
         if H is not None:
             R_cam_body = T_body_cam[:3, :3].T

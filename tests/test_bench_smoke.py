@@ -13,8 +13,8 @@ import pytest
 import yaml
 
 import rigcal
-from rigcal.bounds import pair_bounds
-from rigcal.synthetic import room_scene, with_noise
+from rigcal.camcal.bounds import pair_bounds
+from rigcal.sim.synthetic import room_scene, with_noise
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 # checks run by hand, not benchmark sections (bench/__main__.py's docstring lists them)
@@ -93,7 +93,7 @@ def test_truth_reexpressed_does_not_depend_on_truths_body_frame(micro):
     """The true rig is compared in the frame fitted to the declared rig: moving the
     truth's own body frame rigidly must not change it (comparing raw truth.yaml poses would)."""
     from bench import common
-    from rigcal import geometry as geo
+    from rigcal.core import geometry as geo
 
     rig, truth_rig, sc, views, cal = micro
     T_shift = geo.make_T(geo.R_from_rotvec([0.3, -0.2, 0.5]), [0.4, -1.0, 0.25])
@@ -235,10 +235,10 @@ def test_dome_dataset_is_a_dataset_calibrate_reads(tmp_path):
     from typer.testing import CliRunner
 
     from bench import common, dome
-    from rigcal import geometry as geo
+    from rigcal.core import geometry as geo
     from rigcal.cli import app
-    from rigcal.corners import read_corners
-    from rigcal.target import load_target
+    from rigcal.data.corners import read_corners
+    from rigcal.core.target import load_target
 
     for T in dome.box_boards(np.zeros((1, 3))).values():
         assert T[:3, 2] @ T[:3, 3] < 0  # z into the print points back into the box
@@ -297,7 +297,7 @@ def test_holdout_scores_are_zero_for_the_truth_and_grow_with_a_wrong_rig():
     predictions by about f x 0.2 deg, and a principal point off by 10 px shows in PnP."""
     from bench import common
     from bench.intrinsics_holdout import cross_errors, pnp_rms
-    from rigcal import geometry as geo
+    from rigcal.core import geometry as geo
 
     rig = rigcal.load_rig(common.RIGS / "stereo-forward.yaml")
     sc = room_scene(rig, np.random.default_rng(4), n_frames=8)
@@ -332,8 +332,8 @@ def test_imu_coverage_scores_each_component_in_its_own_sigma():
     from dataclasses import replace
 
     from bench.imu_coverage import normalised_errors
-    from rigcal import geometry as geo
-    from rigcal.rig import load_rig
+    from rigcal.core import geometry as geo
+    from rigcal.core.rig import load_rig
 
     truth = load_rig(Path(__file__).resolve().parents[1] / "rigs" / "drone-stereo-back-imu.yaml")
     truth = replace(truth, cameras=tuple(replace(c, time_offset_s=0.001) for c in truth.cameras))

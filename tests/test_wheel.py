@@ -69,7 +69,7 @@ def test_wheel_imports_rigcal_from_its_own_environment(installed):
 
 def test_wheel_ships_the_rigs(installed):
     bin_dir, work, env = installed
-    names = _run([bin_dir / "python", "-c", "from rigcal.rig import shipped_rig_names; print(*shipped_rig_names())"],
+    names = _run([bin_dir / "python", "-c", "from rigcal.core.rig import shipped_rig_names; print(*shipped_rig_names())"],
                  work, env).stdout.split()
     assert sorted(names) == sorted(p.stem for p in (ROOT / "rigs").glob("*.yaml"))
 

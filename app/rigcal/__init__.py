@@ -9,10 +9,10 @@ Public API::
     depth = rig.stereo_depth(rig.stereo_pairs[0], [[103, 310, 12]], T_nav_body)
 """
 
-from .camera import CameraModel
-from .errors import CalibrationError, InputError, RigcalError, RigFileError
-from .geometry import T_nav_body_from_axes, T_nav_body_from_heading, inv_T, make_T, transform
-from .rig import Camera, Imu, Projection, Rig, StereoPair, dump_rig, load_rig, parse_rig, save_rig
+from rigcal.core.camera import CameraModel
+from rigcal.errors import CalibrationError, InputError, RigcalError, RigFileError
+from rigcal.core.geometry import T_nav_body_from_axes, T_nav_body_from_heading, inv_T, make_T, transform
+from rigcal.core.rig import Camera, Imu, Projection, Rig, StereoPair, dump_rig, load_rig, parse_rig, save_rig
 
 __version__ = "0.1.0"
 

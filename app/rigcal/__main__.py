@@ -1,3 +1,3 @@
-from .cli import main
+from rigcal.cli import main
 
 main()

@@ -17,7 +17,7 @@ from typing import Optional
 
 import typer
 
-from .errors import InputError, RigcalError
+from rigcal.errors import InputError, RigcalError
 
 app = typer.Typer(
     add_completion=False,
@@ -164,7 +164,7 @@ def simulate(
     motion_flags = {"--duration": duration, "--camera-rate": camera_rate, "--exposure": exposure,
                     "--time-offset-ms": time_offset_ms}
     if scene is Scene.imu:
-        from . import simulate_imu
+        from rigcal.sim import imu_scene as simulate_imu
 
         for flag, given in (("--frames", frames is not None), ("--blur", blur != 0.0)):
             if given:
@@ -178,7 +178,7 @@ def simulate(
     for flag, v in motion_flags.items():
         if v is not None:
             raise InputError(f"{flag}: only used with --scene imu")
-    from . import simulate as sim
+    from rigcal.sim import simulate as sim
 
     out(sim.run(rig_path=rig, out_dir=out_dir, scene=scene.value if scene else None, frames=frames, seed=seed,
                 noise=noise, blur=blur, mount_error_mm=mount_error_mm, mount_error_deg=mount_error_deg,
@@ -235,7 +235,7 @@ def calibrate(
                                   "the camera-only step's, as Kalibr does (--fix-intrinsics implies held)"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
-    from . import calibrate as cal
+    from rigcal.commands import calibrate as cal
 
     out(cal.run(dataset=dataset, out_path=out_yaml, rig_path=rig, target_path=target, report_path=report, jobs=jobs,
                 reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
@@ -254,7 +254,7 @@ def compare(
     truth: Path = typer.Argument(..., help="truth.yaml of a simulated dataset, or another rig file"),
 ):
     """Errors of a calibrated rig against truth: per camera, per camera pair, per stereo baseline."""
-    from . import compare as cmp
+    from rigcal.results import compare as cmp
 
     out(cmp.run(calibrated, truth))
 
@@ -269,7 +269,7 @@ def project(
     axes: Optional[tuple[str, str, str]] = typer.Option(None, help="body F, L, U axes in ENU terms, e.g. N -E U"),
 ):
     """Project an ENU point into every camera at a body pose; stereo disparity and depth."""
-    from .project import run as run_project
+    from rigcal.commands.project import run as run_project
 
     out(run_project(rig, position=position, point=point, heading=heading, axes=axes))
 
@@ -282,7 +282,7 @@ def export(
     out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros, kalibr-imu, euroc)"),
 ):
     """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON."""
-    from . import export_command as exp
+    from rigcal.commands import export as exp
 
     out(exp.run(rig, format.value, out_path))
 
@@ -297,7 +297,7 @@ def import_(
     body_from: Optional[str] = typer.Option(None, help="use this camera (e.g. cam0) as the body frame instead"),
 ):
     """Read another tool's calibration into a rig YAML."""
-    from . import export_command as exp
+    from rigcal.commands import export as exp
 
     out(exp.run_import(source, format.value, out_path, rig_path=rig, body_from=body_from))
 
@@ -310,7 +310,7 @@ def board(
     dpi: int = typer.Option(300, help="dots per inch; 1 board metre = dpi / 0.0254 px"),
 ):
     """A printable image of each board, to scale."""
-    from . import target as tgt
+    from rigcal.core import target as tgt
 
     out(tgt.run_board(target, out_path, dpi))
 
@@ -322,7 +322,7 @@ def view(
     out_path: Path = typer.Option(..., "--out", help="HTML file to write"),
 ):
     """The rig's camera frames in the FLU body frame, as an interactive 3D page (works offline)."""
-    from . import view as vw
+    from rigcal.results import view as vw
 
     out(vw.run(rig, out_path))
 
@@ -351,7 +351,7 @@ def ingest(
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
 ):
     """Turn a recording (EuRoC folder, ROS bag, videos) into a dataset folder."""
-    from . import ingest as ing
+    from rigcal.data import ingest as ing
 
     out(ing.run(source, out_dir, rig_path=rig, target_path=target, cameras=camera, imus=imu, rate=rate, start=start,
                 end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force))

@@ -39,14 +39,14 @@ import yaml
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "app"))
 
-from rigcal import geometry as geo  # noqa: E402
-from rigcal.dataset import list_dataset  # noqa: E402
-from rigcal.board_detectors import BoardDetector  # noqa: E402
-from rigcal.corner_refine import REFINE_MODES  # noqa: E402
-from rigcal.detect import detect_dataset  # noqa: E402
-from rigcal.image_read import read_gray  # noqa: E402
-from rigcal.rig import load_rig, rig_from_dict  # noqa: E402
-from rigcal.target import load_target  # noqa: E402
+from rigcal.core import geometry as geo  # noqa: E402
+from rigcal.data.dataset import list_dataset  # noqa: E402
+from rigcal.detect.board_detectors import BoardDetector  # noqa: E402
+from rigcal.detect.corner_refine import REFINE_MODES  # noqa: E402
+from rigcal.detect.detect import detect_dataset  # noqa: E402
+from rigcal.data.image_read import read_gray  # noqa: E402
+from rigcal.core.rig import load_rig, rig_from_dict  # noqa: E402
+from rigcal.core.target import load_target  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 SAMPLES = ROOT / "samples" / "real"
@@ -75,7 +75,7 @@ def throughput(jobs_list: list[int], sim_frames: int) -> None:
     try:
         sets = _real_datasets(tmp)
         if sim_frames:
-            from rigcal.simulate import simulate_dataset
+            from rigcal.sim.simulate import simulate_dataset
 
             sim = tmp / "sim"
             simulate_dataset(load_rig(ROOT / "rigs" / "drone-stereo-back.yaml"), sim, scene="room",
@@ -119,7 +119,7 @@ def _truth_corners(dataset: Path):
 
 
 def accuracy(seeds: int) -> None:
-    from rigcal.simulate import simulate_dataset
+    from rigcal.sim.simulate import simulate_dataset
 
     cases = [("stereo-forward", "board", 12), ("drone-stereo-back", "room", 12), ("fisheye-stereo", "board", 12)]
     for rig_name, scene, frames in cases:

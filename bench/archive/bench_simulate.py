@@ -26,10 +26,10 @@ import cv2
 import numpy as np
 import yaml
 
-from rigcal import geometry as geo
-from rigcal.rig import load_rig, rig_from_dict
-from rigcal.simulate import simulate_dataset
-from rigcal.target import load_target
+from rigcal.core import geometry as geo
+from rigcal.core.rig import load_rig, rig_from_dict
+from rigcal.sim.simulate import simulate_dataset
+from rigcal.core.target import load_target
 
 ROOT = Path(__file__).resolve().parents[2]
 

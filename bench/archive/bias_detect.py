@@ -47,12 +47,12 @@ import yaml
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "app"))
 
-from rigcal import geometry as geo  # noqa: E402
-from rigcal.dataset import list_dataset  # noqa: E402
-from rigcal.corner_refine import REFINE_MODES  # noqa: E402
-from rigcal.detect import detect_dataset  # noqa: E402
-from rigcal.rig import load_rig, rig_from_dict  # noqa: E402
-from rigcal.target import load_target  # noqa: E402
+from rigcal.core import geometry as geo  # noqa: E402
+from rigcal.data.dataset import list_dataset  # noqa: E402
+from rigcal.detect.corner_refine import REFINE_MODES  # noqa: E402
+from rigcal.detect.detect import detect_dataset  # noqa: E402
+from rigcal.core.rig import load_rig, rig_from_dict  # noqa: E402
+from rigcal.core.target import load_target  # noqa: E402
 
 
 def corner_truth(dataset: Path) -> dict:
@@ -152,7 +152,7 @@ def rig_scale(dataset: Path, views) -> float:
     """Rig scale error (ppm) of a calibration from these detected views."""
     sys.path.insert(0, str(ROOT))
     from bench.common import calibrate, rig_scale_ppm
-    from rigcal.compare import load_truth
+    from rigcal.data.truth import load_truth
     from dataclasses import replace
 
     target = load_target(dataset / "target.yaml")
@@ -236,7 +236,7 @@ def main() -> None:
         if not args.margin_px:
             analyse(path, args.modes, args.jobs, label, args.calibrate, args.brief)
             return
-        import rigcal.corner_fit as det
+        import rigcal.detect.corner_fit as det
 
         defaults = det.refine_symmetric.__defaults__
         names = det.refine_symmetric.__code__.co_varnames[det.refine_symmetric.__code__.co_argcount - len(defaults):
@@ -251,7 +251,7 @@ def main() -> None:
     if args.dataset:
         run(args.dataset, str(args.dataset))
     else:
-        from rigcal.simulate import simulate_dataset
+        from rigcal.sim.simulate import simulate_dataset
 
         for seed in args.seeds:
             out = Path(tempfile.mkdtemp(prefix="rigcal-bias-")) / "sim"

@@ -1,13 +1,13 @@
 """Which part of the detected corner error drives the fisheye pair's relative-rotation error?
 
 The DETECTOR's corners (`--guided off`), as bench.indie_noise: the study that led to the
-guided pass (rigcal.guided), which bench.noise_limit and bench.archive.guided measure.
+guided pass (rigcal.detect.guided), which bench.noise_limit and bench.archive.guided measure.
 
     BENCH_REUSE_CACHE=1 python -m bench.archive.fisheye_excess [--seeds 10] [--scenario fisheye-stereo]
 
 Per seed (bench.common's render + detect cache, bench.noise_limit's frame count) the
 detected corners' error e = detected - true projection is split into parts, and the same
-bundle adjustment (rigcal.pipeline.calibrate_views) runs on true projections + each part:
+bundle adjustment (rigcal.camcal.pipeline.calibrate_views) runs on true projections + each part:
 
 - full: e itself (must reproduce the detected calibration)
 - radial / tangential: e's component along / across the ray from the principal point
@@ -41,10 +41,10 @@ import os
 
 import numpy as np
 
-from rigcal import geometry as geo
-from rigcal.bounds import relative_pose_jacobian, measured_corner_noise, true_state
-from rigcal.target import load_target
-from rigcal.solve import Problem, SolveResult, camera_covariance
+from rigcal.core import geometry as geo
+from rigcal.camcal.bounds import relative_pose_jacobian, measured_corner_noise, true_state
+from rigcal.core.target import load_target
+from rigcal.camcal.solve import Problem, SolveResult, camera_covariance
 
 from bench.common import (calibrate, gaussian_views, get_dataset, md_table, run_pool, say, scenario, true_projections,
                      write_json)
@@ -53,7 +53,7 @@ from bench.noise_limit import FRAMES
 
 def rel_rot_error(cal, truth_rig) -> np.ndarray:
     """(3,) rotation error (deg) of the pair T_left_right, rotvec(R_est R_true^T), as
-    rigcal.bounds measures it (left camera frame)."""
+    rigcal.camcal.bounds measures it (left camera frame)."""
     a, b = cal.cam_names[:2]
     rel = lambda r: geo.inv_T(r.camera(a).T_body_cam) @ r.camera(b).T_body_cam  # noqa: E731
     Ra, Rb = rel(cal.rig)[:3, :3], rel(truth_rig)[:3, :3]
@@ -231,7 +231,7 @@ def run_seed(name: str, frames: int, seed: int) -> dict:
     out["contrib"] = np.einsum("kmj,mj->mk", K.reshape(3, -1, 2), e_in).tolist()
     out["contrib_view"] = cal.obs.view[cal.inliers].tolist()
     out["contrib_cam"] = cal.obs.cam[cal.inliers].tolist()
-    K0 = influence(cal, ds.truth, weighted=False)  # the bound: one sigma, unweighted (rigcal.bounds)
+    K0 = influence(cal, ds.truth, weighted=False)  # the bound: one sigma, unweighted (rigcal.camcal.bounds)
     out["crb_trace"] = float(sigma**2 * np.trace(K0 @ K0.T))
     out["phase_e"] = (cal.obs.uv - uv_true).tolist()
     out["phase_uv"] = uv_true.tolist()

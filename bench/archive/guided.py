@@ -1,5 +1,5 @@
-"""The guided corner pass (rigcal.guided), measured: the same detections calibrated with and
-without it, on rigcal's renders and on the independent renderer's (tests/indie_render.py).
+"""The guided corner pass (rigcal.detect.guided), measured: the same detections calibrated with and
+without it, on rigcal's renders and on the independent renderer's (tests/support/indie_render.py).
 
     python -m bench.archive.guided [--seeds 6] [--scenes fisheye-rigcal fisheye-indie pinhole-indie stereo-forward]
 
@@ -52,13 +52,13 @@ def dataset(scene: str, seed: int) -> Path:
 
 
 def run_one(d: Path) -> dict:
-    from rigcal.bounds import measured_corner_noise
-    from rigcal.compare import load_truth
-    from rigcal.pipeline import calibrate_views
-    from rigcal.dataset import list_dataset
-    from rigcal.detect import detect_dataset
-    from rigcal.guided import rerefiner
-    from rigcal.target import load_target
+    from rigcal.camcal.bounds import measured_corner_noise
+    from rigcal.data.truth import load_truth
+    from rigcal.camcal.pipeline import calibrate_views
+    from rigcal.data.dataset import list_dataset
+    from rigcal.detect.detect import detect_dataset
+    from rigcal.detect.guided import rerefiner
+    from rigcal.core.target import load_target
 
     rig, target = rigcal.load_rig(d / "rig.yaml"), load_target(d / "target.yaml")
     truth = load_truth(d / "truth.yaml")

@@ -3,8 +3,8 @@
 Run from the repository root:   make golden   (= python -m tests.golden.regenerate)
 
 Then review `git diff tests/golden/exports`: every changed value is a change in what
-users' tools will read. tests/test_export.py checks that the current exports equal
-these files as data (tests/golden_data.py: structure, keys, strings and comments
+users' tools will read. tests/exports/test_export.py checks that the current exports equal
+these files as data (tests/support/golden_data.py: structure, keys, strings and comments
 exactly, numbers to a relative 1e-12), never as text: the last digit of a float
 differs between machines, so a regeneration elsewhere may rewrite digits that the
 comparison rightly ignores; commit such a rewrite only with a real change.
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rigcal import export_command
-from rigcal.io import atomic_dir
-from rigcal.rig import load_rig
+from rigcal.commands import export as export_command
+from rigcal.core.io import atomic_dir
+from rigcal.core.rig import load_rig
 
 GOLDEN = Path(__file__).resolve().parent
 ROOT = GOLDEN.parent.parent
@@ -30,7 +30,7 @@ INPUTS = {
 }
 # Output name of each format inside one rig's folder.
 OUTPUTS = {"kalibr": "camchain.yaml", "json": "rig.json", "opencv": "opencv", "ros": "ros"}
-# The camera-IMU formats (rigcal.export_imu), of a calibrated rig with an IMU.
+# The camera-IMU formats (rigcal.exports.imu_formats), of a calibrated rig with an IMU.
 IMU_INPUTS = {"drone-stereo-back-imu-calibrated": GOLDEN / "drone-stereo-back-imu-calibrated.yaml"}
 IMU_OUTPUTS = {"kalibr-imu": "kalibr-imu", "euroc": "euroc"}
 

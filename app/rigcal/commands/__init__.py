@@ -1,0 +1,1 @@
+"""The library behind each CLI command that is more than a call: calibrate, project, export/import."""

@@ -1,0 +1,517 @@
+"""`rigcal calibrate` on a motion dataset with an IMU (../shared/spec/imu.md, issue 18):
+the camera-only calibration's corners, intrinsics and board poses in, every camera's
+T_imu_cam, clock offset (and line delay), the IMU's biases and gravity out, through the
+public API of rigcal.imucal.estimator.
+
+The intrinsics (`--imu-intrinsics joint`, the default; `held` keeps the camera-only
+calibration's, as Kalibr does) and every board's pose but the gauge board's (most corners:
+the world frame whose gravity direction the estimator finds) are estimated with the
+trajectory. The camera-only calibration's board poses are not a safe start for the
+trajectory: it treats images of different cameras with equal stems as the same instant, so
+with clock offsets of milliseconds a board seen by only some cameras is placed off by the
+motion in between. So the start is the trajectory from the gauge board and the IMU alone
+(`estimate`).
+
+The IMU model (`--imu-model`, rigcal.imucal.residuals): `calibrated` (M = I) unless the data
+show scale and misalignment: `auto` fits `calibrated`, then `scale-misalignment` from that
+solution (imu_calib.refine), and keeps it only when the likelihood ratio of the 12 added
+parameters passes model_selection's test (select_imu_model).
+
+Times are seconds since the IMU's first sample, on each sensor's own clock, so the
+estimator's offsets are imu.md's `time_offset_s` (t_imu = t_cam + time_offset_s).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from rigcal.core import geometry as geo
+from rigcal.imucal import estimator as ic
+from rigcal.imucal import residuals as ir
+from rigcal.imucal import start as imu_start
+from rigcal.errors import CalibrationError, DatasetError, InputError
+from rigcal.camcal.initialise import pnp_views
+from rigcal.camcal.model_selection import IMU_MODEL_LEVEL, intrinsic_sigmas, likelihood_ratio_test
+from rigcal.data.imu_csv import ImuSamples
+from rigcal.core.rig import Imu
+
+# the estimate is refined with the corners re-weighted by the noise it measured when that
+# differs from the assumed by more than this fraction
+REWEIGHT_ABOVE = 0.2
+MIN_KNOTS = 20  # the images and IMU must share at least this many knot spacings
+MIN_FRAMES = 10  # per camera: the clock-offset search needs rates over ~10 frame intervals
+MIN_PNP_CORNERS = 8
+NOISE_WARN_RATIO = 3.0  # residual RMS vs what the declared density predicts, either way
+IMU_MODELS = ("auto", "calibrated", "scale-misalignment")
+INTRINSICS = ("joint", "held")
+SCALE_PARAMETERS = 12  # L of M_gyro and of M_accel, 6 each
+
+
+@dataclass(frozen=True)
+class Options:
+    """What the user chose: the IMU (name), gravity's magnitude, the clock-offset search
+    half-width, whether every camera's line delay is estimated (None: where declared
+    non-zero), the spline's knot spacing (None: imu_calib.Settings' default), the IMU model
+    (IMU_MODELS; auto: chosen by imu_model_test), the intrinsics (INTRINSICS: estimated with
+    the rest, or held at the camera-only step's)."""
+
+    imu: str
+    gravity: float = ir.GRAVITY
+    window_s: float = 0.2
+    rolling_shutter: bool | None = None
+    knot_dt: float | None = None
+    imu_model: str = "auto"
+    intrinsics: str = "joint"
+
+    def __post_init__(self):
+        # calibrate.run builds these before detection: a typo (--gravity 981) is then one
+        # line at once, not an error after the camera-only calibration
+        for option, value, lo, hi, what in (
+                ("--gravity", self.gravity, 9.7, 9.9, "m/s^2 (on Earth 9.76-9.84)"),
+                ("--offset-window", self.window_s, 0.0, 10.0, "seconds"),
+                ("--knot-spacing", self.knot_dt, 0.0, 1.0, "seconds")):
+            if value is not None and not lo < value <= hi:
+                raise InputError(f"{option}: expected {what} in ({lo:g}, {hi:g}], got {value:g}")
+        if self.imu_model not in IMU_MODELS:
+            raise InputError(f"--imu-model: expected one of {', '.join(IMU_MODELS)}, got {self.imu_model!r}")
+        if self.intrinsics not in INTRINSICS:
+            raise InputError(f"--imu-intrinsics: expected one of {', '.join(INTRINSICS)}, got {self.intrinsics!r}")
+
+    @classmethod
+    def chosen(cls, imu: str, opts: dict) -> "Options":
+        """From calibrate's option dict (gravity, window_s, rolling_shutter, knot_dt, imu_model,
+        intrinsics; None: the default)."""
+        return cls(imu, **{k: v for k, v in opts.items() if v is not None})
+
+
+@dataclass(frozen=True, eq=False)
+class Inputs:
+    """The estimator's inputs built from a camera-only calibration: per camera the PnP
+    poses as T_board_cam with their board, the corners in board coordinates, the IMU."""
+
+    cams: tuple  # imu_calib.CameraInput (T_world_cam from the current boards)
+    board_of_pose: tuple  # per camera (F,) board index of each PnP pose
+    T_board_cam: tuple  # per camera (F, 4, 4)
+    cam: np.ndarray  # (M,) per corner
+    board: np.ndarray
+    t_cam: np.ndarray
+    uv: np.ndarray
+    p_board: np.ndarray
+    imu: ic.ImuInput
+    t_base_ns: int  # the IMU's first sample: time 0
+    intrinsics: tuple = ()  # per camera rigcal.camcal.solve.Intrinsics of the camera-only step
+
+
+@dataclass(frozen=True, eq=False)
+class ImuCalibration:
+    """The outcome: the estimator's result, the boards it ended with (T_world_board (B, 4, 4),
+    world = the gauge board's frame), the 1-sigma of every reported parameter
+    (parameter_sigmas, corners weighted by their measured noise), the mean biases over the
+    recording, the residual RMS of the IMU in units
+    (rad/s, m/s^2) and what the declared densities predict, the IMU model kept (`imu_model`)
+    with the test behind it (`model_test`: ImuModelTest or None when forced), the intrinsics
+    when estimated with the rest (their sigma under sigma['intrinsics']), warnings and notes."""
+
+    result: ic.CameraImuResult
+    imu: Imu
+    T_world_board: np.ndarray
+    sigma: dict  # parameter_sigmas
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    gyro_rms: float
+    accel_rms: float
+    gyro_predicted: float
+    accel_predicted: float
+    corner_rms_px: float
+    passes: int
+    seconds: float
+    warnings: tuple[str, ...]
+    notes: tuple[str, ...]
+    imu_model: str = "calibrated"
+    model_test: "ImuModelTest | None" = None
+    intrinsics: tuple = ()  # per camera rigcal.camcal.solve.Intrinsics when estimated with the rest
+
+
+@dataclass(frozen=True)
+class ImuModelTest:
+    """`--imu-model auto`'s test of scale-misalignment against calibrated: the likelihood
+    ratio of the two fits (statistic), the share of it in the IMU's own residuals (gyroscope,
+    accelerometer, bias walk: imu_statistic), the chi-square threshold of SCALE_PARAMETERS
+    degrees of freedom at model_selection.IMU_MODEL_LEVEL, and the seconds the larger fit took."""
+
+    statistic: float
+    imu_statistic: float
+    threshold: float
+    level: float
+    seconds: float
+
+    @property
+    def significant(self) -> bool:
+        # M describes the IMU: a gain that the IMU's own residuals do not show at the larger
+        # model's optimum is M absorbing a misfit elsewhere. On EuRoC the whole ratio was
+        # 3,358 from the corners (RMS 0.2999 -> 0.2992 px: the held intrinsics' error) while
+        # the IMU's residuals grew (-35), and keeping M moved the cameras 12.6 -> 14.5 mm
+        # from EuRoC's T_BS
+        return self.statistic > self.threshold and self.imu_statistic > self.threshold
+
+    def line(self) -> str:
+        return (f"likelihood ratio {self.statistic:.1f}, {self.imu_statistic:.1f} of it in the IMU's residuals, "
+                f"on {SCALE_PARAMETERS} parameters (both need {self.threshold:.1f}, p = {self.level:g}) -> "
+                f"{'scale-misalignment' if self.significant else 'calibrated'}")
+
+
+IMU_BLOCKS = ("gyro", "accel", "bias_walk")
+
+
+def imu_model_test(small: ic.CameraImuResult, large: ic.CameraImuResult) -> ImuModelTest:
+    """The likelihood ratio of `large` (scale-misalignment, fitted from `small`'s solution
+    on the same corners and weights) against `small` (calibrated): each block's drop in cost
+    in units of its measured noise, i.e. divided by the larger fit's mean squared normalised
+    residual (as select_structure divides by the measured corner noise sigma_px^2); the
+    bias random-walk prior's is taken as declared. Also the drops of the IMU's blocks alone,
+    at `large`'s optimum (a fit stopped early gives another split: on EuRoC after 1-2
+    iterations the IMU's share was +790-840, converged -35)."""
+    drop = {k: (c - large.costs[k]) / (1.0 if k == "bias_walk" else max(large.normalised_rms[k] ** 2, 1e-12))
+            for k, c in small.costs.items()}
+    stat = sum(drop.values())
+    _, need = likelihood_ratio_test(stat, SCALE_PARAMETERS, IMU_MODEL_LEVEL)
+    return ImuModelTest(float(stat), float(sum(drop[k] for k in IMU_BLOCKS)), need, IMU_MODEL_LEVEL, large.seconds)
+
+
+def imu_input(samples: ImuSamples, imu: Imu, t_base_ns: int) -> ic.ImuInput:
+    return ic.ImuInput((samples.t_ns - t_base_ns) * 1e-9, samples.gyro, samples.accel, imu.update_rate,
+                       imu.gyroscope_noise_density, imu.gyroscope_random_walk, imu.accelerometer_noise_density,
+                       imu.accelerometer_random_walk, imu.T_body_imu.copy())
+
+
+def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One PnP pose per frame, on its view with most corners (>= MIN_PNP_CORNERS):
+    (frames (F,), boards (F,), T_board_cam (F, 4, 4)). Views are grouped by one sort."""
+    order = np.argsort(view, kind="stable")
+    _, first, count = np.unique(view[order], return_index=True, return_counts=True)
+    f, b = frame[order][first], board[order][first]
+    # per frame the largest view: sort by (frame, -count) and keep each frame's first
+    best = np.lexsort((-count, f))
+    best = best[np.concatenate([[True], np.diff(f[best]) != 0])] if len(best) else best
+    best = best[count[best] >= MIN_PNP_CORNERS]
+    groups = np.split(order, np.cumsum(count)[:-1])
+    m = model
+    fits = pnp_views([p_board[groups[k]] for k in best], [uv[groups[k]] for k in best],
+                     np.array([m.fx, m.fy, m.cx, m.cy, *m.dist]), m.model, [faces[int(b[k])] for k in best])
+    ok = [j for j, fit in enumerate(fits) if fit is not None]
+    T = np.stack([geo.inv_T(fits[j][0]) for j in ok]) if ok else np.zeros((0, 4, 4))
+    return f[best[ok]], b[best[ok]], T
+
+
+def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
+                 line_delays: dict[str, float]) -> Inputs:
+    """The inlier corners of the camera-only calibration `cal` (rigcal.camcal.pipeline.Calibration) on
+    each camera's clock (frames are integer-ns stems), one PnP pose per image (its largest
+    board view) for the start, and the IMU."""
+    t_base = int(samples.t_ns[0])
+    ok = cal.inliers
+    o = cal.obs
+    t_frame = np.array([(int(f) - t_base) * 1e-9 for f in cal.frames])
+    cams, boards_of, T_board_cam = [], [], []
+    for c, name in enumerate(cal.cam_names):
+        m = cal.rig.camera(name).intrinsics
+        s = ok & (o.cam == c)
+        frames, b, T = _frame_poses(m, o.uv[s], o.p_board[s], o.view[s], o.frame[s], o.board[s], faces)
+        if len(frames) < MIN_FRAMES:
+            raise CalibrationError(f"camera {name}: a board pose in only {len(frames)} images; the clock offset "
+                                   f"needs at least {MIN_FRAMES}")
+        by_time = np.argsort(t_frame[frames], kind="stable")  # frame order is the camera-only step's
+        frames, b, T = frames[by_time], b[by_time], T[by_time]
+        T_world_cam = cal.state.T_world_board[b] @ T
+        cams.append(ic.CameraInput(m, cal.rig.camera(name).T_body_cam.copy(), t_frame[frames], T_world_cam,
+                                   line_delays.get(name, 0.0), t_declared.get(name, 0.0)))
+        boards_of.append(b)
+        T_board_cam.append(T)
+    return Inputs(tuple(cams), tuple(boards_of), tuple(T_board_cam), o.cam[ok], o.board[ok], t_frame[o.frame[ok]],
+                  o.uv[ok], o.p_board[ok], imu_input(samples, imu, t_base), t_base, tuple(cal.state.intrinsics))
+
+
+def check_span(inp: Inputs, names: list[str], knot_dt: float) -> None:
+    """Refuse (DatasetError, exit 2) a recording whose images and IMU samples share fewer
+    than MIN_KNOTS knot spacings."""
+    t_imu = inp.imu.t
+    for c, name in zip(inp.cams, names):
+        lo = max(c.t_cam.min() + c.time_offset_guess_s, t_imu[0])
+        hi = min(c.t_cam.max() + c.time_offset_guess_s, t_imu[-1])
+        if hi - lo < MIN_KNOTS * knot_dt:
+            raise DatasetError(f"camera {name}: its images and the IMU samples share {max(hi - lo, 0.0):.2f} s; the "
+                               f"camera-IMU calibration needs at least {MIN_KNOTS * knot_dt:g} s ({MIN_KNOTS} knots "
+                               f"every {knot_dt:g} s): record longer")
+
+
+def _with_boards(inp: Inputs, T_world_board: np.ndarray) -> list:
+    """The cameras' start poses T_world_cam through the boards' poses."""
+    return [replace(c, T_world_cam=T_world_board[b] @ T) for c, b, T in zip(inp.cams, inp.board_of_pose,
+                                                                          inp.T_board_cam)]
+
+
+def estimator_corners(inp: Inputs, n_boards: int) -> tuple[int, np.ndarray, ir.Corners]:
+    """(gauge, order, corners): the gauge board (most corners: it fixes the world frame and is
+    held), the boards in the estimator's order (B,) (the gauge first, then the others as
+    they come) and the corners with their boards numbered in that order."""
+    gauge = int(np.argmax(np.bincount(inp.board, minlength=n_boards)))
+    order = np.r_[gauge, [b for b in range(n_boards) if b != gauge]].astype(int)
+    rank = np.empty(n_boards, int)
+    rank[order] = np.arange(n_boards)
+    return gauge, order, ir.Corners(inp.cam, inp.t_cam, inp.uv, inp.p_board, rank[inp.board])
+
+
+def _settings_with(settings: ic.Settings, res: ic.CameraImuResult) -> ic.Settings:
+    """The corner noise the last estimate found: the next pass weighs the corners by it, so
+    the reported sigmas rest on the measured noise, not on a guess."""
+    return replace(settings, sigma_px=settings.sigma_px * max(res.normalised_rms["corners"], 1e-3))
+
+
+def _gauge_pass(inp: Inputs, T_world_board: np.ndarray, gauge: int, settings: ic.Settings
+                ) -> tuple[ir.State, ic.Settings]:
+    """The trajectory from the IMU and the gauge board's corners alone (cameras that see it),
+    then every camera's T_body_cam and offset in it: those that see the gauge board from
+    this estimate, the others from their rate start (imu_start) and declared position. The
+    boards the camera-only step placed through unsynchronised frames do not enter. Also the
+    settings with the corner noise this pass measured."""
+    sees = np.zeros(len(inp.cams), bool)
+    sees[np.unique(inp.cam[inp.board == gauge])] = True
+    idx = np.flatnonzero(sees)
+    remap = np.full(len(inp.cams), -1)
+    remap[idx] = np.arange(len(idx))
+    cams = _with_boards(inp, T_world_board)
+    k = (inp.board == gauge) & sees[inp.cam]
+    T = T_world_board[gauge]  # its corners in the world frame: this pass's only board
+    sub = ir.Corners(remap[inp.cam[k]], inp.t_cam[k], inp.uv[k], geo.transform(T, inp.p_board[k]))
+    res = ic.calibrate_camera_imu([cams[i] for i in idx], sub, inp.imu, settings, sigmas=False)
+    st = res.state
+    T_body_cam = np.stack([c.T_body_cam for c in cams])
+    off = np.array([c.time_offset_guess_s for c in cams])
+    T_body_imu = inp.imu.T_body_imu
+    for c in np.flatnonzero(~sees):
+        s = imu_start.rate_start(cams[c].t_cam, cams[c].T_world_cam[:, :3, :3], inp.imu.t, inp.imu.gyro,
+                                 cams[c].time_offset_guess_s, settings.window_s, what=f"camera {c}")
+        T_body_cam[c, :3, :3] = T_body_imu[:3, :3] @ s.R_imu_cam
+        off[c] = s.time_offset_s
+    T_body_cam[idx], off[idx] = st.T_body_cam, st.time_offset_s
+    delay = np.array([c.line_delay_s for c in cams])
+    delay[idx] = st.line_delay_s
+    return replace(st, T_body_cam=T_body_cam, time_offset_s=off, line_delay_s=delay), _settings_with(settings, res)
+
+
+def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
+             ) -> tuple[ic.CameraImuResult, ic.Settings, int]:
+    """The camera-IMU estimate, every board's pose in it but the gauge's (most corners: the
+    world frame). With several boards the start is the trajectory from the gauge board and
+    the IMU alone (_gauge_pass), the other boards where the camera-only step put them, the
+    cameras that do not see the gauge board from their rate start; the joint estimate moves
+    them all (re-fitting the boards to the start trajectory first, by a separate least
+    squares, gave the same optimum in the same number of iterations on the 4 s test
+    recording and cost 2.6 s on the 30 s one). The estimate is refined once more with the
+    corners weighted by the noise it measured when that differs from the assumed by over
+    REWEIGHT_ABOVE. Returns (result, the settings it used, estimates run); its state's
+    boards are in estimator_corners' order, its `sigma` is not computed (parameter_sigmas
+    gives every sigma the output needs)."""
+    gauge, order, obs = estimator_corners(inp, len(T_world_board))
+    models = [c.model for c in inp.cams]
+    joint = settings.intrinsics  # the gauge pass (some cameras only) holds them
+    intrinsics = inp.intrinsics if joint else ()
+    if len(np.unique(inp.board)) > 1:
+        # the corners weighted by the noise the gauge pass measured: the camera-only step's is
+        # inflated by treating unsynchronised frames as one instant
+        start, settings = _gauge_pass(inp, T_world_board, gauge, replace(settings, intrinsics=False))
+        settings = replace(settings, intrinsics=joint)
+        res = ic.solve_from(replace(start, T_world_board=T_world_board[order], intrinsics=intrinsics), obs, models,
+                            inp.imu, settings, sigmas=False)
+    else:
+        res = ic.calibrate_camera_imu(_with_boards(inp, T_world_board), obs, inp.imu, settings,
+                                      T_world_board[order], intrinsics, sigmas=False)
+    if abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
+        return res, settings, 1
+    settings = _settings_with(settings, res)
+    return ic.refine(res, models, obs, inp.imu, settings, cost_tol=ic.ESTIMATE_COST_TOL), settings, 2
+
+
+def jacobian(res: ic.CameraImuResult, inp: Inputs, settings: ic.Settings):
+    """(J, layout) of the final estimate: the residual blocks imu_calib minimises
+    (imu_calib.residual_blocks) at its state, with `settings`' corner weights."""
+    state, imu = res.state, inp.imu
+    lay = ir.layout_for(state, ic.held_groups(settings))
+    obs = estimator_corners(inp, len(state.T_world_board))[2].subset(res.corners_used)
+    blocks = ic.residual_blocks(state, lay, obs, [c.model for c in inp.cams], imu, ic.imu_span(state.spline, imu.t),
+                                settings)
+    return ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay
+
+
+def linear_sigmas(J, A: np.ndarray, lay: ir.Layout) -> np.ndarray:
+    """1-sigma of the linear combinations A (K, n) @ x under covariance (J^T J)^-1 (held
+    parameters have empty columns and are left out): one sparse LU in the estimator's
+    banded-arrow order (imu_calib.factor; SuperLU's own ordering took 157 s on EuRoC's 72 s
+    at 100 knots/s), K solves."""
+    solve, active = ic.factor((J.T @ J).tocsc(), ic.band_order(lay))
+    a = np.asarray(A[:, active].T, dtype=float)
+    return np.sqrt(np.maximum(np.einsum("ik,ik->k", a, solve(a)), 0.0))
+
+
+def mean_weights(n: int) -> np.ndarray:
+    """Trapezoid weights (n,) of the mean of a piecewise-linear function over its knots."""
+    w = np.ones(n)
+    if n > 1:
+        w[[0, -1]] = 0.5
+    return w / w.sum()
+
+
+def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bool = False,
+                     intrinsics: tuple = ()) -> dict:
+    """1-sigma of each camera's pose (C, 6: rotation rad about body axes, position m) and
+    clock offset (C,), the mean gyroscope and accelerometer biases (3,) and, when estimated,
+    every camera's line delay (C,), the 12 scale-misalignment parameters (`scale`: L of
+    M_gyro, then of M_accel, in imu_residuals.SCALE_ROWS / SCALE_COLS order) and, given the
+    estimated `intrinsics`, each camera's intrinsic values (`intrinsics`: per camera
+    model_selection.intrinsic_sigmas' dict; held values 0)."""
+    w = mean_weights(lay.n_bias)
+    C = lay.n_cam
+
+    def unit(cols):
+        A = np.zeros((len(cols), lay.size))
+        A[np.arange(len(cols)), cols] = 1.0
+        return A
+
+    mean = np.zeros((6, lay.size))
+    for k, start in enumerate((lay.bg, lay.ba)):
+        for axis in range(3):
+            mean[3 * k + axis, start + 3 * np.arange(lay.n_bias) + axis] = w
+    parts = [unit(lay.cam + np.arange(6 * C)), unit(lay.offset + np.arange(C)), mean]
+    if estimate_delay:
+        parts.append(unit(lay.line_delay + np.arange(C)))
+    if estimate_scale:
+        parts.append(unit(lay.scale + np.arange(SCALE_PARAMETERS)))
+    n_values = [len(i.values) for i in intrinsics]
+    for c, intr in enumerate(intrinsics):  # each value as a combination of its camera's parameters
+        E = intr.basis()
+        A = np.zeros((len(intr.values), lay.size))
+        A[:, lay.intr_start(c):lay.intr_start(c) + E.shape[1]] = E
+        parts.append(A)
+    sd = linear_sigmas(J, np.concatenate(parts), lay)
+    out = {"pose": sd[:6 * C].reshape(C, 6), "offset": sd[6 * C:7 * C], "gyro_bias": sd[7 * C:7 * C + 3],
+           "accel_bias": sd[7 * C + 3:7 * C + 6]}
+    k = 7 * C + 6
+    out["line_delay"] = sd[k:k + C] if estimate_delay else None
+    k += C if estimate_delay else 0
+    out["scale"] = sd[k:k + SCALE_PARAMETERS] if estimate_scale else None
+    k += SCALE_PARAMETERS if estimate_scale else 0
+    out["intrinsics"] = [intrinsic_sigmas(np.diag(part ** 2)) for part in np.split(sd[k:], np.cumsum(n_values)[:-1])
+                         ] if intrinsics else None
+    return out
+
+
+def noise_warnings(imu: Imu, gyro: tuple[float, float], accel: tuple[float, float]) -> list[str]:
+    """A warning per sensor whose residual RMS differs from the declared density's
+    prediction by more than NOISE_WARN_RATIO either way: the figures look wrong."""
+    out = []
+    for what, key, (rms, pred), unit in (("gyroscope", "gyroscope_noise_density", gyro, "rad/s"),
+                                         ("accelerometer", "accelerometer_noise_density", accel, "m/s^2")):
+        ratio = rms / pred
+        if not 1 / NOISE_WARN_RATIO <= ratio <= NOISE_WARN_RATIO:
+            out.append(f"{imu.name}: {what} residual RMS {rms:.3g} {unit} is {ratio:.2g}x what {key} predicts "
+                       f"({pred:.3g} {unit} at {imu.update_rate:g} Hz); the declared noise figures look wrong "
+                       f"(the sigmas rest on them)")
+    return out
+
+
+def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: list[float],
+                  line_delays: dict[str, float], time_offsets: dict[str, float],
+                  settings: ic.Settings | None = None) -> ImuCalibration:
+    """The camera-IMU calibration after the camera-only one (`cal`): see the module text.
+    Raises CalibrationError (exit 1) when the recording cannot determine it, DatasetError
+    (exit 2) when it is too short."""
+    t0 = time.perf_counter()
+    estimate_delay = options.rolling_shutter if options.rolling_shutter is not None else any(
+        v > 0 for v in line_delays.values())
+    inp = build_inputs(cal, samples, imu, faces, time_offsets, line_delays)
+    base = settings or ic.Settings()
+    if options.knot_dt is not None:
+        base = replace(base, knot_dt=options.knot_dt)
+    check_span(inp, list(cal.cam_names), base.knot_dt)
+    # the camera-only RMS is of each corner's residual norm; the estimator's sigma_px is per
+    # coordinate. Started at the norm's, a single-board recording needed a second full pass
+    # to correct the weights (EuRoC: 2 x 60 s)
+    settings = replace(base, sigma_px=max(float(cal.rms_px) / math.sqrt(2.0), 0.01), gravity=options.gravity,
+                       window_s=options.window_s, line_delay=estimate_delay,
+                       scale_misalignment=options.imu_model == "scale-misalignment",
+                       intrinsics=options.intrinsics == "joint")
+    try:
+        res, settings, passes = estimate(inp, cal.state.T_world_board, settings)
+        test = None
+        _, order, obs = estimator_corners(inp, len(cal.state.T_world_board))
+        if options.imu_model == "auto":
+            # scale-misalignment from the calibrated solution, on the same corners and weights,
+            # the boards estimated with it
+            models = [c.model for c in inp.cams]
+            sm_settings = replace(settings, scale_misalignment=True)
+            sm = ic.refine(res, models, obs, inp.imu, sm_settings)
+            test = imu_model_test(res, sm)
+            if test.significant:
+                # kept: the test's fit is the estimate. It stopped at a step gaining under
+                # REFINE_COST_TOL (chi-square units), i.e. within sqrt(0.05) = 0.22 of a
+                # standard deviation of the optimum at most, in practice far closer: on EuRoC
+                # its last steps gained 0.28 and 0.001, and running it to convergence cost 8 s
+                # and moved the YAML's numbers by under 1e-6 relative
+                res, settings = sm, sm_settings
+    except CalibrationError as e:
+        if "search window" in str(e):
+            raise CalibrationError(f"{e} (calibrate --offset-window SECONDS; now {options.window_s:g} s)") from None
+        raise
+    # sigmas with the corners weighted by their measured noise (the variance factor)
+    J, lay = jacobian(res, inp, _settings_with(settings, res))
+    sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment,
+                           res.state.intrinsics if settings.intrinsics else ())
+    w = mean_weights(lay.n_bias)
+    rate = math.sqrt(imu.update_rate)
+    pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
+    rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
+    reweighted = " (the second with the corners re-weighted by the noise the first measured)" if passes > 1 else ""
+    notes = [f"camera-IMU: {passes} estimate(s){reweighted}, {res.iterations} "
+             f"Levenberg-Marquardt iterations in the last, every board but the gauge estimated with it, the "
+             f"intrinsics {'too' if settings.intrinsics else 'held at the camera-only ones (--imu-intrinsics held)'}, "
+             f"corners weighted at {settings.sigma_px:.3g} px"]
+    chosen = "scale-misalignment" if settings.scale_misalignment else "calibrated"
+    notes.append(f"IMU model {chosen}: " + (test.line() + f" (the larger fit {test.seconds:.1f} s)" if test is not None
+                                            else f"--imu-model {chosen} (not tested)"))
+    T_world_board = np.empty_like(res.state.T_world_board)
+    T_world_board[order] = res.state.T_world_board
+    return ImuCalibration(res, imu, T_world_board, sig, w @ res.state.gyro_bias, w @ res.state.accel_bias,
+                          rms[0], rms[1], pred[0], pred[1], settings.sigma_px * res.normalised_rms["corners"], passes,
+                          time.perf_counter() - t0, tuple(noise_warnings(imu, (rms[0], pred[0]), (rms[1], pred[1]))),
+                          tuple(notes), chosen, test, res.state.intrinsics if settings.intrinsics else ())
+
+
+def plan(rig, imus_read: dict, reference: str | None, camera_only: bool = False) -> tuple[str | None, str]:
+    """(the IMU to calibrate against or None, the reference for the camera-only step and
+    the output). imu.md: with imu/ and an IMU declared the default reference is
+    `imu:<first>`; `imu:NAME` needs a declared IMU with data; `aligned` and `camera:NAME`
+    still calibrate against the first IMU and place it by those cameras. camera_only
+    (`--camera-only`): the IMU data are checked but not used, as for a dataset without imu/."""
+    if camera_only:
+        if reference is not None and reference.startswith("imu:"):
+            raise InputError(f"--reference {reference} needs the camera-IMU calibration that --camera-only skips; "
+                             f"use --reference aligned or camera:NAME")
+        return None, reference or "aligned"
+    if reference is not None and reference.startswith("imu:"):
+        name = reference.split(":", 1)[1]
+        if name not in [i.name for i in rig.imus]:
+            have = ", ".join(i.name for i in rig.imus) or "none"
+            raise InputError(f"--reference {reference}: the rig declares no IMU {name!r} (IMUs: {have})")
+        if name not in imus_read:
+            raise InputError(f"--reference {reference}: the dataset has no imu/{name}.csv; without IMU data use "
+                             f"--reference aligned or camera:NAME")
+        return name, reference
+    if not imus_read:
+        return None, reference or "aligned"
+    first = rig.imus[0].name
+    return first, reference or f"imu:{first}"
+

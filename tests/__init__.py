@@ -1,0 +1,1 @@
+"""rigcal's test suite; the folders mirror the package (app/rigcal)."""
