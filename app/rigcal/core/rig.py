@@ -189,7 +189,7 @@ class Rig:
 
 # The repository's rigs/ ship inside the package (app/rigcal/rigs links to it), so an
 # installed rigcal can run `rigcal simulate drone-stereo-back --out D` with no source tree.
-SHIPPED_RIGS = Path(__file__).parent / "rigs"
+SHIPPED_RIGS = Path(__file__).parents[1] / "rigs"
 
 
 def shipped_rig_names() -> tuple[str, ...]:
