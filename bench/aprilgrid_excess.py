@@ -105,12 +105,7 @@ def _box_only(gray, board, ids, uv):
 
 
 def _refine_with(gray, board, ids, uv, long_arms: bool):
-    saved = april.LONG_ARMS_BELOW_PX
-    april.LONG_ARMS_BELOW_PX = np.inf if long_arms else 0.0
-    try:
-        return refine_corners(gray, board, ids, uv, "symmetric")
-    finally:
-        april.LONG_ARMS_BELOW_PX = saved
+    return refine_corners(gray, board, ids, uv, "long-arms" if long_arms else "symmetric")
 
 
 def aprilgrid_errors(ds: Path) -> dict[str, np.ndarray]:

@@ -7,8 +7,11 @@ narrower than the white gap between squares and markers, placed along the grid's
 axes and bends (corner_grid); a corner it cannot place is reported as not refined and
 left out by the detector. "subpix" is cv2.cornerSubPix with a window fitted to the gap;
 "none" keeps OpenCV's corners. AprilGrid corners are X-junctions refined in boxes and
-crosses of their own (see refine_aprilgrid). How accurate each mode is, measured against
-exact truth, is in the README (Board detection).
+crosses of their own (see refine_aprilgrid). "long-arms" is "symmetric" with every AprilGrid
+corner's last pass run along the view's map of the board with the tag edges out to the next
+corner (_aprilgrid_mapped): a study mode, not the default, since on a real print it moves the
+corners towards their own tags (april.LONG_ARMS_BELOW_PX). How accurate each mode is, measured
+against exact truth, is in the documentation (accuracy, board detection).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from rigcal.detect.corner_fit import (ARM_SQUARES, STEP_PX, cell_px, cross_offse
 from rigcal.detect.corner_grid import corner_grid
 from rigcal.core.target import Board
 
-REFINE_MODES = ("symmetric", "subpix", "none")
+REFINE_MODES = ("symmetric", "subpix", "none", "long-arms")
 # A corner the AprilGrid box passes left out still places its tag's axes for the last pass
 # unless it is farther than this from where the neighbouring tags' corners put it (px, or
 # tag sizes): OpenCV's small-tag corners are ~1 px off and still give usable axes.
@@ -125,7 +128,7 @@ def refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.nda
     crop, origin = gray[y0:y1, x0:x1], np.array([x0, y0], float)
     stack = image_gradients(crop)
     q, ok, sigma, _ = aprilgrid_box_passes(crop, stack, board, ids, uv - origin, ax, ay, box)
-    # Once more. Small tags (april.LONG_ARMS_BELOW_PX) with the tag edges out to the next
+    # Once more. Small tags (april.LONG_ARMS_BELOW_PX; every tag in "long-arms" mode) with the tag edges out to the next
     # corner, along the view's map of the board (_aprilgrid_mapped) ...
     # The last pass's axes and bends come from the corners as refined, the failed ones
     # included where they still are near where the neighbouring tags put them. A failed fit
@@ -141,7 +144,8 @@ def refine_aprilgrid(gray: np.ndarray, board: Board, ids: np.ndarray, uv: np.nda
     ax2, ay2 = april.corner_axes(ids, placed)
     fine = ok & np.isfinite(ax2).all(axis=1) & np.isfinite(ay2).all(axis=1)
     size = cell_px(ax2, ay2)
-    small = fine & (np.nan_to_num(size, nan=np.inf) < april.LONG_ARMS_BELOW_PX)
+    below_px = np.inf if mode == "long-arms" else april.LONG_ARMS_BELOW_PX
+    small = fine & (np.nan_to_num(size, nan=np.inf) < below_px)
     if small.any():
         mapped = _aprilgrid_mapped(stack, ids[ok], q[ok], board, small[ok])
         if mapped is not None:
