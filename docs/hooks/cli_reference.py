@@ -30,11 +30,13 @@ def on_page_markdown(markdown, page, config, files, **kwargs):
     return markdown.replace(MARKER, cli_markdown())
 
 
-def cli_markdown() -> str:
+def cli_markdown(app=None) -> str:
+    """Every command of `app` (default: rigcal's) as Markdown."""
     import click
     import typer.main
 
-    from rigcal.cli import app
+    if app is None:
+        from rigcal.cli import app
 
     group = typer.main.get_command(app)
     ctx = click.Context(group, info_name="rigcal")
@@ -64,7 +66,8 @@ def _usage(command, ctx) -> str:
 
 
 def _params_tables(command, ctx, heading: str) -> list[str]:
-    """The command's arguments, then its options grouped by typer's rich_help_panel."""
+    """The command's arguments, its options without a panel, then each typer rich_help_panel
+    in the order its first option appears (as --help shows them)."""
     panels: dict[str, list[tuple[str, str]]] = {}
     for param in command.get_params(ctx):
         if getattr(param, "hidden", False) or param.name == "help":
@@ -75,7 +78,7 @@ def _params_tables(command, ctx, heading: str) -> list[str]:
         default_panel = "Arguments" if param.param_type_name == "argument" else "Options"
         panel = getattr(param, "rich_help_panel", None) or default_panel
         panels.setdefault(panel, []).append(record)
-    order = sorted(panels, key=lambda p: (p != "Arguments", p == "Options"))
+    order = sorted(panels, key=lambda p: (p != "Arguments", p != "Options"))
     lines: list[str] = []
     for panel in order:
         lines += [f"{heading} {panel}", "", "| | |", "|---|---|"]
