@@ -696,3 +696,20 @@ def test_vins_camera_option_picks_a_single_camera(tmp_path):
     cfg = fs_dict(export(IMU_RIG, "vins", tmp_path / "v", "--camera", "back") / "drone-stereo-back_config.yaml")
     assert cfg["num_of_cam"] == 1 and cfg["cam0_calib"] == "back_pinhole.yaml" and "body_T_cam1" not in cfg
     assert cfg["td"] == pytest.approx(-0.00412, abs=1e-15)
+
+
+def test_a_camera_without_a_pose_is_refused(tmp_path):
+    text = """
+rig: unposed
+cameras:
+  cam:
+    model: pinhole
+    resolution: [640, 480]
+    intrinsics: {fx: 300.0, fy: 300.0, cx: 320.0, cy: 240.0}
+    distortion: [0.0, 0.0]
+"""
+    for fmt in ("px4", "ardupilot", "vins", "orbslam3"):
+        out = tmp_path / f"out-{fmt}"
+        msg = one_line_exit2(cli("export", write_rig(text, tmp_path), "--format", fmt, "--out", out))
+        assert "cameras.cam: no pose" in msg and fmt in msg
+        assert not out.exists()

@@ -89,7 +89,8 @@ def run(rig_path: Path, fmt: str, out_path: Path, camera: str | None = None) -> 
             "euroc": "EuRoC sensor.yaml folder", "openvins": "OpenVINS config folder",
             "vins": "VINS-Fusion config folder", "orbslam3": "ORB-SLAM3 settings", "basalt": "basalt calibration",
             "px4": "PX4 parameter file", "ardupilot": "ArduPilot parameter file"}[fmt]
-    lines = [f"wrote {what} {out_path} ({len(rig.cameras)} cameras, {len(rig.stereo_pairs)} stereo pairs)"]
+    counts = "" if fmt in TARGET_FORMATS else f" ({len(rig.cameras)} cameras, {len(rig.stereo_pairs)} stereo pairs)"
+    lines = [f"wrote {what} {out_path}{counts}"]
     lines += [f"  {s}" for s in result.summary if fmt != "json"]
     return "\n".join(lines)
 
