@@ -713,3 +713,16 @@ cameras:
         msg = one_line_exit2(cli("export", write_rig(text, tmp_path), "--format", fmt, "--out", out))
         assert "cameras.cam: no pose" in msg and fmt in msg
         assert not out.exists()
+
+
+def test_orbslam3_warns_about_its_camera2_fisheye_coefficients(fisheye):
+    from rigcal.exports.orbslam3 import orbslam3_file
+
+    result = orbslam3_file(fisheye, "fisheye-imu.yaml")
+    assert any("Camera1.k1..k4" in w and "fe_right" in w for w in result.warnings)
+    d = {}
+    fs = cv2.FileStorage(result.files["orbslam3.yaml"], cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    for i in (1, 2):
+        d[i] = [fs.getNode(f"Camera{i}.k{j}").real() for j in range(1, 5)]
+    assert d[1] == [0.018, -0.004, 0.001, -0.0001] and d[2] == [0.021, -0.006, 0.0012, -0.0002]
+    assert fs.getNode("Camera2.overlappingEnd").isInt() and int(fs.getNode("Camera2.overlappingEnd").real()) == 799

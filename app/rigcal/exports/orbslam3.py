@@ -6,7 +6,9 @@ One camera (monocular, and monocular-inertial when the rig has an IMU) or one st
 
 * ``Camera.type`` ``PinHole`` (``CameraN.k1 k2 p1 p2`` and ``k3`` when the camera has one;
   ORB-SLAM3 rectifies a pinhole pair itself) or ``KannalaBrandt8`` (``CameraN.k1..k4``,
-  OpenCV's fisheye coefficients; ``CameraN.overlappingBegin/End`` 0 and width - 1).
+  OpenCV's fisheye coefficients; ``CameraN.overlappingBegin/End`` 0 and width - 1; a
+  warning for a pair with different coefficients, since ORB-SLAM3 1.0's Settings reads
+  camera 2's from the Camera1 keys).
 * ``Stereo.T_c1_c2``: camera 2's pose in camera 1 (maps camera-2 points into camera 1);
   ``IMU.T_b_c1``: camera 1's pose in the IMU frame (maps camera-1 points into the IMU
   frame, ORB-SLAM3's body). Both ``!!opencv-matrix`` with ``dt: f``, which ORB-SLAM3's
@@ -78,6 +80,10 @@ def orbslam3_file(rig: Rig, label: str = "<rig>", camera: str | None = None) -> 
             entries += [(f"Camera{i}.{n}", k) for n, k in zip(("k1", "k2", "p1", "p2", "k3"), coeffs)]
         if fisheye and len(cams) == 2:
             entries += [(f"Camera{i}.overlappingBegin", 0), (f"Camera{i}.overlappingEnd", int(m.width) - 1)]
+    if fisheye and len(cams) == 2 and targets.kb4(cams[0]) != targets.kb4(cams[1]):
+        warnings.append(f"ORB-SLAM3 1.0 reads Camera2's KannalaBrandt8 k1..k4 from the Camera1.k1..k4 keys "
+                        f"(Settings::readCamera2): {cams[1].name} gets {cams[0].name}'s distortion unless your "
+                        "build reads Camera2.k1..k4, which are written too")
     m = cams[0].intrinsics
     entries += [("Camera.width", int(m.width)), ("Camera.height", int(m.height)), ("Camera.fps", DEFAULT_FPS),
                 ("Camera.RGB", 1)]
