@@ -1,9 +1,10 @@
 """`rigcal export` and `rigcal import`: read the rig (or a Kalibr camchain), build the files
 of the asked format, print warnings and write everything whole or not at all.
 
-The builders are pure and live beside their formats: export.py for the camera formats
-and the camchain reader, export_imu.py for an IMU rig's formats, which build on
-export's camchain. This module chains them, so the two import one way only.
+The builders are pure and live in rigcal.exports: formats for the camera formats and the
+camchain reader, imu_formats for an IMU rig's formats (built on formats' camchain), and
+openvins, vins, orbslam3, basalt and autopilot for the estimators and flight controllers.
+This module chains them.
 """
 
 from __future__ import annotations
