@@ -130,6 +130,13 @@ class ExportFormat(str, Enum):
     json = "json"
     kalibr_imu = "kalibr-imu"
     euroc = "euroc"
+    # estimators and autopilots (rigcal.exports.openvins, vins, orbslam3, basalt, autopilot)
+    openvins = "openvins"
+    vins = "vins"
+    orbslam3 = "orbslam3"
+    basalt = "basalt"
+    px4 = "px4"
+    ardupilot = "ardupilot"
 
 
 class ImportFormat(str, Enum):
@@ -278,13 +285,18 @@ def project(
 @guarded
 def export(
     rig: Path = typer.Argument(..., help="calibrated rig YAML"),
-    format: ExportFormat = typer.Option(..., "--format", help="kalibr | opencv | ros | json | kalibr-imu | euroc"),
-    out_path: Path = typer.Option(..., "--out", help="file (kalibr, json) or folder (opencv, ros, kalibr-imu, euroc)"),
+    format: ExportFormat = typer.Option(..., "--format", help="kalibr | opencv | ros | json | kalibr-imu | euroc | "
+                                                              "openvins | vins | orbslam3 | basalt | px4 | ardupilot"),
+    out_path: Path = typer.Option(..., "--out", help="file (kalibr, json, orbslam3, basalt, px4, ardupilot) or folder "
+                                                     "(opencv, ros, kalibr-imu, euroc, openvins, vins)"),
+    camera: Optional[str] = typer.Option(None, help="vins, orbslam3: this camera (with its stereo partner); px4, "
+                                                    "ardupilot: the sensor camera. Default: the first pair / camera"),
 ):
-    """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON."""
+    """Write the rig for other tools: Kalibr camchain, OpenCV FileStorage, ROS camera_info, JSON, and the
+    settings of OpenVINS, VINS-Fusion, ORB-SLAM3, basalt, PX4 and ArduPilot."""
     from rigcal.commands import export as exp
 
-    out(exp.run(rig, format.value, out_path))
+    out(exp.run(rig, format.value, out_path, camera=camera))
 
 
 @app.command("import")

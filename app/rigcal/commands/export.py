@@ -1,9 +1,10 @@
 """`rigcal export` and `rigcal import`: read the rig (or a Kalibr camchain), build the files
 of the asked format, print warnings and write everything whole or not at all.
 
-The builders are pure and live beside their formats: export.py for the camera formats
-and the camchain reader, export_imu.py for an IMU rig's formats, which build on
-export's camchain. This module chains them, so the two import one way only.
+The builders are pure and live in rigcal.exports: formats for the camera formats and the
+camchain reader, imu_formats for an IMU rig's formats (built on formats' camchain), and
+openvins, vins, orbslam3, basalt and autopilot for the estimators and flight controllers.
+This module chains them.
 """
 
 from __future__ import annotations
@@ -15,13 +16,31 @@ from rigcal.errors import InputError, OutputError
 from rigcal.exports.formats import (FORMATS, Export, json_text, kalibr_camchain, match_declared, opencv_files,
                                     parse_camchain, rig_from_camchain, ros_files)
 from rigcal.exports.imu_formats import IMU_FORMATS, euroc_files, imucam_rig, kalibr_imu_files
+from rigcal.exports.autopilot import ardupilot_params, px4_params
+from rigcal.exports.basalt import basalt_file
+from rigcal.exports.openvins import openvins_files
+from rigcal.exports.orbslam3 import orbslam3_file
+from rigcal.exports.vins import vins_files
 from rigcal.core.io import atomic_dir, atomic_write_text
 from rigcal.core.rig import Rig, dump_rig, load_rig, load_yaml
 from rigcal.core.validate import read_text
 
 
-def build(rig: Rig, fmt: str, label: str = "<rig>") -> Export:
+# The estimator and autopilot formats; those in CAMERA_FORMATS take --camera.
+TARGET_FORMATS = ("openvins", "vins", "orbslam3", "basalt", "px4", "ardupilot")
+CAMERA_FORMATS = ("vins", "orbslam3", "px4", "ardupilot")
+FILE_FORMATS = ("kalibr", "json", "orbslam3", "basalt", "px4", "ardupilot")  # --out is a file; the others a folder
+
+
+def build(rig: Rig, fmt: str, label: str = "<rig>", camera: str | None = None) -> Export:
     """Every file one export writes, without writing anything."""
+    if camera is not None and fmt not in CAMERA_FORMATS:
+        raise InputError(f"export: --camera applies to --format {', '.join(CAMERA_FORMATS)}, not {fmt}")
+    if fmt in TARGET_FORMATS:
+        builders = {"openvins": lambda: openvins_files(rig, label), "vins": lambda: vins_files(rig, label, camera),
+                    "orbslam3": lambda: orbslam3_file(rig, label, camera), "basalt": lambda: basalt_file(rig, label),
+                    "px4": lambda: px4_params(rig, label, camera), "ardupilot": lambda: ardupilot_params(rig, label, camera)}
+        return builders[fmt]()
     if fmt == "kalibr":
         return kalibr_camchain(rig, label)
     if fmt == "opencv":
@@ -32,7 +51,8 @@ def build(rig: Rig, fmt: str, label: str = "<rig>") -> Export:
         return Export({"rig.json": json_text(rig)})
     if fmt in IMU_FORMATS:
         return (kalibr_imu_files if fmt == "kalibr-imu" else euroc_files)(rig, label)
-    raise InputError(f"export: --format: expected one of {', '.join(FORMATS + IMU_FORMATS)}, got {fmt!r}")
+    raise InputError(f"export: --format: expected one of {', '.join(FORMATS + IMU_FORMATS + TARGET_FORMATS)}, "
+                     f"got {fmt!r}")
 
 
 def _warn(message: str) -> None:
@@ -42,7 +62,7 @@ def _warn(message: str) -> None:
 def write_export(result: Export, fmt: str, out_path: Path) -> None:
     """File formats go to out_path itself; folder formats are built in a temporary sibling
     folder and moved into place, so a failure leaves nothing behind."""
-    if fmt in ("kalibr", "json"):
+    if fmt in FILE_FORMATS:
         if out_path.is_dir():
             raise OutputError(f"{out_path}: is a directory; --format {fmt} writes one file")
         (text,) = result.files.values()
@@ -57,18 +77,21 @@ def write_export(result: Export, fmt: str, out_path: Path) -> None:
             atomic_write_text(tmp / name, text)
 
 
-def run(rig_path: Path, fmt: str, out_path: Path) -> str:
-    """`rigcal export RIG --format F --out PATH`: returns the text for stdout."""
+def run(rig_path: Path, fmt: str, out_path: Path, camera: str | None = None) -> str:
+    """`rigcal export RIG --format F --out PATH [--camera NAME]`: returns the text for stdout."""
     rig_path, out_path = Path(rig_path), Path(out_path)
     rig = load_rig(rig_path)
-    result = build(rig, fmt, str(rig_path))
+    result = build(rig, fmt, str(rig_path), camera)
     for w in result.warnings:
         _warn(w)
     write_export(result, fmt, out_path)
     what = {"kalibr": "Kalibr camchain", "opencv": "OpenCV FileStorage folder",
             "ros": "ROS camera_info folder", "json": "rig JSON", "kalibr-imu": "Kalibr camchain-imucam folder",
-            "euroc": "EuRoC sensor.yaml folder"}[fmt]
-    lines = [f"wrote {what} {out_path} ({len(rig.cameras)} cameras, {len(rig.stereo_pairs)} stereo pairs)"]
+            "euroc": "EuRoC sensor.yaml folder", "openvins": "OpenVINS config folder",
+            "vins": "VINS-Fusion config folder", "orbslam3": "ORB-SLAM3 settings", "basalt": "basalt calibration",
+            "px4": "PX4 parameter file", "ardupilot": "ArduPilot parameter file"}[fmt]
+    counts = "" if fmt in TARGET_FORMATS else f" ({len(rig.cameras)} cameras, {len(rig.stereo_pairs)} stereo pairs)"
+    lines = [f"wrote {what} {out_path}{counts}"]
     lines += [f"  {s}" for s in result.summary if fmt != "json"]
     return "\n".join(lines)
 
