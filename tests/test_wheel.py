@@ -38,9 +38,13 @@ def installed(tmp_path_factory) -> tuple[Path, Path, dict]:
     tmp = tmp_path_factory.mktemp("wheel")
     # Build from a copy so the checkout gets no build/ or egg-info folders.
     src = tmp / "src"
-    shutil.copytree(ROOT, src, symlinks=True,
-                    ignore=shutil.ignore_patterns(".venv*", ".git", "build", "*.egg-info", "__pycache__",
-                                                  "demo-out", "sim", "bench", "tests", "samples"))
+    anywhere = shutil.ignore_patterns(".venv*", ".git", "*.egg-info", "__pycache__")
+    top_only = {"build", "site", "demo-out", "sim", "bench", "tests", "samples"}  # rigcal/sim is the package's
+
+    def ignore(folder: str, names: list[str]) -> set[str]:
+        return set(anywhere(folder, names)) | (top_only & set(names) if Path(folder) == ROOT else set())
+
+    shutil.copytree(ROOT, src, symlinks=True, ignore=ignore)
     _run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", tmp / "dist", src],
          tmp, dict(os.environ))
     wheels = list((tmp / "dist").glob("rigcal-*.whl"))
