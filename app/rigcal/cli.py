@@ -357,6 +357,41 @@ def ingest(
                 end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force))
 
 
+class NoiseFormat(str, Enum):
+    """`imu-noise --format`: the file written (rigcal.imunoise.formats)."""
+
+    kalibr = "kalibr"
+    rig = "rig"
+    basalt = "basalt"
+    openvins = "openvins"
+    vins = "vins"
+    orbslam3 = "orbslam3"
+
+
+@app.command("imu-noise")
+@guarded
+def imu_noise(
+    source: Path = typer.Argument(..., help="static recording: an IMU .csv (EuRoC format), a dataset folder with "
+                                            "imu/, a EuRoC folder, or a ROS 1 / ROS 2 bag"),
+    out_path: Path = typer.Option(..., "--out", help="file to write (Kalibr imu.yaml by default)"),
+    imu: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag), NAME=FILE (dataset imu/ or csv) or "
+                                                       "NAME=imuN (EuRoC); repeat per IMU"),
+    rig: Optional[Path] = typer.Option(None, help="rig YAML whose imus entry takes the figures (--format rig; "
+                                                  "written to --out, the rest of the rig kept)"),
+    report: Optional[Path] = typer.Option(None, help="HTML page: Allan deviation per axis, fitted lines, "
+                                                     "confidence bands, tau ranges"),
+    format: Optional[NoiseFormat] = typer.Option(None, "--format", help="kalibr (default; rig with --rig), rig, "
+                                                                        "basalt, openvins, vins, orbslam3"),
+    inflate: float = typer.Option(1.0, help="multiply every figure written by this factor (the file says so)"),
+):
+    """An IMU's noise figures (white noise density, random walk, bias instability) from a static
+    recording, by overlapping Allan deviation, with 95 % intervals."""
+    from rigcal.commands import imu_noise as cmd
+
+    out(cmd.run(source, out_path, imus=imu, rig_path=rig, report_path=report,
+                fmt=format.value if format else None, inflate=inflate))
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM, raised where the program is so that every atomic writer and worker pool
     cleans up as it does for Ctrl-C (Python's default for SIGTERM is to die on the spot,

@@ -9,9 +9,11 @@ Checks (each refusal an InputError naming the file and, where there is one, the 
 - timestamps strictly increase (a repeated or backward stamp is refused);
 - the sample rate is the median interval's; a gap is an interval over GAP_SAMPLES periods,
   and only the longest stretch between gaps is used (said in a note);
-- the recording is still: the largest deviation of any one-second mean of the
-  accelerometer (or gyroscope) from the recording's median is under MOVING_ACCEL m/s^2
-  (MOVING_GYRO rad/s); otherwise it is refused with the figure;
+- the recording is still: consecutive one-second means of the accelerometer (gyroscope)
+  differ by at most MOVING_ACCEL m/s^2 (MOVING_GYRO rad/s); otherwise it is refused with
+  the figure and the time. Differences of neighbouring means, not deviations from the
+  median: the bias random walk itself moves the mean by K sqrt(t) over hours (0.3 m/s^2
+  in 3 h at K = 3e-3), while motion or a knock changes it within a second;
 - a temperature column whose linear trend changes by over TEMP_DRIFT_C gets a note.
 """
 
@@ -26,8 +28,8 @@ import numpy as np
 from rigcal.data.imu_csv import GAP_SAMPLES
 from rigcal.errors import InputError
 
-MOVING_ACCEL = 0.3  # m/s^2: a one-second mean this far from the median is motion or a tilt (~1.8 deg)
-MOVING_GYRO = 0.05  # rad/s (~3 deg/s)
+MOVING_ACCEL = 0.1  # m/s^2 (~10 mg, a 0.6 deg tilt) between consecutive one-second means
+MOVING_GYRO = 0.02  # rad/s (~1 deg/s)
 TEMP_DRIFT_C = 1.0
 _HINT = "(timestamp [ns], gyroscope x y z, accelerometer x y z[, temperature])"
 
@@ -47,7 +49,8 @@ class ImuRecording:
 @dataclass(frozen=True)
 class Checked:
     """A recording after the checks: the stretch used, its rate, the whole recording's span
-    and gaps, the stillness figures (largest one-second mean deviation) and notes."""
+    and gaps, the stillness figures (largest change between consecutive one-second means,
+    accelerometer m/s^2 and gyroscope rad/s) and notes."""
 
     recording: ImuRecording
     rate_hz: float
@@ -149,14 +152,17 @@ def longest_stretch(t_ns: np.ndarray) -> tuple[slice, float, int, float]:
     return slice(int(edges[k]), int(edges[k + 1])), 1.0 / period, len(gap), float(dt[gap].max()) if len(gap) else 0.0
 
 
-def motion(x: np.ndarray, rate_hz: float) -> float:
-    """The largest deviation (norm) of a one-second mean of x (N, 3) from the median of them."""
+def motion(x: np.ndarray, rate_hz: float) -> tuple[float, float]:
+    """(the largest change (norm) between consecutive one-second means of x (N, 3), the time
+    in s from the start where it happens)."""
     w = max(int(round(rate_hz)), 1)
     k = len(x) // w
-    if k == 0:
-        return 0.0
+    if k < 2:
+        return 0.0, 0.0
     means = x[:k * w].reshape(k, w, 3).mean(axis=1)
-    return float(np.linalg.norm(means - np.median(means, axis=0), axis=1).max())
+    step = np.linalg.norm(np.diff(means, axis=0), axis=1)
+    i = int(np.argmax(step))
+    return float(step[i]), float(i + 1)
 
 
 def check(rec: ImuRecording) -> Checked:
@@ -170,12 +176,13 @@ def check(rec: ImuRecording) -> Checked:
                      f"longest stretch between them: samples {sl.start + 1}-{sl.stop}, {used:.0f} of {span:.0f} s")
     part = ImuRecording(rec.source, rec.t_ns[sl], rec.gyro[sl], rec.accel[sl],
                         None if rec.temp_c is None else rec.temp_c[sl])
-    acc_m, gyr_m = motion(part.accel, rate), motion(part.gyro, rate)
+    (acc_m, acc_t), (gyr_m, gyr_t) = motion(part.accel, rate), motion(part.gyro, rate)
     if acc_m > MOVING_ACCEL or gyr_m > MOVING_GYRO:
-        raise InputError(f"{rec.source}: not a static recording: a one-second mean of the accelerometer strays "
-                         f"{acc_m:.3g} m/s^2 (gyroscope {gyr_m:.3g} rad/s) from the median, over the "
-                         f"{MOVING_ACCEL:g} m/s^2 ({MOVING_GYRO:g} rad/s) a still IMU stays within; record it "
-                         f"resting on a firm support, untouched")
+        at = acc_t if acc_m / MOVING_ACCEL >= gyr_m / MOVING_GYRO else gyr_t
+        raise InputError(f"{rec.source}: not a static recording: consecutive one-second means of the accelerometer "
+                         f"differ by up to {acc_m:.3g} m/s^2 (gyroscope {gyr_m:.3g} rad/s; worst {at:.0f} s into "
+                         f"the stretch used), over the {MOVING_ACCEL:g} m/s^2 ({MOVING_GYRO:g} rad/s) of a still "
+                         f"IMU; record it resting on a firm support, untouched")
     change = None
     if part.temp_c is not None:
         t = (part.t_ns - part.t_ns[0]) * 1e-9
