@@ -71,11 +71,13 @@ def out(text) -> None:
 
 class Scene(str, Enum):
     """`simulate --scene`: room (wall boards around a turning rig), board (one board in front
-    of the rig) or imu (a hand-held recording with IMU streams, simulate_imu)."""
+    of the rig) or imu (a hand-held recording with IMU streams, simulate_imu); static: the
+    rig's IMUs at rest, for imu-noise (sim.static_imu)."""
 
     room = "room"
     board = "board"
     imu = "imu"
+    static = "static"
 
 
 class Distortion(str, Enum):
@@ -143,7 +145,7 @@ class ImportFormat(str, Enum):
 def simulate(
     rig: Path = typer.Argument(..., help="rig YAML (every camera needs a pose)"),
     out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md)"),
-    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md). Default: room when some camera shares no view with the others"),
+    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md); static: the rig's IMUs at rest (imu-noise). Default: room when some camera shares no view with the others"),
     frames: Optional[int] = typer.Option(None, help="number of frames (default 60 room, 40 board)"),
     seed: int = typer.Option(0, help="random seed; the same seed writes byte-identical images"),
     noise: float = typer.Option(2.0, help="Gaussian image noise, grey levels (sigma)"),
@@ -154,7 +156,7 @@ def simulate(
     target: Optional[Path] = typer.Option(None, help="target YAML to use instead of one generated from the rig"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
     jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
-    duration: Optional[float] = typer.Option(None, help="--scene imu: seconds of motion (default 30)"),
+    duration: Optional[float] = typer.Option(None, help="--scene imu: seconds of motion (default 30); --scene static: seconds at rest (default 10800)"),
     camera_rate: Optional[float] = typer.Option(None, help="--scene imu: images per second per camera (default 20)"),
     exposure: Optional[float] = typer.Option(None, help="--scene imu: exposure in seconds, gives motion blur (default 0.005)"),
     time_offset_ms: Optional[float] = typer.Option(None, help="--scene imu: true camera clock offsets are uniform in +-this (default 10)"),
@@ -163,6 +165,16 @@ def simulate(
     recording with IMU streams (imu.md)."""
     motion_flags = {"--duration": duration, "--camera-rate": camera_rate, "--exposure": exposure,
                     "--time-offset-ms": time_offset_ms}
+    if scene is Scene.static:
+        from rigcal.sim import static_imu
+
+        for flag, given in (("--frames", frames is not None), ("--blur", blur != 0.0),
+                            *((f, v is not None) for f, v in motion_flags.items() if f != "--duration")):
+            if given:
+                raise InputError(f"{flag}: not used with --scene static (its options: --duration, --seed, --force)")
+        out(static_imu.simulate_static(rig, out_dir, static_imu.DEFAULT_DURATION_S if duration is None else duration,
+                                       seed=seed, force=force))
+        return
     if scene is Scene.imu:
         from rigcal.sim import imu_scene as simulate_imu
 

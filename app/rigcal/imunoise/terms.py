@@ -7,21 +7,30 @@ The Allan variance of an IMU axis is modelled as the sum of four terms (IEEE Std
                  + (2 ln2 / pi) B^2   bias instability B (flat; deviation 0.664 B)
                  + K^2 tau / 3        random walk K (slope +1/2; K = the line at tau = 3 s)
 
-N and K are Kalibr's `*_noise_density` and `*_random_walk` (continuous time). How each is
-read:
+N and K are Kalibr's `*_noise_density` and `*_random_walk` (continuous time). A MEMS IMU
+quantises rates, not angles: its quantisation is white noise, part of N. The angle
+quantisation term Q is therefore held at zero (fitted, it trades off against N at the
+shortest taus: 0.5 % of N on a simulated 3 h recording); it stays in the model's layout.
+How each is read:
 
-1. A joint weighted non-negative least-squares fit of the four squared figures to the
+1. A joint weighted non-negative least-squares fit of the squared figures N, B, K to the
    measured variance at every tau, each point weighted by the variance of its estimate
    (2 sigma^4 / edf, with Greenhall's edf for the term that dominates there), re-weighted
    three times with the model's own values so low points do not pull the fit.
 2. A term *dominates* a tau when it is more than half of the model's variance there; its
    tau range is those taus. The term is then re-fitted on its range alone (a line of fixed
-   slope through the measured variance less the other terms' small share there).
+   slope through the measured variance less the other terms' share there), each tau
+   weighted by what it knows of the term: edf(tau) * share(tau)^2 (a term that is a share
+   s of the variance is known to relative variance 2 / (edf s^2)).
 3. Its confidence interval is chi-square with the equivalent degrees of freedom of the
-   best-determined tau in its range: edf(tau) * share(tau)^2 (a term that is a share s of
-   the variance is known to relative variance 2 / (edf s^2)). Octave taus of one recording
-   overlap, so their degrees of freedom are not added: the interval is that of one tau,
-   which the fit over the range can only improve on.
+   best-determined tau in its range, edf * share^2. Octave taus of one recording overlap,
+   so their degrees of freedom are not added. When the taus of the range disagree more than
+   their edf allows (the four-term model misses the curve's shape there, e.g. a bias
+   instability that is not flat), those degrees of freedom are divided by the excess
+   (Birge ratio), widening the interval to cover it. And the other terms subtracted count
+   as a systematic error of SHAPE_DOUBT of their size (their shape under this term's range
+   is the model's assumption: a real flicker floor rolls off at the shortest taus, where a
+   white-noise fit from millions of samples would otherwise claim 0.1 %).
 4. Bias instability: the flat minimum of the deviation / 0.664, its interval chi-square
    with the flicker-noise edf at that tau; `dominant` says whether a flat range exists
    (otherwise the figure is an upper bound set by the white noise and random walk).
@@ -48,6 +57,8 @@ DOMINANT_SHARE = 0.5
 CONFIDENCE = 0.95
 TARGET_PRECISION = 0.10  # `needed_s`: the recording for a 1-sigma relative error of 10 %
 REWEIGHTS = 3
+SHAPE_DOUBT = 0.5  # the other terms' share under a term's range, as a systematic error (fraction of it)
+FITTED = (1, 2, 3)  # the columns of `design` fitted: N, B, K (Q held at zero, see above)
 
 
 class TooShort(InputError):
@@ -108,11 +119,11 @@ def joint_fit(curve: AllanCurve) -> tuple[np.ndarray, np.ndarray]:
     A, y = design(curve.tau), curve.adev ** 2
     alpha = np.full(len(y), ALPHA["white"])
     model_var = y.copy()
-    p = np.zeros(4)
     for _ in range(REWEIGHTS + 1):
         nu = _edf_by_term(curve, alpha)
         sd = np.maximum(model_var, 1e-300) * np.sqrt(2.0 / nu)
-        p, _ = nnls(A / sd[:, None], y / sd)
+        p = np.zeros(4)
+        p[list(FITTED)], _ = nnls(A[:, FITTED] / sd[:, None], y / sd)
         parts = A * p
         model_var = np.maximum(parts.sum(axis=1), 1e-300)
         alpha = _dominant_alpha(parts)
@@ -132,7 +143,14 @@ def _needed(duration_s: float, nu: float) -> float:
 
 
 def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFit | None:
-    """Term k (1 white, 3 random walk) re-fitted on the taus it dominates; None if none."""
+    """Term k (1 white, 3 random walk) re-fitted on the taus it dominates; None if none.
+
+    Each tau i in range gives the squared figure p_i = (measured variance less the other
+    terms) / the term's shape, known to relative variance 2 / (edf_i share_i^2); they are
+    averaged with those weights. When they scatter more than that allows (chi-square per
+    degree of freedom R^2 > 1: the model's shape misses the data there), the degrees of
+    freedom behind the interval are divided by R^2 (the Birge ratio), so the interval
+    covers the misfit too."""
     A = design(curve.tau)
     parts = A * p
     total = parts.sum(axis=1)
@@ -140,15 +158,22 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
     sel = share > DOMINANT_SHARE
     if not sel.any():
         return None
-    y = curve.adev[sel] ** 2 - (total[sel] - parts[sel, k])
-    f = A[sel, k]
-    w = nu[sel] / (2.0 * total[sel] ** 2)
-    value_sq = max(float(np.sum(w * f * y) / np.sum(w * f * f)), 0.0)
-    nu_term = float(np.max(nu[sel] * share[sel] ** 2))
+    p_i = (curve.adev[sel] ** 2 - (total[sel] - parts[sel, k])) / A[sel, k]
+    w = nu[sel] * share[sel] ** 2
+    value_sq = max(float(np.sum(w * p_i) / np.sum(w)), 1e-300)
+    birge = 1.0
+    if sel.sum() > 1:
+        birge = max(1.0, float(np.sum(w * (p_i - value_sq) ** 2) / (2.0 * value_sq ** 2)) / (sel.sum() - 1))
+    # the other terms subtracted are known only as well as the model's shapes hold where this
+    # term dominates (flicker rolls off at the shortest taus, anti-alias filters bend them):
+    # counted as a systematic error of SHAPE_DOUBT of their size, the same sign at every tau
+    sys_rel = SHAPE_DOUBT * float(np.sum(w * (total[sel] - parts[sel, k]) / A[sel, k]) / np.sum(w)) / value_sq
+    nu_stat = float(np.max(w)) / birge
+    nu_term = 2.0 / (2.0 / nu_stat + sys_rel ** 2)
     lo, hi = _interval(value_sq, nu_term)
     duration = curve.n / curve.rate_hz
     return TermFit(math.sqrt(value_sq), lo, hi, float(curve.tau[sel].min()), float(curve.tau[sel].max()), nu_term,
-                   _needed(duration, nu_term))
+                   _needed(duration, nu_stat * birge))
 
 
 def fit_bias_instability(curve: AllanCurve, p: np.ndarray) -> TermFit:
