@@ -4,7 +4,6 @@ every output format, and every bad input as one stderr line, exit 2, nothing wri
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -264,3 +263,37 @@ def test_dataset_with_two_imus_needs_a_choice_for_kalibr(recording, tmp_path):
     r = run("imu-noise", ds, "--out", out, "--imu", "imu1=imu1.csv")
     assert r.exit_code == 0, r.stderr
     assert yaml.safe_load(out.read_text())["rostopic"] == "/imu1"
+
+
+def test_euroc_folder(recording, tmp_path):
+    path, _ = recording
+    imu_dir = tmp_path / "MH" / "mav0" / "imu0"
+    imu_dir.mkdir(parents=True)
+    (imu_dir / "data.csv").write_text(path.read_text())
+    (imu_dir / "sensor.yaml").write_text("%YAML:1.0\nsensor_type: imu\nrate_hz: 100\n")
+    out = tmp_path / "o.yaml"
+    r = run("imu-noise", tmp_path / "MH", "--out", out)
+    assert r.exit_code == 0, r.stderr
+    direct = tmp_path / "d.yaml"
+    assert run("imu-noise", path, "--out", direct).exit_code == 0
+    a, b = yaml.safe_load(out.read_text()), yaml.safe_load(direct.read_text())
+    assert a["gyroscope_noise_density"] == b["gyroscope_noise_density"] and a["rostopic"] == "/imu0"
+    refused(run("imu-noise", tmp_path / "MH", "--out", out, "--imu", "imu0=imu9"), "no such IMU", "imu0")
+
+
+def test_rig_in_flow_style_is_rewritten_whole(recording, tmp_path):
+    from rigcal.core.rig import parse_rig
+
+    path, _ = recording
+    doc = yaml.safe_load(RIG)
+    rig = tmp_path / "flow.yaml"
+    rig.write_text(yaml.safe_dump(doc, default_flow_style=True))
+    out = tmp_path / "rig_out.yaml"
+    r = run("imu-noise", path, "--out", out, "--format", "rig", "--rig", rig, "--inflate", 2)
+    assert r.exit_code == 0, r.stderr
+    k = tmp_path / "k.yaml"
+    assert run("imu-noise", path, "--out", k).exit_code == 0
+    want = yaml.safe_load(k.read_text())["gyroscope_random_walk"] * 2
+    new = parse_rig(out.read_text())
+    assert new.imu("imu0").gyroscope_random_walk == pytest.approx(want, rel=1e-12)
+    assert "--inflate 2" in out.read_text() and new.cameras == parse_rig(RIG).cameras

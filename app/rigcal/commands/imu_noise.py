@@ -9,7 +9,6 @@ report) are then written together, whole or not at all.
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -3,13 +3,15 @@
 Every format takes Kalibr's continuous-time figures (white noise density, bias random
 walk) in the same units, only the key names differ:
 
-| format   | file | keys |
-|---|---|---|
-| kalibr   | imu.yaml (Kalibr's IMU input) | accelerometer_noise_density, accelerometer_random_walk, gyroscope_noise_density, gyroscope_random_walk, update_rate, rostopic |
-| openvins | kalibr_imu_chain.yaml | imu0: the same four keys, T_i_b, rostopic, time_offset, update_rate, model |
-| vins     | VINS-Fusion config (OpenCV YAML) | acc_n, gyr_n, acc_w, gyr_w |
-| orbslam3 | ORB-SLAM3 settings (OpenCV YAML) | IMU.NoiseGyro, IMU.NoiseAcc, IMU.GyroWalk, IMU.AccWalk, IMU.Frequency |
-| basalt   | calibration JSON (value0) | accel_noise_std, gyro_noise_std, accel_bias_std, gyro_bias_std (per axis), imu_update_rate |
+- kalibr: Kalibr's IMU input imu.yaml: accelerometer_noise_density, accelerometer_random_walk,
+  gyroscope_noise_density, gyroscope_random_walk, update_rate, rostopic;
+- openvins: kalibr_imu_chain.yaml, `imu0:` with the same four keys, T_i_b, rostopic,
+  time_offset, update_rate, model;
+- vins: VINS-Fusion's config (OpenCV YAML): acc_n, gyr_n, acc_w, gyr_w;
+- orbslam3: ORB-SLAM3's settings (OpenCV YAML): IMU.NoiseGyro, IMU.NoiseAcc, IMU.GyroWalk,
+  IMU.AccWalk, IMU.Frequency;
+- basalt: calibration JSON `value0`: accel_noise_std, gyro_noise_std, accel_bias_std,
+  gyro_bias_std (per axis), imu_update_rate.
 
 Basalt's `*_noise_std` are continuous-time densities (it multiplies them by sqrt(rate) for
 the discrete noise) and `*_bias_std` continuous random walks, per axis: it gets each

@@ -38,7 +38,8 @@ def figure(noise: ImuNoise) -> go.Figure:
                                      hoverinfo="skip", legendgroup=group, showlegend=False), row=1, col=col)
             fig.add_trace(go.Scatter(x=c.tau, y=c.adev, mode="lines+markers", line=dict(color=colour),
                                      name=f"{sensor.sensor} {ax}", legendgroup=group), row=1, col=col)
-            for term, shape in (("white", lambda t, v: v / np.sqrt(t)), ("random_walk", lambda t, v: v * np.sqrt(t / 3)),
+            for term, shape in (("white", lambda t, v: v / np.sqrt(t)),
+                                ("random_walk", lambda t, v: v * np.sqrt(t / 3)),
                                 ("bias_instability", lambda t, v: np.full_like(t, v * np.sqrt(FLAT)))):
                 f = getattr(a, term)
                 t = np.geomspace(f.tau_lo, f.tau_hi, 20) if f.tau_hi > f.tau_lo else np.array([f.tau_lo / 1.5,
