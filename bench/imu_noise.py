@@ -149,7 +149,7 @@ def _stats(vals: list[float]) -> str:
 def tables(r: dict) -> str:
     out = []
     rows = []
-    for sensor in SENSORS:
+    for sensor in SENSORS if r["results"] else ():
         ax = [a for res in r["results"] for a in res[sensor]["axes"]]
         n_err = max(abs(a["N"] - 1) for a in ax)
         k_err = max(abs(a["K"] - 1) for a in ax)
@@ -158,17 +158,17 @@ def tables(r: dict) -> str:
                      _stats([a["K"] for a in ax]), f"{100 * k_err:.0f} %",
                      f"{100 * np.mean([a['K_in'] for a in ax]):.0f} % (+-{100 * np.median([a['K_halfwidth'] for a in ax]):.0f} %)",
                      _stats([a["B"] for a in ax])])
-    out.append(md_table(["sensor", "N / truth: median [min, max]", "worst N", "N in 95 % interval (half-width)",
+    out.append("" if not rows else md_table(["sensor", "N / truth: median [min, max]", "worst N", "N in 95 % interval (half-width)",
                          "K / truth", "worst K", "K in 95 % interval", "B (flat min / 0.664) / design B"], rows,
                         title=f"imu-noise on {r['seeds']} seeds x 3 axes, {r['hours']:g} h at {r['rate_hz']:g} Hz "
                               f"(targets: N within 3 %, K within 20 %, intervals hold the truth 90-98 %)"))
     rows = []
-    for sensor in SENSORS:
+    for sensor in SENSORS if r["results"] else ():
         ax = [a for res in r["results"] for a in res[sensor]["axes"]]
         rows.append([sensor, _stats([a["N"] for a in ax]), _stats([a["avr_N"] for a in ax]),
                      _stats([a["iu_n"] for a in ax]), _stats([a["K"] for a in ax]), _stats([a["avr_K"] for a in ax]),
                      _stats([a["iu_w"] for a in ax])])
-    out.append(md_table(["sensor", "N rigcal", "N allan_variance_ros", "`*_n` imu_utils", "K rigcal",
+    out.append("" if not rows else md_table(["sensor", "N rigcal", "N allan_variance_ros", "`*_n` imu_utils", "K rigcal",
                          "K allan_variance_ros", "`*_w` imu_utils"], rows,
                         title="the same Allan deviations through the peers' formulas (figure / truth; imu_utils's "
                               "`_n` is sqrt(rate) x the deviation at 1 s, `_w` its bias instability, which Kalibr "
@@ -193,11 +193,11 @@ def main(argv=None) -> None:
     ap.add_argument("--speed-rate", type=float, default=400.0)
     a = ap.parse_args(argv)
     r = run(a.seeds, a.hours, a.rate, a.speed_hours, a.speed_rate)
-    write_json("imu_noise", r)
+    write_json("imu_noise" if a.seeds else "imu_noise_speed", r)
     text = tables(r)
     say(text)
     OUT.mkdir(parents=True, exist_ok=True)
-    (OUT / "imu_noise.md").write_text(text + "\n", encoding="utf-8")
+    (OUT / ("imu_noise.md" if a.seeds else "imu_noise_speed.md")).write_text(text + "\n", encoding="utf-8")
 
 
 if __name__ == "__main__":

@@ -3,6 +3,7 @@ deviation and its terms (rigcal.imunoise.terms), combined into Kalibr's four fig
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 from rigcal.imunoise.allan import allan_deviation
@@ -11,6 +12,7 @@ from rigcal.imunoise.terms import AxisNoise, TermFit, TooShort, combine, fit_axi
 
 SENSORS = ("gyroscope", "accelerometer")
 AXES = ("x", "y", "z")
+THREADS = 2  # the axes' Allan deviations are numpy array passes that release the GIL
 UNITS = {  # (white noise density, random walk, bias instability)
     "gyroscope": ("rad/s/sqrt(Hz)", "rad/s^2/sqrt(Hz)", "rad/s"),
     "accelerometer": ("m/s^2/sqrt(Hz)", "m/s^3/sqrt(Hz)", "m/s^2"),
@@ -51,22 +53,25 @@ class ImuNoise:
                 "gyroscope_random_walk": self.gyroscope.random_walk.value * inflate}
 
 
-def sensor_noise(sensor: str, data, rate_hz: float, source: str) -> SensorNoise:
-    """data (N, 3): one sensor's axes."""
-    axes = []
-    for k, ax in enumerate(AXES):
-        try:
-            axes.append(fit_axis(allan_deviation(data[:, k], rate_hz), f"{sensor} {ax}"))
-        except TooShort as e:
-            raise TooShort(f"{source}: {e}") from None
-    picks = {}
-    for term in ("white", "random_walk", "bias_instability"):
-        picks[term] = combine([getattr(a, term) for a in axes])
+def _fit(args) -> AxisNoise:
+    x, rate_hz, what = args
+    return fit_axis(allan_deviation(x, rate_hz), what)
+
+
+def _combined(sensor: str, axes: list[AxisNoise]) -> SensorNoise:
+    picks = {term: combine([getattr(a, term) for a in axes]) for term in ("white", "random_walk", "bias_instability")}
     return SensorNoise(sensor, tuple(axes), picks["white"][1], picks["random_walk"][1], picks["bias_instability"][1],
                        picks["white"][0], picks["random_walk"][0], picks["bias_instability"][0])
 
 
 def estimate(name: str, checked: Checked) -> ImuNoise:
+    """Both sensors' three axes (THREADS at a time); TooShort naming the source and axis."""
     rec = checked.recording
-    return ImuNoise(name, checked, sensor_noise("gyroscope", rec.gyro, checked.rate_hz, rec.source),
-                    sensor_noise("accelerometer", rec.accel, checked.rate_hz, rec.source))
+    jobs = [(data[:, k], checked.rate_hz, f"{sensor} {ax}") for sensor, data in zip(SENSORS, (rec.gyro, rec.accel))
+            for k, ax in enumerate(AXES)]
+    try:
+        with ThreadPoolExecutor(max_workers=THREADS) as pool:
+            axes = list(pool.map(_fit, jobs))
+    except TooShort as e:
+        raise TooShort(f"{rec.source}: {e}") from None
+    return ImuNoise(name, checked, _combined("gyroscope", axes[:3]), _combined("accelerometer", axes[3:]))

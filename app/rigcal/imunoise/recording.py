@@ -96,7 +96,8 @@ def read_imu_file(path: str | Path) -> ImuRecording:
         raise InputError(_first_bad_row(path, ncol))
     if (np.diff(t) <= 0).any():
         raise InputError(_first_bad_row(path, ncol))
-    return ImuRecording(str(path), t, v[:, :3].copy(), v[:, 3:6].copy(), v[:, 6].copy() if ncol == 8 else None)
+    # views into the one parsed array: no copy (about 100 bytes a sample at the peak, 24 h at 400 Hz in ~3.5 GB)
+    return ImuRecording(str(path), t, v[:, :3], v[:, 3:6], v[:, 6] if ncol == 8 else None)
 
 
 def _first_bad_row(path: Path, ncol: int) -> str:

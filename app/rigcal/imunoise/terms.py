@@ -138,7 +138,9 @@ def _interval(value_sq: float, nu: float) -> tuple[float, float]:
 
 def _needed(duration_s: float, nu: float) -> float:
     """Recording length for a 1-sigma relative error TARGET_PRECISION of the figure: its
-    relative error is 1 / sqrt(2 nu) and nu grows about linearly with the recording."""
+    relative error is 1 / sqrt(2 nu) and nu grows about linearly with the recording (the
+    systematic part of nu shrinks too, as a longer recording reaches taus where the term
+    dominates more: an estimate, not a promise)."""
     return duration_s * (1.0 / (2.0 * TARGET_PRECISION ** 2)) / nu
 
 
@@ -173,7 +175,7 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
     lo, hi = _interval(value_sq, nu_term)
     duration = curve.n / curve.rate_hz
     return TermFit(math.sqrt(value_sq), lo, hi, float(curve.tau[sel].min()), float(curve.tau[sel].max()), nu_term,
-                   _needed(duration, nu_stat * birge))
+                   _needed(duration, nu_term))
 
 
 def fit_bias_instability(curve: AllanCurve, p: np.ndarray) -> TermFit:
