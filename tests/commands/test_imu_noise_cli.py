@@ -297,3 +297,11 @@ def test_rig_in_flow_style_is_rewritten_whole(recording, tmp_path):
     new = parse_rig(out.read_text())
     assert new.imu("imu0").gyroscope_random_walk == pytest.approx(want, rel=1e-12)
     assert "--inflate 2" in out.read_text() and new.cameras == parse_rig(RIG).cameras
+
+
+def test_a_noisy_still_imu_is_not_taken_for_a_moving_one(tmp_path):
+    # a consumer accelerometer: 0.04 m/s^2/sqrt(Hz) moves one-second means by ~0.06 m/s^2 (1 sigma)
+    t, g, a = static_imu(1200, RATE, [1e-3, 1e-3, 1e-3, 0.04, 0.04, 0.04], [1e-3, 1e-3, 1e-3, 4e-2, 4e-2, 4e-2],
+                         seed=13)
+    r = run("imu-noise", write_csv(tmp_path / "imu0.csv", t, g, a), "--out", tmp_path / "o.yaml")
+    assert r.exit_code == 0, r.stderr

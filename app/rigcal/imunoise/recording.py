@@ -10,8 +10,9 @@ Checks (each refusal an InputError naming the file and, where there is one, the 
 - the sample rate is the median interval's; a gap is an interval over GAP_SAMPLES periods,
   and only the longest stretch between gaps is used (said in a note);
 - the recording is still: consecutive one-second means of the accelerometer (gyroscope)
-  differ by at most MOVING_ACCEL m/s^2 (MOVING_GYRO rad/s); otherwise it is refused with
-  the figure and the time. Differences of neighbouring means, not deviations from the
+  differ by at most MOVING_ACCEL m/s^2 (MOVING_GYRO rad/s) plus MOTION_SIGMAS standard
+  deviations of what the sensor's white noise alone moves them by (a noisy consumer part
+  must not be taken for a moving one); otherwise it is refused with the figure and the time. Differences of neighbouring means, not deviations from the
   median: the bias random walk itself moves the mean by K sqrt(t) over hours (0.3 m/s^2
   in 3 h at K = 3e-3), while motion or a knock changes it within a second;
 - a temperature column whose linear trend changes by over TEMP_DRIFT_C gets a note.
@@ -30,6 +31,7 @@ from rigcal.errors import InputError
 
 MOVING_ACCEL = 0.1  # m/s^2 (~10 mg, a 0.6 deg tilt) between consecutive one-second means
 MOVING_GYRO = 0.02  # rad/s (~1 deg/s)
+MOTION_SIGMAS = 6.0  # plus this many standard deviations of the white noise's own change
 TEMP_DRIFT_C = 1.0
 _HINT = "(timestamp [ns], gyroscope x y z, accelerometer x y z[, temperature])"
 
@@ -153,17 +155,21 @@ def longest_stretch(t_ns: np.ndarray) -> tuple[slice, float, int, float]:
     return slice(int(edges[k]), int(edges[k + 1])), 1.0 / period, len(gap), float(dt[gap].max()) if len(gap) else 0.0
 
 
-def motion(x: np.ndarray, rate_hz: float) -> tuple[float, float]:
+def motion(x: np.ndarray, rate_hz: float) -> tuple[float, float, float]:
     """(the largest change (norm) between consecutive one-second means of x (N, 3), the time
-    in s from the start where it happens)."""
+    in s from the start where it happens, the part of such a change the sensor's own white
+    noise explains: MOTION_SIGMAS standard deviations, from the samples' successive
+    differences (robust: median absolute), which slow motion hardly touches)."""
     w = max(int(round(rate_hz)), 1)
     k = len(x) // w
     if k < 2:
-        return 0.0, 0.0
+        return 0.0, 0.0, 0.0
     means = x[:k * w].reshape(k, w, 3).mean(axis=1)
     step = np.linalg.norm(np.diff(means, axis=0), axis=1)
     i = int(np.argmax(step))
-    return float(step[i]), float(i + 1)
+    sd = 1.4826 * np.median(np.abs(np.diff(x[:min(len(x), 600 * w)], axis=0)), axis=0) / math.sqrt(2.0)
+    noise = MOTION_SIGMAS * float(np.sqrt(np.sum(2.0 * sd ** 2 / w)))
+    return float(step[i]), float(i + 1), noise
 
 
 def check(rec: ImuRecording) -> Checked:
@@ -177,13 +183,14 @@ def check(rec: ImuRecording) -> Checked:
                      f"longest stretch between them: samples {sl.start + 1}-{sl.stop}, {used:.0f} of {span:.0f} s")
     part = ImuRecording(rec.source, rec.t_ns[sl], rec.gyro[sl], rec.accel[sl],
                         None if rec.temp_c is None else rec.temp_c[sl])
-    (acc_m, acc_t), (gyr_m, gyr_t) = motion(part.accel, rate), motion(part.gyro, rate)
-    if acc_m > MOVING_ACCEL or gyr_m > MOVING_GYRO:
-        at = acc_t if acc_m / MOVING_ACCEL >= gyr_m / MOVING_GYRO else gyr_t
+    (acc_m, acc_t, acc_n), (gyr_m, gyr_t, gyr_n) = motion(part.accel, rate), motion(part.gyro, rate)
+    acc_lim, gyr_lim = MOVING_ACCEL + acc_n, MOVING_GYRO + gyr_n
+    if acc_m > acc_lim or gyr_m > gyr_lim:
+        at = acc_t if acc_m / acc_lim >= gyr_m / gyr_lim else gyr_t
         raise InputError(f"{rec.source}: not a static recording: consecutive one-second means of the accelerometer "
                          f"differ by up to {acc_m:.3g} m/s^2 (gyroscope {gyr_m:.3g} rad/s; worst {at:.0f} s into "
-                         f"the stretch used), over the {MOVING_ACCEL:g} m/s^2 ({MOVING_GYRO:g} rad/s) of a still "
-                         f"IMU; record it resting on a firm support, untouched")
+                         f"the stretch used), over the {acc_lim:.2g} m/s^2 ({gyr_lim:.2g} rad/s) of a still "
+                         f"IMU with this noise; record it resting on a firm support, untouched")
     change = None
     if part.temp_c is not None:
         t = (part.t_ns - part.t_ns[0]) * 1e-9
