@@ -305,3 +305,11 @@ def test_a_noisy_still_imu_is_not_taken_for_a_moving_one(tmp_path):
                          seed=13)
     r = run("imu-noise", write_csv(tmp_path / "imu0.csv", t, g, a), "--out", tmp_path / "o.yaml")
     assert r.exit_code == 0, r.stderr
+
+
+def test_outputs_never_overwrite_the_recording(recording, tmp_path):
+    path, _ = recording
+    before = path.read_bytes()
+    refused(run("imu-noise", path, "--out", path), "is the recording being read")
+    refused(run("imu-noise", path, "--out", tmp_path / "o.yaml", "--report", tmp_path / "o.yaml"), "same file")
+    assert path.read_bytes() == before and not (tmp_path / "o.yaml").exists()

@@ -171,6 +171,13 @@ def run(source: Path, out_path: Path, *, imus=None, rig_path: Path | None = None
     if fmt != "rig" and len(found) > 1:
         raise InputError(f"{source}: holds IMUs {', '.join(s.name for s in found)}; --format {fmt} takes one: choose "
                          f"it with --imu NAME=...")
+    sources_read = {Path(s.recording.source).resolve() for s in found if Path(s.recording.source).is_file()}
+    outs = [Path(out_path)] + ([Path(report_path)] if report_path is not None else [])
+    for o in outs:
+        if o.resolve() in sources_read:
+            raise InputError(f"--out/--report {o}: is the recording being read; choose another file")
+    if report_path is not None and Path(report_path).resolve() == Path(out_path).resolve():
+        raise InputError(f"--report {report_path}: the same file as --out")
     noises, notes = [], []
     for s in found:
         checked = check(s.recording)

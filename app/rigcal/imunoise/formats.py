@@ -22,6 +22,7 @@ axis' own figure. The others get one figure per sensor: the largest axis (estima
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 
@@ -112,7 +113,7 @@ def _edit_block(text: str, name: str, figs: dict[str, float]) -> str | None:
     kept), or None when the block is not laid out as plain block-style YAML."""
     lines = text.splitlines()
     try:
-        top = next(i for i, ln in enumerate(lines) if ln.rstrip() == "imus:" or ln.startswith("imus:  #"))
+        top = next(i for i, ln in enumerate(lines) if re.match(r"^imus:\s*(#.*)?$", ln))
     except StopIteration:
         return None
     start = indent = None
