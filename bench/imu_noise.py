@@ -18,6 +18,10 @@ Peers (their formulas, our overlapping Allan deviation at octave taus):
   unweighted in log10(sigma^2); `*_n` = sqrt(rate) * the fitted deviation at 1 s, `*_w` = the
   fitted curve's minimum (its bias instability, without 0.664); the axes averaged.
 
+Independent recordings: the same seeds through tests/support/imu_static.py (written apart from
+rigcal.sim: white noise and random walk only, no flicker, no quantisation), where the four-term
+model is exact and the intervals' coverage shows how conservative they are.
+
 Speed: simulate --scene static's csv at --speed-rate for --speed-hours and half of it, then
 `python -m rigcal imu-noise` on each in a child process: wall time and peak memory (ru_maxrss).
 """
@@ -96,6 +100,25 @@ def one_seed(imu, duration_s: float, seed: int) -> dict:
     return out
 
 
+def one_indie_seed(imu, duration_s: float, seed: int) -> dict:
+    """The same figures from tests/support/imu_static.py's white noise + random walk."""
+    from tests.support.imu_static import static_imu
+
+    nd = [imu.gyroscope_noise_density] * 3 + [imu.accelerometer_noise_density] * 3
+    kw = [imu.gyroscope_random_walk] * 3 + [imu.accelerometer_random_walk] * 3
+    t_ns, gyro, accel = static_imu(duration_s, imu.update_rate, nd, kw, seed=1000 + seed)
+    noise = estimate(imu.name, check(ImuRecording(f"indie seed {seed}", t_ns, gyro, accel)))
+    out = {"seed": seed}
+    for s, n_true, k_true in zip(noise.sensors(), nd[::3], kw[::3]):
+        out[s.sensor] = {"axes": [{"axis": ax, "N": a.white.value / n_true, "K": a.random_walk.value / k_true,
+                                   "N_in": bool(a.white.lo <= n_true <= a.white.hi),
+                                   "K_in": bool(a.random_walk.lo <= k_true <= a.random_walk.hi),
+                                   "N_halfwidth": (a.white.hi - a.white.lo) / 2 / a.white.value,
+                                   "K_halfwidth": (a.random_walk.hi - a.random_walk.lo) / 2 / a.random_walk.value}
+                                  for ax, a in zip(AXES, s.axes)]}
+    return out
+
+
 def speed(imu, hours: float, rate_hz: float) -> list[dict]:
     """End to end (csv -> imu.yaml) in a child process at hours/2 and hours: wall s and peak MB."""
     imu = dataclasses.replace(imu, update_rate=rate_hz)
@@ -135,9 +158,10 @@ def run(seeds: int = 10, hours: float = 3.0, rate_hz: float = 200.0, speed_hours
     imu = dataclasses.replace(load_rig(RIG).imus[0], update_rate=rate_hz)
     t0 = time.perf_counter()
     results = [one_seed(imu, hours * 3600, s) for s in range(seeds)]
+    indie = [one_indie_seed(imu, hours * 3600, s) for s in range(seeds)]
     acc_s = time.perf_counter() - t0
     return {"rig": RIG.name, "seeds": seeds, "hours": hours, "rate_hz": rate_hz, "accuracy_s": acc_s,
-            "results": results, "speed": speed(imu, speed_hours, speed_rate) if speed_hours > 0 else [],
+            "results": results, "indie": indie, "speed": speed(imu, speed_hours, speed_rate) if speed_hours > 0 else [],
             "load_avg": __import__("os").getloadavg()[0]}
 
 
@@ -162,6 +186,16 @@ def tables(r: dict) -> str:
                          "K / truth", "worst K", "K in 95 % interval", "B (flat min / 0.664) / design B"], rows,
                         title=f"imu-noise on {r['seeds']} seeds x 3 axes, {r['hours']:g} h at {r['rate_hz']:g} Hz "
                               f"(targets: N within 3 %, K within 20 %, intervals hold the truth 90-98 %)"))
+    rows = []
+    for sensor in SENSORS if r.get("indie") else ():
+        ax = [a for res in r["indie"] for a in res[sensor]["axes"]]
+        rows.append([sensor, _stats([a["N"] for a in ax]), f"{100 * max(abs(a['N'] - 1) for a in ax):.1f} %",
+                     f"{100 * np.mean([a['N_in'] for a in ax]):.0f} % (+-{100 * np.median([a['N_halfwidth'] for a in ax]):.1f} %)",
+                     _stats([a["K"] for a in ax]), f"{100 * max(abs(a['K'] - 1) for a in ax):.0f} %",
+                     f"{100 * np.mean([a['K_in'] for a in ax]):.0f} % (+-{100 * np.median([a['K_halfwidth'] for a in ax]):.0f} %)"])
+    out.append("" if not rows else md_table(
+        ["sensor", "N / truth", "worst N", "N in 95 % interval", "K / truth", "worst K", "K in 95 % interval"], rows,
+        title="independent recordings (tests/support/imu_static.py: white noise + random walk only), same seeds"))
     rows = []
     for sensor in SENSORS if r["results"] else ():
         ax = [a for res in r["results"] for a in res[sensor]["axes"]]
