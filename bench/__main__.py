@@ -26,6 +26,8 @@ Sections (each also runs alone: python -m bench.<name>):
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
+  imu_noise    `rigcal imu-noise` on simulated static recordings (seeds x 3 h at 200 Hz) vs truth, interval
+               coverage, allan_variance_ros's and imu_utils's formulas on the same data; 3 h at 400 Hz end to end
 
 Not sections (checks run by hand, each also `python -m bench.<name>`):
 
@@ -54,8 +56,8 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_coverage, imu_euroc, imu_speed, indie, indie_noise,
-               ingest, intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale,
+from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_coverage, imu_euroc, imu_noise, imu_speed, indie,
+               indie_noise, ingest, intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale,
                simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
@@ -106,6 +108,8 @@ TABLE = (
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),
     Section("aprilgrid", "aprilgrid_excess", lambda q, d: aprilgrid_excess.run(frames=1 if q else 3),
             _only(aprilgrid_excess)),
+    Section("imu_noise", "imu_noise", lambda q, d: imu_noise.run(seeds=3 if q else 10, hours=1.0 if q else 3.0,
+                                                                 speed_hours=1.0 if q else 3.0), _only(imu_noise)),
 )
 SECTIONS = tuple(s.name for s in TABLE)
 

@@ -71,11 +71,13 @@ def out(text) -> None:
 
 class Scene(str, Enum):
     """`simulate --scene`: room (wall boards around a turning rig), board (one board in front
-    of the rig) or imu (a hand-held recording with IMU streams, simulate_imu)."""
+    of the rig) or imu (a hand-held recording with IMU streams, simulate_imu); static: the
+    rig's IMUs at rest, for imu-noise (sim.static_imu)."""
 
     room = "room"
     board = "board"
     imu = "imu"
+    static = "static"
 
 
 class Distortion(str, Enum):
@@ -150,7 +152,7 @@ class ImportFormat(str, Enum):
 def simulate(
     rig: Path = typer.Argument(..., help="rig YAML (every camera needs a pose)"),
     out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md)"),
-    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md). Default: room when some camera shares no view with the others"),
+    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md); static: the rig's IMUs at rest (imu-noise). Default: room when some camera shares no view with the others"),
     frames: Optional[int] = typer.Option(None, help="number of frames (default 60 room, 40 board)"),
     seed: int = typer.Option(0, help="random seed; the same seed writes byte-identical images"),
     noise: float = typer.Option(2.0, help="Gaussian image noise, grey levels (sigma)"),
@@ -161,7 +163,7 @@ def simulate(
     target: Optional[Path] = typer.Option(None, help="target YAML to use instead of one generated from the rig"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
     jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
-    duration: Optional[float] = typer.Option(None, help="--scene imu: seconds of motion (default 30)"),
+    duration: Optional[float] = typer.Option(None, help="--scene imu: seconds of motion (default 30); --scene static: seconds at rest (default 10800)"),
     camera_rate: Optional[float] = typer.Option(None, help="--scene imu: images per second per camera (default 20)"),
     exposure: Optional[float] = typer.Option(None, help="--scene imu: exposure in seconds, gives motion blur (default 0.005)"),
     time_offset_ms: Optional[float] = typer.Option(None, help="--scene imu: true camera clock offsets are uniform in +-this (default 10)"),
@@ -170,6 +172,16 @@ def simulate(
     recording with IMU streams (imu.md)."""
     motion_flags = {"--duration": duration, "--camera-rate": camera_rate, "--exposure": exposure,
                     "--time-offset-ms": time_offset_ms}
+    if scene is Scene.static:
+        from rigcal.sim import static_imu
+
+        for flag, given in (("--frames", frames is not None), ("--blur", blur != 0.0),
+                            *((f, v is not None) for f, v in motion_flags.items() if f != "--duration")):
+            if given:
+                raise InputError(f"{flag}: not used with --scene static (its options: --duration, --seed, --force)")
+        out(static_imu.simulate_static(rig, out_dir, static_imu.DEFAULT_DURATION_S if duration is None else duration,
+                                       seed=seed, force=force))
+        return
     if scene is Scene.imu:
         from rigcal.sim import imu_scene as simulate_imu
 
@@ -367,6 +379,41 @@ def ingest(
 
     out(ing.run(source, out_dir, rig_path=rig, target_path=target, cameras=camera, imus=imu, rate=rate, start=start,
                 end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force))
+
+
+class NoiseFormat(str, Enum):
+    """`imu-noise --format`: the file written (rigcal.imunoise.formats)."""
+
+    kalibr = "kalibr"
+    rig = "rig"
+    basalt = "basalt"
+    openvins = "openvins"
+    vins = "vins"
+    orbslam3 = "orbslam3"
+
+
+@app.command("imu-noise")
+@guarded
+def imu_noise(
+    source: Path = typer.Argument(..., help="static recording: an IMU .csv (EuRoC format), a dataset folder with "
+                                            "imu/, a EuRoC folder, or a ROS 1 / ROS 2 bag"),
+    out_path: Path = typer.Option(..., "--out", help="file to write (Kalibr imu.yaml by default)"),
+    imu: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag), NAME=FILE (dataset imu/ or csv) or "
+                                                       "NAME=imuN (EuRoC); repeat per IMU"),
+    rig: Optional[Path] = typer.Option(None, help="rig YAML whose imus entry takes the figures (--format rig; "
+                                                  "written to --out, the rest of the rig kept)"),
+    report: Optional[Path] = typer.Option(None, help="HTML page: Allan deviation per axis, fitted lines, "
+                                                     "confidence bands, tau ranges"),
+    format: Optional[NoiseFormat] = typer.Option(None, "--format", help="kalibr (default; rig with --rig), rig, "
+                                                                        "basalt, openvins, vins, orbslam3"),
+    inflate: float = typer.Option(1.0, help="multiply every figure written by this factor (the file says so)"),
+):
+    """An IMU's noise figures (white noise density, random walk, bias instability) from a static
+    recording, by overlapping Allan deviation, with 95 % intervals."""
+    from rigcal.commands import imu_noise as cmd
+
+    out(cmd.run(source, out_path, imus=imu, rig_path=rig, report_path=report,
+                fmt=format.value if format else None, inflate=inflate))
 
 
 class Terminated(KeyboardInterrupt):

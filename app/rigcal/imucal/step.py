@@ -419,7 +419,7 @@ def noise_warnings(imu: Imu, gyro: tuple[float, float], accel: tuple[float, floa
         if not 1 / NOISE_WARN_RATIO <= ratio <= NOISE_WARN_RATIO:
             out.append(f"{imu.name}: {what} residual RMS {rms:.3g} {unit} is {ratio:.2g}x what {key} predicts "
                        f"({pred:.3g} {unit} at {imu.update_rate:g} Hz); the declared noise figures look wrong "
-                       f"(the sigmas rest on them)")
+                       f"(the sigmas rest on them; measure them from a still recording with `rigcal imu-noise`)")
     return out
 
 

@@ -1,0 +1,242 @@
+"""The noise terms of one IMU axis from its Allan deviation, each with a confidence interval.
+
+The Allan variance of an IMU axis is modelled as the sum of four terms (IEEE Std 952):
+
+    sigma^2(tau) = 3 Q^2 / tau^2      quantisation (slope -1 in deviation)
+                 + N^2 / tau          white noise, density N (slope -1/2; N = the line at tau = 1 s)
+                 + (2 ln2 / pi) B^2   bias instability B (flat; deviation 0.664 B)
+                 + K^2 tau / 3        random walk K (slope +1/2; K = the line at tau = 3 s)
+
+N and K are Kalibr's `*_noise_density` and `*_random_walk` (continuous time). A MEMS IMU
+quantises rates, not angles: its quantisation is white noise, part of N. The angle
+quantisation term Q is therefore held at zero (fitted, it trades off against N at the
+shortest taus: 0.5 % of N on a simulated 3 h recording); it stays in the model's layout.
+How each is read:
+
+1. A joint weighted non-negative least-squares fit of the squared figures N, B, K to the
+   measured variance at every tau, each point weighted by the variance of its estimate
+   (2 sigma^4 / edf, with Greenhall's edf for the term that dominates there), re-weighted
+   three times with the model's own values so low points do not pull the fit.
+2. A term *dominates* a tau when it is more than half of the model's variance there; its
+   tau range is those taus. The term is then re-fitted on its range alone (a line of fixed
+   slope through the measured variance less the other terms' share there), each tau
+   weighted by what it knows of the term: edf(tau) * share(tau)^2 (a term that is a share
+   s of the variance is known to relative variance 2 / (edf s^2)).
+3. Its confidence interval is chi-square with the equivalent degrees of freedom of the
+   best-determined tau in its range, edf * share^2. Octave taus of one recording overlap,
+   so their degrees of freedom are not added. When the taus of the range disagree more than
+   their edf allows (the four-term model misses the curve's shape there, e.g. a bias
+   instability that is not flat), those degrees of freedom are divided by the excess
+   (Birge ratio), widening the interval to cover it. And the other terms subtracted count
+   as a systematic error of SHAPE_DOUBT of their size (their shape under this term's range
+   is the model's assumption: a real flicker floor rolls off at the shortest taus, where a
+   white-noise fit from millions of samples would otherwise claim 0.1 %).
+4. Bias instability: the flat minimum of the deviation / 0.664, its interval chi-square
+   with the flicker-noise edf at that tau; `dominant` says whether a flat range exists
+   (otherwise the figure is an upper bound set by the white noise and random walk).
+
+A term with no tau where it dominates cannot be read from the recording: TooShort says how
+long a recording would show it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import nnls
+from scipy.stats import chi2
+
+from rigcal.errors import InputError
+from rigcal.imunoise.allan import ALPHA, MAX_TAU_FRACTION, AllanCurve, edf
+
+TERMS = ("quantisation", "white", "flicker", "random_walk")
+FLAT = 2.0 * math.log(2.0) / math.pi  # bias instability's variance factor: sigma = sqrt(FLAT) B = 0.664 B
+DOMINANT_SHARE = 0.5
+CONFIDENCE = 0.95
+TARGET_PRECISION = 0.10  # `needed_s`: the recording for a 1-sigma relative error of 10 %
+REWEIGHTS = 3
+SHAPE_DOUBT = 0.5  # the other terms' share under a term's range, as a systematic error (fraction of it)
+FITTED = (1, 2, 3)  # the columns of `design` fitted: N, B, K (Q held at zero, see above)
+
+
+class TooShort(InputError):
+    """The recording is too short to show a term (exit 2); the message says how long is needed."""
+
+
+@dataclass(frozen=True)
+class TermFit:
+    """One term of one axis: value with its CONFIDENCE interval [lo, hi], the tau range used
+    (s), the equivalent degrees of freedom behind the interval, and the recording length
+    (s) that would give a 1-sigma relative error of TARGET_PRECISION."""
+
+    value: float
+    lo: float
+    hi: float
+    tau_lo: float
+    tau_hi: float
+    edf: float
+    needed_s: float
+    dominant: bool = True
+
+
+@dataclass(frozen=True)
+class AxisNoise:
+    """One axis: its Allan curve, the joint model's squared figures (Q^2, N^2, B^2, K^2), the
+    edf used per tau, and the fitted white noise density, random walk, bias instability."""
+
+    curve: AllanCurve
+    model: np.ndarray
+    edf: np.ndarray
+    white: TermFit
+    random_walk: TermFit
+    bias_instability: TermFit
+
+    def model_adev(self, tau: np.ndarray) -> np.ndarray:
+        return np.sqrt(design(np.asarray(tau, float)) @ self.model)
+
+
+def design(tau: np.ndarray) -> np.ndarray:
+    """(K, 4): each term's Allan variance per unit squared figure at tau (K,)."""
+    return np.stack([3.0 / tau ** 2, 1.0 / tau, np.full_like(tau, FLAT), tau / 3.0], axis=1)
+
+
+def _dominant_alpha(parts: np.ndarray) -> np.ndarray:
+    return np.array([ALPHA[TERMS[k]] for k in np.argmax(parts, axis=1)])
+
+
+def _edf_by_term(curve: AllanCurve, alpha: np.ndarray) -> np.ndarray:
+    out = np.empty(len(curve.m))
+    for a in np.unique(alpha):
+        sel = alpha == a
+        out[sel] = edf(int(a), curve.m[sel], curve.n)
+    return out
+
+
+def joint_fit(curve: AllanCurve) -> tuple[np.ndarray, np.ndarray]:
+    """(the four squared figures (4,), edf per tau (K,)): weighted NNLS of the model to adev^2."""
+    A, y = design(curve.tau), curve.adev ** 2
+    alpha = np.full(len(y), ALPHA["white"])
+    model_var = y.copy()
+    for _ in range(REWEIGHTS + 1):
+        nu = _edf_by_term(curve, alpha)
+        sd = np.maximum(model_var, 1e-300) * np.sqrt(2.0 / nu)
+        p = np.zeros(4)
+        p[list(FITTED)], _ = nnls(A[:, FITTED] / sd[:, None], y / sd)
+        parts = A * p
+        model_var = np.maximum(parts.sum(axis=1), 1e-300)
+        alpha = _dominant_alpha(parts)
+    return p, _edf_by_term(curve, alpha)
+
+
+def _interval(value_sq: float, nu: float) -> tuple[float, float]:
+    """CONFIDENCE interval of a figure whose square has nu degrees of freedom."""
+    lo_q, hi_q = chi2.ppf([(1 + CONFIDENCE) / 2, (1 - CONFIDENCE) / 2], nu)
+    return math.sqrt(nu * value_sq / lo_q), math.sqrt(nu * value_sq / hi_q)
+
+
+def _needed(duration_s: float, nu: float) -> float:
+    """Recording length for a 1-sigma relative error TARGET_PRECISION of the figure: its
+    relative error is 1 / sqrt(2 nu) and nu grows about linearly with the recording (the
+    systematic part of nu shrinks too, as a longer recording reaches taus where the term
+    dominates more: an estimate, not a promise)."""
+    return duration_s * (1.0 / (2.0 * TARGET_PRECISION ** 2)) / nu
+
+
+def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFit | None:
+    """Term k (1 white, 3 random walk) re-fitted on the taus it dominates; None if none.
+
+    Each tau i in range gives the squared figure p_i = (measured variance less the other
+    terms) / the term's shape, known to relative variance 2 / (edf_i share_i^2); they are
+    averaged with those weights. When they scatter more than that allows (chi-square per
+    degree of freedom R^2 > 1: the model's shape misses the data there), the degrees of
+    freedom behind the interval are divided by R^2 (the Birge ratio), so the interval
+    covers the misfit too."""
+    A = design(curve.tau)
+    parts = A * p
+    total = parts.sum(axis=1)
+    share = parts[:, k] / total
+    sel = share > DOMINANT_SHARE
+    if not sel.any():
+        return None
+    p_i = (curve.adev[sel] ** 2 - (total[sel] - parts[sel, k])) / A[sel, k]
+    w = nu[sel] * share[sel] ** 2
+    value_sq = max(float(np.sum(w * p_i) / np.sum(w)), 1e-300)
+    birge = 1.0
+    if sel.sum() > 1:
+        birge = max(1.0, float(np.sum(w * (p_i - value_sq) ** 2) / (2.0 * value_sq ** 2)) / (sel.sum() - 1))
+    # the other terms subtracted are known only as well as the model's shapes hold where this
+    # term dominates (flicker rolls off at the shortest taus, anti-alias filters bend them):
+    # counted as a systematic error of SHAPE_DOUBT of their size, the same sign at every tau
+    sys_rel = SHAPE_DOUBT * float(np.sum(w * (total[sel] - parts[sel, k]) / A[sel, k]) / np.sum(w)) / value_sq
+    nu_stat = float(np.max(w)) / birge
+    nu_term = 2.0 / (2.0 / nu_stat + sys_rel ** 2)
+    lo, hi = _interval(value_sq, nu_term)
+    duration = curve.n / curve.rate_hz
+    return TermFit(math.sqrt(value_sq), lo, hi, float(curve.tau[sel].min()), float(curve.tau[sel].max()), nu_term,
+                   _needed(duration, nu_term))
+
+
+def fit_bias_instability(curve: AllanCurve, p: np.ndarray) -> TermFit:
+    """The flat minimum of the measured deviation / 0.664, chi-square interval with the
+    flicker edf at that tau; `dominant` False when the flat term dominates no tau."""
+    i = int(np.argmin(curve.adev))
+    nu = float(edf(ALPHA["flicker"], curve.m[i:i + 1], curve.n)[0])
+    scale = 1.0 / math.sqrt(FLAT)
+    lo, hi = _interval(curve.adev[i] ** 2, nu)
+    parts = design(curve.tau) * p
+    flat = parts[:, 2] / parts.sum(axis=1) > DOMINANT_SHARE
+    rng = curve.tau[flat] if flat.any() else curve.tau[i:i + 1]
+    return TermFit(float(curve.adev[i]) * scale, lo * scale, hi * scale, float(rng.min()), float(rng.max()), nu,
+                   _needed(curve.n / curve.rate_hz, nu), dominant=bool(flat.any()))
+
+
+def _tau_where_dominant(p: np.ndarray, k: int) -> float | None:
+    """The smallest tau (s) at which term k would be over DOMINANT_SHARE of the model, or None."""
+    tau = np.logspace(-3, 8, 2000)
+    parts = design(tau) * p
+    over = parts[:, k] / parts.sum(axis=1) > DOMINANT_SHARE
+    return float(tau[np.argmax(over)]) if over.any() else None
+
+
+def _hours(s: float) -> str:
+    return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min" if s >= 60 else f"{s:.0f} s"
+
+
+def too_short_message(curve: AllanCurve, p: np.ndarray, k: int, what: str) -> str:
+    duration = curve.n / curve.rate_hz
+    tau_max = float(curve.tau.max())
+    shape = "rise (slope +1/2)" if k == 3 else "fall (slope -1/2)"
+    tx = _tau_where_dominant(p, k)
+    if tx is not None and k == 3:
+        need = f"record at least {_hours(2 * tx / MAX_TAU_FRACTION)} (it would dominate from tau ~{tx:.0f} s; " \
+               f"the longest tau read is a tenth of the recording)"
+    else:
+        need = f"it is not seen at all: record at least {_hours(4 * duration)}, still and warmed up"
+    return (f"too short for the {what}: the Allan deviation shows no {shape} where it dominates up to tau = "
+            f"{tau_max:.3g} s (a tenth of the {_hours(duration)} recording); {need}")
+
+
+def fit_axis(curve: AllanCurve, what: str = "axis") -> AxisNoise:
+    """All terms of one axis; TooShort (naming `what`) when white noise or random walk
+    dominates no tau."""
+    if len(curve.tau) < 4:
+        raise TooShort(f"too short for the {what}: {curve.n} samples give {len(curve.tau)} octave taus; "
+                       f"expected at least 4 (record at least {_hours(160 / curve.rate_hz)})")
+    p, nu = joint_fit(curve)
+    white = fit_term(curve, p, nu, 1)
+    if white is None:
+        raise TooShort(too_short_message(curve, p, 1, f"{what} white noise"))
+    rw = fit_term(curve, p, nu, 3)
+    if rw is None:
+        raise TooShort(too_short_message(curve, p, 3, f"{what} random walk"))
+    return AxisNoise(curve, p, nu, white, rw, fit_bias_instability(curve, p))
+
+
+def combine(fits: list[TermFit]) -> tuple[int, TermFit]:
+    """Kalibr's single figure from the three axes: the largest, with its own interval (and
+    the axis index). A filter given one isotropic figure must not be overconfident on any
+    axis, so the noisiest axis sets it; the RMS would understate that axis."""
+    i = int(np.argmax([f.value for f in fits]))
+    return i, fits[i]

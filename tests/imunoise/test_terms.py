@@ -1,0 +1,75 @@
+"""Known answers for the Allan deviation and its noise terms on synthetic series of known
+white noise density N and random walk K (rate-like axis sampled at RATE)."""
+
+import numpy as np
+import pytest
+
+from rigcal.imunoise.allan import allan_deviation, edf, octave_clusters
+from rigcal.imunoise.terms import TooShort, combine, fit_axis, fit_term, joint_fit
+
+RATE = 200.0
+N = 1.7e-4  # rad/s/sqrt(Hz)
+K = 2.0e-5  # rad/s^2/sqrt(Hz)
+
+
+def series(seconds: float, n_density: float, k_walk: float, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    n, dt = int(seconds * RATE), 1.0 / RATE
+    white = n_density / np.sqrt(dt) * rng.standard_normal(n)
+    walk = np.cumsum(k_walk * np.sqrt(dt) * rng.standard_normal(n)) if k_walk else 0.0
+    return 0.3 + white + walk  # a constant offset (a bias, gravity) must not matter
+
+
+def test_octave_clusters_reach_a_tenth_of_the_recording():
+    m = octave_clusters(10_000)
+    assert m[0] == 1 and np.all(m[1:] == 2 * m[:-1])
+    assert m[-1] <= 1000 < 2 * m[-1]
+
+
+def test_white_noise_deviation_is_density_over_sqrt_tau():
+    c = allan_deviation(series(600, N, 0.0, seed=1), RATE)
+    nu = edf(0, c.m, c.n)
+    # each point within 4 sigma of its chi-square spread (relative sd of a deviation: 1/sqrt(2 edf))
+    rel = c.adev * np.sqrt(c.tau) / N - 1
+    assert np.all(np.abs(rel) < 4 / np.sqrt(2 * nu))
+
+
+def test_white_noise_density_and_its_interval():
+    c = allan_deviation(series(1800, N, 0.0, seed=2), RATE)
+    p, nu = joint_fit(c)
+    white = fit_term(c, p, nu, 1)
+    assert white.value == pytest.approx(N, rel=0.01)
+    assert white.lo < N < white.hi
+    assert white.tau_lo == pytest.approx(1 / RATE)
+    assert fit_term(c, p, nu, 3) is None  # no random walk to dominate anywhere
+
+
+def test_white_and_random_walk_from_two_hours():
+    a = fit_axis(allan_deviation(series(7200, N, K, seed=3), RATE), "gyroscope x")
+    assert a.white.value == pytest.approx(N, rel=0.01)
+    assert a.random_walk.value == pytest.approx(K, rel=0.25)
+    assert a.random_walk.lo < K < a.random_walk.hi
+    assert a.white.tau_hi < a.random_walk.tau_lo  # the ranges do not overlap
+    assert a.random_walk.needed_s > a.white.needed_s
+
+
+def test_white_density_interval_covers_the_truth_for_most_seeds():
+    covered = 0
+    for seed in range(20):
+        c = allan_deviation(series(300, N, 0.0, seed=100 + seed), RATE)
+        p, nu = joint_fit(c)
+        w = fit_term(c, p, nu, 1)
+        covered += w.lo < N < w.hi
+    assert covered >= 16  # 95 % intervals: fewer than 16 of 20 has probability 3e-4
+
+
+def test_too_short_for_the_random_walk_says_how_long():
+    with pytest.raises(TooShort, match=r"too short for the gyroscope x random walk.*record at least"):
+        fit_axis(allan_deviation(series(120, N, K, seed=4), RATE), "gyroscope x")
+
+
+def test_combine_takes_the_largest_axis():
+    a = fit_axis(allan_deviation(series(7200, N, K, seed=5), RATE), "x")
+    b = fit_axis(allan_deviation(series(7200, 2 * N, K, seed=6), RATE), "y")
+    i, w = combine([a.white, b.white])
+    assert i == 1 and w.value == pytest.approx(2 * N, rel=0.01)
