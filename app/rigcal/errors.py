@@ -15,15 +15,15 @@ class InputError(RigcalError):
 
 
 class RigFileError(InputError):
-    """A rig YAML file breaks rig-yaml.md. Message: `file: key.path: what was expected`."""
+    """A rig YAML file breaks docs/formats.md#rig-yaml. Message: `file: key.path: what was expected`."""
 
 
 class TargetFileError(InputError):
-    """A target YAML file breaks dataset.md."""
+    """A target YAML file breaks docs/formats.md#dataset."""
 
 
 class DatasetError(InputError):
-    """A dataset folder breaks the layout of dataset.md."""
+    """A dataset folder breaks the layout of docs/formats.md#dataset."""
 
 
 class OutputError(InputError):

@@ -1,8 +1,8 @@
-"""Parameter blocks, residual blocks and the normal equations they sum into (issue 16).
+"""Parameter blocks, residual blocks and the normal equations they sum into.
 
 The bundle adjustment is written as residual blocks over named parameter blocks, so a
 new kind of residual (gyroscope, accelerometer, a clock offset, a rolling-shutter line
-delay: ../shared/spec/imu.md) plugs in with its own residual function, Jacobian and
+delay: docs/formats.md#motion-datasets) plugs in with its own residual function, Jacobian and
 parameter blocks, and the solver stays as it is:
 
 - `ParameterBlocks` is the registry: every parameter block (family, index, size, held),

@@ -40,7 +40,7 @@ def reference_transform(T_body_cam_solve: np.ndarray, rig: Rig, reference: str) 
     (rotation by the polar decomposition of sum R_decl R_solve^T + sum of centred
     position outer products; translation from the centroids). camera:NAME: that
     camera keeps its declared pose exactly. No declared pose at all: the first camera's
-    frame is the body frame (rig-yaml.md)."""
+    frame is the body frame (docs/formats.md#rig-yaml)."""
     declared = {c.name: c.T_body_cam for c in rig.cameras if c.T_body_cam is not None}
     names = list(rig.names)
     if reference.startswith("camera:"):

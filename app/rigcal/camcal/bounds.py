@@ -1,4 +1,4 @@
-"""The noise limit: Cramér-Rao bounds of the relative camera poses (issue 8, bench).
+"""The noise limit: Cramér-Rao bounds of the relative camera poses (bench).
 
 The Fisher information of the rig bundle adjustment evaluated at the TRUE state, for
 the corners the calibration actually used and the measured corner noise sigma:

@@ -21,7 +21,7 @@ from rigcal.camcal.solve import Intrinsics, SolveResult, State, bundle_adjust, c
 
 # k3 is tested in the full bundle adjustment (Wald, on the joint solve's covariance),
 # where every view of every camera constrains it; it is what overfits with few views
-# (issue 4: Bumblebee2 baseline 120.15 -> 120.48 mm with k3), so it must be highly
+# (Bumblebee2 baseline 120.15 -> 120.48 mm with k3), so it must be highly
 # significant.
 K3_LEVEL = 1e-4
 # `--intrinsics auto`: fx = fy (square pixels) and the principal point at its declared value

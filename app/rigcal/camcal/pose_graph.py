@@ -158,7 +158,7 @@ def _sweep(links: Sequence[ViewLink], by_frame: dict, known: KnownPoses, thresho
 
 
 def _hand_eye_step(links: Sequence[ViewLink], known: KnownPoses) -> tuple[KnownPoses, int] | None:
-    """The first unknown camera the rig's own motion places (boards are static, dataset.md),
+    """The first unknown camera the rig's own motion places (boards are static, docs/formats.md#dataset),
     as in robot hand-eye calibration: (the poses with it, the camera), or None."""
     T_world_body = known.T_world_body
     for c, T in enumerate(known.T_body_cam):

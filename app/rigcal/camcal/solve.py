@@ -23,7 +23,7 @@ list of residual blocks; a further kind (gyroscope, accelerometer, clock offsets
 rolling-shutter rows) appends its own block with its own Jacobian chunks. The solve
 never holds the whole Jacobian: blocks.sum_normal_equations sums J^T W J and J^T W r
 chunk by chunk straight into the kept, frame and coupling blocks the Schur solve uses, so
-time and memory are linear in corners (a few hundred bytes each; issue 21).
+time and memory are linear in corners (a few hundred bytes each).
 Problem.jacobian builds the whole sparse matrix for tests.
 
 Corners may carry weights (Observations.weight: inverse variances, from the detector's
@@ -500,7 +500,7 @@ class Problem:
     def normal_equations(self, x: np.ndarray, e: np.ndarray, w: np.ndarray) -> NormalEquations:
         """J^T W J and J^T W e at x (e residuals, w row weights), summed chunk by chunk
         (blocks.sum_normal_equations): the Jacobian is never held whole, so memory per
-        corner stays a few hundred bytes (issue 21) and the time linear in corners."""
+        corner stays a few hundred bytes and the time linear in corners."""
         return sum_normal_equations(self.blocks, self.params.blocks, x, e, w)
 
     def sparsity(self) -> sp.csr_matrix:

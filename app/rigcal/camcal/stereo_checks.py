@@ -1,4 +1,4 @@
-"""Stereo checks the way downstream stereo code uses a calibration (cli.md, depth check).
+"""Stereo checks the way downstream stereo code uses a calibration (docs/cli.md, depth check).
 
 Per stereo pair: rectify with the calibrated parameters (cv2.stereoRectify), take
 the corners both cameras saw in the same frame, and compare the depth from their

@@ -107,7 +107,7 @@ def _max_valid_theta_fisheye(dist: tuple, theta_limit: float) -> float:
 
 @dataclass(frozen=True)
 class CameraModel:
-    """Intrinsics of one camera. `dist` is OpenCV's order (rig-yaml.md)."""
+    """Intrinsics of one camera. `dist` is OpenCV's order (docs/formats.md#rig-yaml)."""
 
     model: str  # "pinhole" | "fisheye"
     width: int

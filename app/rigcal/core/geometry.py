@@ -26,7 +26,7 @@ BODY_AXES = {"F": (1.0, 0.0, 0.0), "L": (0.0, 1.0, 0.0), "U": (0.0, 0.0, 1.0)}
 # Navigation (ENU) unit vectors by token (used by `rigcal project --axes`).
 NAV_AXES = {"E": (1.0, 0.0, 0.0), "N": (0.0, 1.0, 0.0), "U": (0.0, 0.0, 1.0)}
 
-# `look:` shorthand -> camera x, y, z axes in body terms (rig-yaml.md).
+# `look:` shorthand -> camera x, y, z axes in body terms (docs/formats.md#rig-yaml).
 LOOK_AXES = {
     "forward": ("-L", "-U", "F"),
     "backward": ("L", "-U", "-F"),

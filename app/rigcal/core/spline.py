@@ -1,6 +1,6 @@
 """Continuous-time trajectories: uniform cumulative cubic B-splines on SO(3) x R^3.
 
-The camera-IMU calibration (issue 18, ../shared/spec/imu.md) needs the body pose, its
+The camera-IMU calibration (docs/formats.md#motion-datasets) needs the body pose, its
 angular velocity and its acceleration at any instant: at each image's capture time
 (shifted by the camera's clock offset, per row for a rolling shutter) and at each IMU
 sample. A spline gives all three analytically from a few control poses, as in Kalibr

@@ -1,4 +1,4 @@
-"""Calibration targets: target.yaml (../shared/spec/dataset.md), board geometry, printable boards.
+"""Calibration targets: target.yaml (docs/formats.md#dataset), board geometry, printable boards.
 
 Board coordinates are OpenCV's (`CharucoBoard.getChessboardCorners()`): origin at
 the top-left *outer* corner of the print, x right along the print, y down the

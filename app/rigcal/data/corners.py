@@ -1,4 +1,4 @@
-"""`corners/<camera>.csv`: corners detected elsewhere, instead of images (../shared/spec/dataset.md).
+"""`corners/<camera>.csv`: corners detected elsewhere, instead of images (docs/formats.md#dataset).
 
     #frame,board,corner_id,x_px,y_px
     1404733405732800000,grid,0,175.9867,336.8252

@@ -55,7 +55,7 @@ def _mapping(v: Any, key: str, label: str) -> dict:
 
 
 def load_truth(path: str | Path) -> Truth:
-    """truth.yaml (dataset.md) or a plain rig file (then there are no board/frame poses)."""
+    """truth.yaml (docs/formats.md#dataset) or a plain rig file (then there are no board/frame poses)."""
     label = str(path)
     doc = load_yaml(read_text(path, InputError), label, InputError)
     if isinstance(doc, dict) and "cameras" in doc:

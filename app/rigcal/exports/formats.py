@@ -12,7 +12,7 @@ Formats (README "Exports"):
   ``camera_<name>.yaml`` per camera (K, D, T_body_cam).
 * ``ros`` — a folder of camera_info YAML (``<name>.yaml``) in the layout of ROS
   camera_calibration_parsers (parse_yml.cpp).
-* ``json`` — the rig schema (rig-yaml.md) as JSON.
+* ``json`` — the rig schema (docs/formats.md#rig-yaml) as JSON.
 
 The builders are pure (rig in, file texts and warnings out), as is the camchain reader;
 export_command does the reading, printing and whole-or-nothing writing (and adds the IMU
@@ -457,7 +457,7 @@ def match_declared(cams: list[KalibrCamera], declared: Rig) -> tuple[list[str], 
 
 
 def _camera_entry(m: CameraModel, T_body_cam: np.ndarray) -> dict[str, Any]:
-    """One camera of the rig schema (rig-yaml.md) from imported intrinsics and pose."""
+    """One camera of the rig schema (docs/formats.md#rig-yaml) from imported intrinsics and pose."""
     return {
         "model": m.model, "resolution": [m.width, m.height],
         "intrinsics": {"fx": m.fx, "fy": m.fy, "cx": m.cx, "cy": m.cy},

@@ -1,4 +1,4 @@
-"""Exports of a camera-IMU rig (../shared/spec/imu.md, ../shared/notes/camera-imu-anchors.md)
+"""Exports of a camera-IMU rig (docs/formats.md#motion-datasets, docs/camera-imu.md)
 and the import of Kalibr's camchain-imucam.yaml.
 
 * ``kalibr-imu`` — a folder with Kalibr's ``camchain-imucam.yaml`` (the camchain of
@@ -11,7 +11,7 @@ and the import of Kalibr's camchain-imucam.yaml.
   (``%YAML:1.0``; ``T_BS`` row-major, mapping sensor points into B = the first IMU's frame,
   so that IMU's is the identity).
 
-The IMU is the rig's first (imu.md's default reference). Builders are pure: rig in,
+The IMU is the rig's first (the motion-dataset format's default reference). Builders are pure: rig in,
 rigcal.exports.formats.Export out.
 """
 
@@ -44,7 +44,7 @@ def _dump(doc: Any) -> str:
 
 def _first_imu(rig: Rig, label: str, fmt: str):
     if not rig.imus:
-        raise InputError(f"{label}: imus: missing; --format {fmt} needs a rig with an IMU (imu.md)")
+        raise InputError(f"{label}: imus: missing; --format {fmt} needs a rig with an IMU (docs/formats.md#imus)")
     return rig.imus[0]
 
 

@@ -1,4 +1,4 @@
-"""What a camera-IMU calibration writes and prints (../shared/spec/imu.md): the calibrated
+"""What a camera-IMU calibration writes and prints (docs/formats.md#motion-datasets): the calibrated
 rig (every T_body_cam relative to the reference IMU, time_offset_s, line_delay_s, the IMU's
 calibration block), the console tables, and `rigcal compare`'s camera-IMU errors.
 
@@ -86,7 +86,7 @@ def _model_entries(res: ImuCalibration, block: dict) -> None:
 
 
 def imu_block(res: ImuCalibration, placed: bool) -> dict:
-    """The IMU's `calibration` block (imu.md, plus the IMU model: _model_entries); `placed`:
+    """The IMU's `calibration` block (docs/formats.md#motion-datasets, plus the IMU model: _model_entries); `placed`:
     its pose comes from the cameras (it is not the reference), so its sigma is given."""
     n = int(len(res.result.state.gyro_bias))
     block = {
@@ -191,7 +191,7 @@ def scale_table(name: str, b: dict) -> Table:
 def calibrate_with_imu(cal, out_rig: Rig, motion, imu_name: str, reference: str, target, opts: dict
                        ) -> tuple[ImuCalibration, Rig]:
     """calibrate.run's camera-IMU step after the camera-only calibration `cal` and its rig
-    `out_rig`: (the estimate against `imu_name`, the calibrated rig of imu.md). Every other
+    `out_rig`: (the estimate against `imu_name`, the calibrated rig of docs/formats.md#motion-datasets). Every other
     declared IMU with data is calibrated against the cameras as well and placed by them
     (placed_imu). `opts`: Options' gravity, window_s, rolling_shutter, knot_dt, imu_model
     (None = default)."""

@@ -1,4 +1,4 @@
-"""What a calibration hands back: the calibrated rig in rig-yaml.md's schema, warnings, console tables.
+"""What a calibration hands back: the calibrated rig in the rig file's schema, warnings, console tables.
 
 Used by `rigcal calibrate` (calibrate.py) and its HTML report (report.py): both read a
 pipeline.Calibration and neither imports the other.
@@ -46,7 +46,7 @@ DECLARED_DIRECTION_WARN_DEG = 60.0  # one camera seen from another (left/right f
 
 
 def calibrated_rig(cal: Calibration, pairs: dict, dataset: str) -> Rig:
-    """The calibrated rig in the schema of rig-yaml.md, with per camera and rig statistics."""
+    """The calibrated rig in the schema of docs/formats.md#rig-yaml, with per camera and rig statistics."""
     cams = []
     for c in cal.rig.cameras:
         st = cal.stats[c.name]

@@ -1,4 +1,4 @@
-"""The camera-IMU part of `rigcal calibrate --report` (issue 18): the IMU's gyroscope and
+"""The camera-IMU part of `rigcal calibrate --report`: the IMU's gyroscope and
 accelerometer as measured and as the estimate predicts them over the recording, the
 residual histograms against the Gaussian the declared noise densities predict, and the
 cameras' clock offsets (and line delays) with their 1-sigma.

@@ -1,4 +1,4 @@
-"""The IMU measurement model and a smooth hand-held trajectory (../shared/spec/imu.md).
+"""The IMU measurement model and a smooth hand-held trajectory (docs/formats.md#motion-datasets).
 
 Conventions: world ENU (z up), body FLU, `g_world = [0, 0, -9.80665]`. An IMU's gyroscope
 reads its angular velocity in its own axes, its accelerometer the specific force
@@ -31,7 +31,7 @@ from rigcal.core.spline import Motion  # the trajectory sample both the simulato
 
 GRAVITY = 9.80665
 G_WORLD = np.array([0.0, 0.0, -GRAVITY])
-BIAS_SAMPLE_HZ = 10.0  # truth.yaml samples the true biases at this rate (imu.md)
+BIAS_SAMPLE_HZ = 10.0  # truth.yaml samples the true biases at this rate (docs/formats.md#motion-datasets)
 # Turn-on biases of the simulated IMU (1-sigma per axis): typical of a MEMS IMU such as the
 # ADIS16448 after factory calibration; the declared random walks take them on from there.
 GYRO_BIAS_SIGMA = 2e-3  # rad/s

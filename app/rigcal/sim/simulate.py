@@ -1,4 +1,4 @@
-"""`rigcal simulate`: synthetic ChArUco datasets with ground truth (../shared/spec/dataset.md).
+"""`rigcal simulate`: synthetic ChArUco datasets with ground truth (docs/formats.md#dataset).
 
 The declared rig is the nominal design. The true rig differs from it by seeded
 mounting errors, focal and principal point errors and small lens distortion
@@ -538,7 +538,7 @@ def _pose_dict(T: np.ndarray) -> dict[str, Any]:
 
 def truth_dict(true_rig: Rig, scene: Scene, settings: RenderSettings, perturbation: Mapping[str, float],
                cover: Mapping[str, CameraCoverage]) -> dict[str, Any]:
-    """truth.yaml (dataset.md): the true rig, board poses, body poses per frame (and, for a
+    """truth.yaml (docs/formats.md#dataset): the true rig, board poses, body poses per frame (and, for a
     moving board, the board's pose per frame, which overrides `boards`)."""
     names = [b.name for b in scene.target.boards]
     frames = {}
@@ -605,7 +605,7 @@ def simulate_dataset(rig: Rig, out_dir: str | Path, *, scene: str | None = None,
                      mount_error_deg: float = 1.0, focal_error: float = 0.02, target: Target | None = None,
                      force: bool = False, jobs: int | None = None, progress: bool = False,
                      rig_text: str | None = None, target_text: str | None = None, label: str = "<rig>") -> SimResult:
-    """Render a dataset (dataset.md) of `rig` into out_dir, whole or not at all.
+    """Render a dataset (docs/formats.md#dataset) of `rig` into out_dir, whole or not at all.
 
     rig_text / target_text, when given, are written verbatim as DATASET/rig.yaml and
     target.yaml (the files as the user wrote them); otherwise they are dumped."""

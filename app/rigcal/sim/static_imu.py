@@ -144,7 +144,7 @@ def simulate_imu(imu: Imu, duration_s: float, rng: np.random.Generator,
 
 
 def write_imu_csv(path: Path, t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> None:
-    """imu.md's csv, written in chunks: integer ns, then 10 significant digits (far below
+    """The IMU csv (docs/formats.md#imu-data), written in chunks: integer ns, then 10 significant digits (far below
     any sensor's resolution)."""
     fmt = "%d," + ",".join(["%.10g"] * 6)
     with open(path, "w", encoding="utf-8") as f:

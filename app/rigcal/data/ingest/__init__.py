@@ -1,7 +1,7 @@
 """`rigcal ingest`: a recording (EuRoC folder, ROS 1/2 bag, video files) -> a dataset folder.
 
-The dataset is dataset.md's and imu.md's layout: `images/<camera>/<t_ns>.<ext>` named by
-integer-nanosecond capture times, `imu/<imu>.csv` in EuRoC's format, and rig.yaml /
+The dataset is the documented layout (docs/formats.md#dataset, #motion-datasets):
+`images/<camera>/<t_ns>.<ext>` named by integer-nanosecond capture times, `imu/<imu>.csv` in EuRoC's format, and rig.yaml /
 target.yaml when known. The source is only read; the dataset is built in a temporary
 folder and renamed into place at the end, so it is whole or absent.
 
@@ -242,7 +242,7 @@ def _rig_doc(text: str, path) -> dict:
     except yaml.YAMLError as e:
         raise InputError(f"{path}: not valid YAML ({' '.join(str(e).split())})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("cameras"), dict):
-        raise InputError(f"{path}: expected a rig with `cameras` (rig-yaml.md)")
+        raise InputError(f"{path}: expected a rig with `cameras` (docs/formats.md#rig-yaml)")
     return doc
 
 
@@ -253,7 +253,7 @@ def _check_rig_names(doc: dict, cameras: list[str], imus: list[str], label: str)
         if what == "imus" and not got:
             continue
         if sorted(declared) != sorted(got):
-            hint = ("declare each IMU under `imus:` (imu.md) or leave out --imu" if what == "imus" else
+            hint = ("declare each IMU under `imus:` (docs/formats.md#imus) or leave out --imu" if what == "imus" else
                     "choose and name the cameras with --camera NAME=...")
             raise InputError(f"{label}: {what}: declares {', '.join(declared) or 'none'} but the recording gives "
                              f"{', '.join(got) or 'none'} ({hint})")

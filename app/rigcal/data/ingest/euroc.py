@@ -1,8 +1,8 @@
 """EuRoC / ASL folders: `mav0/<sensor>/{sensor.yaml, data.csv, data/}`.
 
-Camera `data.csv` is `#timestamp [ns],filename`; IMU `data.csv` is imu.md's format.
-`sensor.yaml` (OpenCV-style, starting `%YAML:1.0`) gives `T_BS` (maps sensor points into
-the body frame B, row-major 4x4 under `data`), `resolution`, `intrinsics` [fu, fv, cu, cv],
+Camera `data.csv` is `#timestamp [ns],filename`; IMU `data.csv` is the IMU csv format
+(docs/formats.md#imu-data). `sensor.yaml` (OpenCV-style, starting `%YAML:1.0`) gives `T_BS`
+(maps sensor points into the body frame B, row-major 4x4 under `data`), `resolution`, `intrinsics` [fu, fv, cu, cv],
 `camera_model`, `distortion_model` and `distortion_coefficients`; an IMU's gives the
 Kalibr noise figures and `rate_hz`.
 
@@ -131,7 +131,7 @@ def read_camera_csv(path: Path) -> tuple[np.ndarray, list[str]]:
 
 
 def read_imu_csv(path: Path) -> ImuBlock:
-    """An IMU data.csv (imu.md's columns) as an ImuBlock; one line naming the row on bad cells."""
+    """An IMU data.csv (docs/formats.md#imu-data) as an ImuBlock; one line naming the row on bad cells."""
     t, vals = [], []
     for row, cells in _csv_rows(path):
         if len(cells) != 7:
@@ -229,7 +229,7 @@ def R_flu_B(body_axes) -> np.ndarray:
 
 
 def declared_rig(rec: EurocRecording, body_axes=EUROC_BODY_AXES, name: str = "euroc") -> dict:
-    """The rig document (rig-yaml.md, plus imu.md's `imus`) the sensor.yaml files declare."""
+    """The rig document (docs/formats.md#rig-yaml, with `imus`) the sensor.yaml files declare."""
     T_flu_B = geo.make_T(R_flu_B(body_axes), np.zeros(3))
     cams = {c: _camera_entry(read_sensor_yaml(d / "sensor.yaml"), d / "sensor.yaml", T_flu_B)
             for c, d in rec.cameras.items()}

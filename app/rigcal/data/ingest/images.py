@@ -1,6 +1,6 @@
 """Pixels from recorded images: ROS `sensor_msgs/Image` encodings, compressed images, focus.
 
-Everything returns what the dataset layout takes (dataset.md): 8-bit grey (H, W) or
+Everything returns what the dataset layout takes (docs/formats.md#dataset): 8-bit grey (H, W) or
 8-bit BGR (H, W, 3), the order OpenCV writes. Pure functions over numpy arrays.
 """
 

@@ -1,4 +1,5 @@
-"""Writing a recording into the dataset layout (dataset.md, imu.md), one frame at a time.
+"""Writing a recording into the dataset layout (docs/formats.md#dataset, #motion-datasets), one
+frame at a time.
 
 Every source (EuRoC folder, bag, video) hands `Frame`s and IMU blocks to one
 `DatasetWriter`, which keeps per camera the first of duplicated or backwards stamps,
@@ -25,7 +26,7 @@ from rigcal.data.imu_csv import imu_csv
 from rigcal.data.ingest.images import decode, focus_measure
 
 # IMU samples are kept this far outside the image window: the IMU terms need samples
-# around the first and last image, and imu.md tolerates clocks that differ by up to 1 s.
+# around the first and last image, and docs/formats.md#motion-datasets tolerates clocks that differ by up to 1 s.
 IMU_PAD_NS = 500_000_000
 
 
