@@ -1,0 +1,62 @@
+"""`rigcal calibrate` on a dataset with mag/: the magnetometer step (rigcal.mag.step), either
+after the cameras and IMU (with_magnetometers) or alone on a dataset of imu/ and mag/ with no
+images (run_mag_only: the cameras are carried through unchanged, the IMUs keep their
+declared poses)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
+
+from rich.console import Console, Group
+
+from rigcal.core.io import atomic_write_texts
+from rigcal.core.rig import Rig, dump_rig, load_rig
+from rigcal.data.imu_csv import ImuSamples
+from rigcal.data.mag_csv import check_mag_dataset
+from rigcal.errors import DatasetError, InputError
+from rigcal.mag.step import calibrate_magnetometers, console_table
+
+
+def mag_only_dataset(dataset: Path) -> bool:
+    """A dataset with mag/ and imu/ and neither images/ nor corners/."""
+    d = Path(dataset)
+    return (d / "mag").is_dir() and (d / "imu").is_dir() and not (d / "images").exists() and not (
+        d / "corners").exists()
+
+
+def with_magnetometers(rig: Rig, dataset: Path, imus: Mapping[str, ImuSamples], console: Console
+                       ) -> tuple[Rig, list]:
+    """The calibrated rig with its magnetometers calibrated too (when the dataset has mag/),
+    and the console tables to print after the others; notes go to `console`."""
+    if not rig.magnetometers and not (Path(dataset) / "mag").exists():
+        return rig, []
+    step = calibrate_magnetometers(rig, dataset, imus)
+    for n in step.notes:
+        console.print(f"note: {n}")
+    return step.rig, [console_table(step)] if step.results else []
+
+
+def run_mag_only(dataset: Path, out_path: Path, rig_path: Path | None, report_path: Path | None, console: Console,
+                 check_output_path) -> Group:
+    """Calibrate the magnetometers of a dataset with imu/ and mag/ only; write the rig."""
+    from rigcal.data.dataset import DatasetImages, dataset_rig_path
+    from rigcal.data.imu_csv import check_motion_dataset
+
+    check_output_path(out_path)
+    if report_path is not None:
+        raise InputError(f"--report: {report_path}: the HTML report is not made for a dataset of imu/ and mag/ "
+                         f"only; leave --report out")
+    rig = load_rig(dataset_rig_path(dataset, rig_path))
+    if not rig.magnetometers:
+        raise DatasetError(f"{Path(dataset) / 'mag'}: the rig declares no magnetometer (add `magnetometers:`)")
+    motion = check_motion_dataset(dataset, rig, DatasetImages(Path(dataset), (), MappingProxyType({})))
+    check_mag_dataset(dataset, rig, motion.imus)  # every bad input refused before anything is printed
+    for n in motion.notes:
+        console.print(f"note: {n}")
+    console.print(f"note: no images: {len(rig.cameras)} camera(s) carried through unchanged; the IMUs keep their "
+                  f"declared poses; magnetometers calibrated against them")
+    out_rig, tables = with_magnetometers(rig, dataset, motion.imus, console)
+    atomic_write_texts([(out_path, dump_rig(out_rig))])
+    return Group(f"wrote {out_path}: {len(out_rig.magnetometers)} magnetometer(s) calibrated", *tables)

@@ -1,0 +1,276 @@
+"""The joint estimate: hard iron, soft iron, R_imu_mag, the field's inclination (and its
+magnitude where the site's is declared), the gyroscope and accelerometer biases and one
+orientation per window, by nonlinear least squares (scipy.optimize.least_squares) over
+
+  - every magnetometer reading:  m - (inv(A) R_imu_mag.T R_world_imu(t).T b_world + h), sigma the
+    declared per-sample noise;
+  - the accelerometer at about the magnetometer's rate:  accel - (R_world_imu(t).T [0, 0, g] + b_a),
+    sigma the residuals' own RMS (the hand's accelerations, not the sensor's noise, dominate it),
+
+with R_world_imu(t) = R_world_window(k) dR(t; b_g), the gyroscope's integral inside window k
+(attitude.py). The start: the ellipsoid fit (ellipsoid.py), the rotation-rate alignment
+(attitude.py) and each window's orientation from its mean field and mean specific force
+(TRIAD). Without a declared site field the optimisation holds F at the ellipsoid's value and
+the result is rescaled to det A = 1.
+
+1-sigma: from the Jacobian at the solution (covariance inv(J.T J)), with each residual kind's
+sigma inflated by its integrated autocorrelation time (correlated residuals carry fewer
+independent samples than rows), and the whole covariance scaled by (RMS / declared)^2 where the
+magnetometer's residuals exceed its declared noise; `sigma_basis` says which applied.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.optimize import least_squares
+
+from rigcal.core import geometry as geo
+from rigcal.mag import model
+from rigcal.mag.attitude import Windows, corrected, integrate_windows, rate_alignment
+from rigcal.mag.ellipsoid import EllipsoidFit, check_coverage, fit_ellipsoid
+
+GRAVITY = 9.80665
+WINDOW_S = 2.0  # each window's orientation is free; inside it the gyroscope holds
+N_GLOBAL = 19  # h 3, A 6, dR_imu_mag 3, inclination 1, gyro bias 3, accel bias 3
+ACCEL_SIGMA_START = 0.2  # m/s^2: the first pass's weight, before the residuals give their own
+
+
+@dataclass(frozen=True)
+class MagInput:
+    """What the estimator needs: IMU samples t_imu (M,) s, gyro (M, 3), accel (M, 3); the
+    magnetometer's t_mag (N,) s on the IMU clock and raw m (N, 3) uT; the IMU's R_body_imu,
+    the declared R_body_mag, the per-sample sigma (uT) and the site field (uT) if declared."""
+
+    t_imu: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    t_mag: np.ndarray
+    m: np.ndarray
+    R_body_imu: np.ndarray
+    R_body_mag_declared: np.ndarray
+    sigma_uT: float
+    earth_field_uT: float | None = None
+    label: str = "magnetometer"
+
+
+@dataclass(frozen=True)
+class MagResult:
+    """A magnetometer's calibration (model.py's notation) with 1-sigma and diagnostics."""
+
+    hard_iron: np.ndarray
+    soft_iron: np.ndarray
+    R_imu_mag: np.ndarray
+    R_body_mag: np.ndarray
+    field_uT: float
+    inclination_deg: float
+    residual_rms_uT: float
+    residual_rms_declared_uT: float
+    sigma_hard_iron: np.ndarray
+    sigma_soft_iron: np.ndarray
+    sigma_rotation_deg: np.ndarray  # about the body F, L, U axes
+    sigma_field_uT: float
+    sigma_inclination_deg: float
+    heading_sigma_deg: float  # RMS over level headings of the heading 1-sigma the calibration leaves
+    sigma_basis: str
+    gyro_bias: np.ndarray
+    accel_bias: np.ndarray
+    accel_residual_rms: float
+    windows: int
+    start: EllipsoidFit
+    R_imu_mag_start: np.ndarray
+    seconds: float
+    residuals_uT: np.ndarray = field(repr=False)  # (N, 3) raw-reading residuals at the solution
+
+
+@dataclass(frozen=True)
+class _Problem:
+    inp: MagInput
+    wm: Windows  # gyro integrals at the magnetometer's times
+    wa: Windows  # ... and at the accelerometer rows used
+    accel: np.ndarray
+    F: float
+    R0: np.ndarray  # R_imu_mag the rotation parameter perturbs
+    Rk0: np.ndarray  # (K, 3, 3) window orientations the window parameters perturb
+    sigma_a: float
+
+
+def _unpack(p: _Problem, x: np.ndarray):
+    h, a, dr, incl, bg, ba = x[0:3], x[3:9], x[9:12], x[12], x[13:16], x[16:19]
+    Rk = p.Rk0 @ geo.R_from_rotvec(x[N_GLOBAL:].reshape(-1, 3))
+    return h, model.sym_from_vec(a), p.R0 @ geo.R_from_rotvec(dr), incl, bg, ba, Rk
+
+
+def _residuals(x: np.ndarray, p: _Problem) -> np.ndarray:
+    h, A, R_im, incl, bg, ba, Rk = _unpack(p, x)
+    b_w = model.field_world(p.F, incl)
+    R_wm = Rk[p.wm.window] @ corrected(p.wm, bg - p.wm.bias)
+    b_imu = np.einsum("nji,j->ni", R_wm, b_w)
+    pred = b_imu @ (np.linalg.inv(A) @ R_im.T).T + h
+    R_wa = Rk[p.wa.window] @ corrected(p.wa, bg - p.wa.bias)
+    f = GRAVITY * R_wa[:, 2, :] + ba  # R.T [0, 0, g]
+    return np.concatenate([((pred - p.inp.m) / p.inp.sigma_uT).ravel(), ((f - p.accel) / p.sigma_a).ravel()])
+
+
+def _sparsity(p: _Problem) -> sp.csr_matrix:
+    K = len(p.Rk0)
+    rows_win = np.concatenate([np.repeat(p.wm.window, 3), np.repeat(p.wa.window, 3)])
+    n = len(rows_win)
+    S = sp.lil_matrix((n, N_GLOBAL + 3 * K), dtype=np.int8)
+    S[:, :N_GLOBAL] = 1
+    r = np.arange(n)
+    M = sp.csr_matrix((np.ones(3 * n, np.int8), (np.repeat(r, 3),
+                                                 (N_GLOBAL + 3 * rows_win[:, None] + np.arange(3)).ravel())),
+                      shape=S.shape)
+    return (S.tocsr() + M).sign()
+
+
+def _triad(f: np.ndarray, u: np.ndarray, b_w: np.ndarray) -> np.ndarray:
+    """R_world_frame (K, 3, 3) from the specific force f (K, 3) (world up) and field u (K, 3)
+    seen in each window's frame, world field b_w (3,)."""
+    def frame(a, b):
+        e1 = a / np.linalg.norm(a, axis=-1, keepdims=True)
+        e2 = np.cross(a, b)
+        e2 /= np.linalg.norm(e2, axis=-1, keepdims=True)
+        return np.stack([e1, e2, np.cross(e1, e2)], axis=-1)
+    W = frame(np.array([0.0, 0.0, 1.0]), b_w)
+    return W @ np.transpose(frame(f, u), (0, 2, 1))
+
+
+def _window_means(w: Windows, v: np.ndarray, K: int) -> np.ndarray:
+    out = np.zeros((K, 3))
+    np.add.at(out, w.window, np.einsum("nij,nj->ni", w.dR, v))
+    return out
+
+
+def _autocorr_time(r: np.ndarray, max_lag: int = 400) -> float:
+    """Integrated autocorrelation time (>= 1, in samples) of residual columns r (N, D), summed
+    until the autocorrelation falls below 0.05."""
+    r = r - r.mean(axis=0)
+    var = (r * r).mean()
+    if var <= 0:
+        return 1.0
+    tau = 1.0
+    for k in range(1, min(max_lag, len(r) // 4)):
+        rho = (r[k:] * r[:-k]).mean() / var
+        if rho < 0.05:
+            break
+        tau += 2.0 * rho
+    return tau
+
+
+def _start(inp: MagInput, window_s: float):
+    fit = fit_ellipsoid(inp.m, inp.earth_field_uT, inp.label)
+    check_coverage(inp.m, fit, inp.label)
+    c = (inp.m - fit.hard_iron) @ fit.soft_iron.T
+    omega = np.stack([np.interp(inp.t_mag, inp.t_imu, inp.gyro[:, i]) for i in range(3)], axis=1)
+    R_im = rate_alignment(inp.t_mag, c, omega)
+    return fit, c, R_im
+
+
+def estimate(inp: MagInput, window_s: float = WINDOW_S) -> MagResult:
+    """The joint estimate of one magnetometer against its IMU (module docstring)."""
+    t0 = time.perf_counter()
+    fit, c, R_im = _start(inp, window_s)
+    step = max(1, int(round(len(inp.t_imu) / (inp.t_imu[-1] - inp.t_imu[0]) / 50.0)))  # accel rows at ~50 Hz
+    ia = np.arange(0, len(inp.t_imu), step)
+    ia = ia[(inp.t_imu[ia] >= inp.t_imu[0]) & (inp.t_imu[ia] < inp.t_imu[-1])]
+    keep = (inp.t_mag >= inp.t_imu[0]) & (inp.t_mag < inp.t_imu[-1])
+    inp = MagInput(**{**inp.__dict__, "t_mag": inp.t_mag[keep], "m": inp.m[keep]})
+    c = c[keep]
+    bias = np.zeros(3)
+    wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, bias)
+    wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, bias)
+    K = wm.n
+    u = _window_means(wm, c @ R_im.T, K)
+    f = _window_means(wa, inp.accel[ia], K)
+    sin_i = -np.einsum("ki,ki->k", u, f) / (np.linalg.norm(u, axis=1) * np.linalg.norm(f, axis=1))
+    incl = float(np.arcsin(np.clip(np.median(sin_i), -1, 1)))
+    Rk0 = _triad(f, u, model.field_world(fit.field_uT, incl))
+    x = np.concatenate([fit.hard_iron, model.vec_from_sym(fit.soft_iron), np.zeros(3), [incl], np.zeros(6),
+                        np.zeros(3 * K)])
+    # pass 1 with a guessed accelerometer sigma; pass 2 re-linearises the gyro integrals at the
+    # bias found and weights the accelerometer by its own residuals (inflated by their correlation)
+    p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, ACCEL_SIGMA_START)
+    sol = least_squares(_residuals, x, args=(p,), jac_sparsity=_sparsity(p), x_scale="jac", method="trf",
+                        xtol=1e-8, ftol=1e-6)
+    ra = sol.fun[3 * len(inp.t_mag):].reshape(-1, 3) * ACCEL_SIGMA_START
+    sigma_a = float(np.sqrt((ra ** 2).mean()) * np.sqrt(_autocorr_time(ra)))
+    h, A, R_im, incl, bg, ba, Rk0 = _unpack(p, sol.x)
+    x = np.concatenate([sol.x[:9], np.zeros(3), sol.x[12:N_GLOBAL], np.zeros(3 * K)])
+    wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, bg)
+    wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, bg)
+    p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, sigma_a)
+    sol = least_squares(_residuals, x, args=(p,), jac_sparsity=_sparsity(p), x_scale="jac", method="trf",
+                        xtol=1e-10, ftol=1e-10)
+    return _result(p, sol, fit, c, t0)
+
+
+def _result(p: _Problem, sol, fit: EllipsoidFit, c: np.ndarray, t0: float) -> MagResult:
+    inp = p.inp
+    h, A, R_im, incl, bg, ba, _ = _unpack(p, sol.x)
+    n_m = 3 * len(inp.t_mag)
+    rm = sol.fun[:n_m].reshape(-1, 3) * inp.sigma_uT
+    rms = float(np.sqrt((rm ** 2).mean()))
+    tau_m = _autocorr_time(rm)
+    J = sol.jac.tocsr() if sp.issparse(sol.jac) else sp.csr_matrix(sol.jac)
+    JtJ = (J.T @ J).toarray()
+    C = np.linalg.inv(JtJ)[:N_GLOBAL, :N_GLOBAL]
+    ratio = rms / inp.sigma_uT
+    # the declared noise is "off" beyond 5 % (the RMS of 10^4 residuals scatters by ~1 %)
+    scale = (ratio ** 2 if ratio > 1.05 else 1.0) * (tau_m if tau_m > 1.5 else 1.0)
+    basis = ("from the declared noise" if scale == 1.0 else
+             f"scaled by the residual fit (x{np.sqrt(scale):.2f}: RMS {ratio:.2f}x the declared noise"
+             + (f", autocorrelation time {tau_m:.1f} samples" if tau_m > 1.0 else "") + ")")
+    C = C * scale
+    # soft iron and field: normalised to det 1 without a declared site field (delta method)
+    a = model.vec_from_sym(A)
+
+    def norm(av: np.ndarray) -> np.ndarray:
+        if inp.earth_field_uT is not None:
+            return np.concatenate([av, [p.F]])
+        An, Fn = model.normalise(model.sym_from_vec(av), p.F)
+        return np.concatenate([model.vec_from_sym(An), [Fn]])
+    G = _numeric_jacobian(norm, a)
+    Caf = G @ C[3:9, 3:9] @ G.T
+    out = norm(a)
+    A_n, F_n = model.sym_from_vec(out[:6]), float(out[6])
+    R_body_mag = inp.R_body_imu @ R_im
+    C_rot = R_body_mag @ C[9:12, 9:12] @ R_body_mag.T
+    heading = _heading_sigma(h, A, R_im, inp.R_body_imu, p.F, incl, C[:12, :12])
+    return MagResult(
+        hard_iron=h, soft_iron=A_n, R_imu_mag=R_im, R_body_mag=R_body_mag, field_uT=F_n,
+        inclination_deg=float(np.degrees(incl)), residual_rms_uT=rms, residual_rms_declared_uT=float(inp.sigma_uT),
+        sigma_hard_iron=np.sqrt(np.diag(C[:3, :3])), sigma_soft_iron=model.sym_from_vec(np.sqrt(np.diag(Caf)[:6])),
+        sigma_rotation_deg=np.degrees(np.sqrt(np.diag(C_rot))), sigma_field_uT=float(np.sqrt(Caf[6, 6])),
+        sigma_inclination_deg=float(np.degrees(np.sqrt(C[12, 12]))), heading_sigma_deg=heading,
+        sigma_basis=basis, gyro_bias=bg, accel_bias=ba, accel_residual_rms=p.sigma_a, windows=len(p.Rk0),
+        start=fit, R_imu_mag_start=p.R0, seconds=time.perf_counter() - t0, residuals_uT=rm)
+
+
+def _numeric_jacobian(fn, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    f0 = fn(x)
+    J = np.empty((len(f0), len(x)))
+    for i in range(len(x)):
+        d = np.zeros_like(x)
+        d[i] = eps
+        J[:, i] = (fn(x + d) - fn(x - d)) / (2 * eps)
+    return J
+
+
+def _heading_sigma(h, A, R_im, R_body_imu, F, incl, C12) -> float:
+    """RMS over level headings of the heading 1-sigma (deg) from the covariance C12 of
+    (h, A's 6, R_imu_mag's 3): readings predicted by the estimate, calibrated by perturbed
+    parameters."""
+    psi = model.level_headings()
+    m = model.readings(model.level_fields(F, incl, psi), h, A, R_body_imu @ R_im)
+
+    def head(v: np.ndarray) -> np.ndarray:
+        R = R_body_imu @ R_im @ geo.R_from_rotvec(v[9:12])
+        return model.heading_errors(m, psi, v[:3], model.sym_from_vec(v[3:9]), R)
+    Jh = _numeric_jacobian(head, np.concatenate([h, model.vec_from_sym(A), np.zeros(3)]))
+    var = np.einsum("ij,jk,ik->i", Jh, C12, Jh)
+    return float(np.degrees(np.sqrt(var.mean())))
