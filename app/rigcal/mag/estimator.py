@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.sparse as sp
 from scipy.optimize import least_squares
+from threadpoolctl import threadpool_limits
 
 from rigcal.core import geometry as geo
 from rigcal.mag import model
@@ -115,17 +116,65 @@ def _residuals(x: np.ndarray, p: _Problem) -> np.ndarray:
     return np.concatenate([((pred - p.inp.m) / p.inp.sigma_uT).ravel(), ((f - p.accel) / p.sigma_a).ravel()])
 
 
-def _sparsity(p: _Problem) -> sp.csr_matrix:
-    K = len(p.Rk0)
-    rows_win = np.concatenate([np.repeat(p.wm.window, 3), np.repeat(p.wa.window, 3)])
-    n = len(rows_win)
-    S = sp.lil_matrix((n, N_GLOBAL + 3 * K), dtype=np.int8)
-    S[:, :N_GLOBAL] = 1
-    r = np.arange(n)
-    M = sp.csr_matrix((np.ones(3 * n, np.int8), (np.repeat(r, 3),
-                                                 (N_GLOBAL + 3 * rows_win[:, None] + np.arange(3)).ravel())),
-                      shape=S.shape)
-    return (S.tocsr() + M).sign()
+_E = np.zeros((6, 3, 3))  # d A / d a_k for the 6 symmetric elements (model.SYM_INDEX)
+for _k, (_i, _j) in enumerate(model.SYM_INDEX):
+    _E[_k, _i, _j] = _E[_k, _j, _i] = 1.0
+
+
+def _jacobian(x: np.ndarray, p: _Problem) -> sp.csr_matrix:
+    """d residuals / d x (sparse), analytic. Rotations are perturbed on the right (R Exp(d));
+    the Jacobian is exact where the rotation parameters are zero (the estimate folds them into
+    R0 and Rk0 before the covariance) and first-order accurate near it, which only slows the
+    iterations a little."""
+    h, A, R_im, incl, bg, ba, Rk = _unpack(p, x)
+    Ainv = np.linalg.inv(A)
+    b_w = model.field_world(p.F, incl)
+    db_w = p.F * np.array([0.0, -np.sin(incl), -np.cos(incl)])
+    Dm = corrected(p.wm, bg - p.wm.bias)
+    R_wm = Rk[p.wm.window] @ Dm
+    b_imu = np.einsum("nji,j->ni", R_wm, b_w)
+    w = b_imu @ R_im
+    y = w @ Ainv.T
+    M = Ainv @ R_im.T  # (3, 3)
+    n = len(b_imu)
+    Gm = np.zeros((n, 3, N_GLOBAL))
+    Gm[:, :, 0:3] = np.eye(3)
+    Gm[:, :, 3:9] = -np.einsum("ij,kjl,nl->nik", Ainv, _E, y)
+    Gm[:, :, 9:12] = Ainv @ geo.skew(w)
+    Gm[:, :, 12] = np.einsum("ij,nkj,k->ni", M, R_wm, db_w)
+    Gm[:, :, 13:16] = M @ geo.skew(b_imu) @ _bias_jacobian(p.wm, bg)
+    u = Rk[p.wm.window].transpose(0, 2, 1) @ b_w
+    Wm = M @ Dm.transpose(0, 2, 1) @ geo.skew(u)
+    Da = corrected(p.wa, bg - p.wa.bias)
+    Rka = Rk[p.wa.window]
+    f0 = GRAVITY * (Rka @ Da)[:, 2, :]
+    na = len(f0)
+    Ga = np.zeros((na, 3, N_GLOBAL))
+    Ga[:, :, 13:16] = geo.skew(f0) @ _bias_jacobian(p.wa, bg)
+    Ga[:, :, 16:19] = np.eye(3)
+    Wa = Da.transpose(0, 2, 1) @ geo.skew(GRAVITY * Rka[:, 2, :])
+    G = np.concatenate([Gm / p.inp.sigma_uT, Ga / p.sigma_a]).reshape(-1, N_GLOBAL)
+    W = np.concatenate([Wm / p.inp.sigma_uT, Wa / p.sigma_a]).reshape(-1, 3)
+    win = np.concatenate([np.repeat(p.wm.window, 3), np.repeat(p.wa.window, 3)])
+    rows = np.arange(len(G))
+    r = np.concatenate([np.repeat(rows, N_GLOBAL), np.repeat(rows, 3)])
+    c = np.concatenate([np.tile(np.arange(N_GLOBAL), len(G)), (N_GLOBAL + 3 * win[:, None] + np.arange(3)).ravel()])
+    return sp.csr_matrix((np.concatenate([G.ravel(), W.ravel()]), (r, c)), shape=(len(G), N_GLOBAL + 3 * len(Rk)))
+
+
+def _bias_jacobian(w: Windows, bg: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) d(rotation vector on the right of corrected(w, db)) / d b_g: w.J through the
+    right Jacobian of Exp at phi = J db, to second order (I - skew(phi) / 2)."""
+    phi = w.J @ (bg - w.bias)
+    return (np.eye(3) - 0.5 * geo.skew(phi)) @ w.J
+
+
+def _solve(p: _Problem, x: np.ndarray, tol: float):
+    # one BLAS thread: lsmr's many vector products slow down several-fold when BLAS threads
+    # compete for 2 cores (measured: 14 s -> 7 s for a 60 s recording under load)
+    with threadpool_limits(1, user_api="blas"):
+            return least_squares(_residuals, x, jac=_jacobian, args=(p,), x_scale="jac", method="trf",
+                             tr_solver="lsmr", xtol=tol, ftol=tol)
 
 
 def _triad(f: np.ndarray, u: np.ndarray, b_w: np.ndarray) -> np.ndarray:
@@ -195,8 +244,7 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S) -> MagResult:
     # pass 1 with a guessed accelerometer sigma; pass 2 re-linearises the gyro integrals at the
     # bias found and weights the accelerometer by its own residuals (inflated by their correlation)
     p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, ACCEL_SIGMA_START)
-    sol = least_squares(_residuals, x, args=(p,), jac_sparsity=_sparsity(p), x_scale="jac", method="trf",
-                        xtol=1e-8, ftol=1e-6)
+    sol = _solve(p, x, 1e-6)
     ra = sol.fun[3 * len(inp.t_mag):].reshape(-1, 3) * ACCEL_SIGMA_START
     sigma_a = float(np.sqrt((ra ** 2).mean()) * np.sqrt(_autocorr_time(ra)))
     h, A, R_im, incl, bg, ba, Rk0 = _unpack(p, sol.x)
@@ -204,19 +252,21 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S) -> MagResult:
     wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, bg)
     wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, bg)
     p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, sigma_a)
-    sol = least_squares(_residuals, x, args=(p,), jac_sparsity=_sparsity(p), x_scale="jac", method="trf",
-                        xtol=1e-10, ftol=1e-10)
-    return _result(p, sol, fit, c, t0)
+    sol = _solve(p, x, 1e-10)
+    h, A, R_im, incl, bg, ba, Rk0 = _unpack(p, sol.x)  # folded, so the Jacobian for the covariance is exact
+    p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, sigma_a)
+    x = np.concatenate([sol.x[:9], np.zeros(3), sol.x[12:N_GLOBAL], np.zeros(3 * K)])
+    return _result(p, x, fit, c, t0)
 
 
-def _result(p: _Problem, sol, fit: EllipsoidFit, c: np.ndarray, t0: float) -> MagResult:
+def _result(p: _Problem, x: np.ndarray, fit: EllipsoidFit, c: np.ndarray, t0: float) -> MagResult:
     inp = p.inp
-    h, A, R_im, incl, bg, ba, _ = _unpack(p, sol.x)
+    h, A, R_im, incl, bg, ba, _ = _unpack(p, x)
     n_m = 3 * len(inp.t_mag)
-    rm = sol.fun[:n_m].reshape(-1, 3) * inp.sigma_uT
+    rm = _residuals(x, p)[:n_m].reshape(-1, 3) * inp.sigma_uT
     rms = float(np.sqrt((rm ** 2).mean()))
     tau_m = _autocorr_time(rm)
-    J = sol.jac.tocsr() if sp.issparse(sol.jac) else sp.csr_matrix(sol.jac)
+    J = _jacobian(x, p)
     JtJ = (J.T @ J).toarray()
     C = np.linalg.inv(JtJ)[:N_GLOBAL, :N_GLOBAL]
     ratio = rms / inp.sigma_uT
