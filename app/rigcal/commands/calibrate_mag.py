@@ -26,15 +26,17 @@ def mag_only_dataset(dataset: Path) -> bool:
         d / "corners").exists()
 
 
-def with_magnetometers(rig: Rig, dataset: Path, imus: Mapping[str, ImuSamples], console: Console
-                       ) -> tuple[Rig, list]:
+def with_magnetometers(rig: Rig, dataset: Path, imus: Mapping[str, ImuSamples], console: Console,
+                       refuse: bool = False) -> tuple[Rig, list]:
     """The calibrated rig with its magnetometers calibrated too (when the dataset has mag/),
-    and the console tables to print after the others; notes go to `console`."""
+    and the console tables to print after the others; notes go to `console`. After a camera
+    calibration (refuse=False) a magnetometer whose recording is refused is carried through
+    with a warning rather than failing the whole run."""
     if not rig.magnetometers and not (Path(dataset) / "mag").exists():
         return rig, []
-    step = calibrate_magnetometers(rig, dataset, imus)
+    step = calibrate_magnetometers(rig, dataset, imus, refuse=refuse)
     for n in step.notes:
-        console.print(f"note: {n}")
+        console.print(n if n.startswith("warning: ") else f"note: {n}")
     return step.rig, [console_table(step)] if step.results else []
 
 
@@ -57,6 +59,6 @@ def run_mag_only(dataset: Path, out_path: Path, rig_path: Path | None, report_pa
         console.print(f"note: {n}")
     console.print(f"note: no images: {len(rig.cameras)} camera(s) carried through unchanged; the IMUs keep their "
                   f"declared poses; magnetometers calibrated against them")
-    out_rig, tables = with_magnetometers(rig, dataset, motion.imus, console)
+    out_rig, tables = with_magnetometers(rig, dataset, motion.imus, console, refuse=True)
     atomic_write_texts([(out_path, dump_rig(out_rig))])
     return Group(f"wrote {out_path}: {len(out_rig.magnetometers)} magnetometer(s) calibrated", *tables)

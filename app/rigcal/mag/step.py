@@ -125,9 +125,12 @@ def calibration_block(r: MagResult, earth_field_declared: bool) -> dict[str, Any
     }
 
 
-def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, ImuSamples]) -> MagStep:
+def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, ImuSamples], refuse: bool = True
+                            ) -> MagStep:
     """Every magnetometer of `rig` calibrated against its IMU (whose T_body_imu, declared or
-    calibrated, `rig` holds) from DATASET/mag/; the rig unchanged when there is no mag/."""
+    calibrated, `rig` holds) from DATASET/mag/; the rig unchanged when there is no mag/.
+    A recording refused (poor coverage, a disturbance) raises CalibrationError, or with
+    refuse=False leaves that magnetometer's block unchanged with a warning note."""
     samples = check_mag_dataset(dataset, rig, imus)
     if not samples:
         note = (f"the rig declares magnetometer(s) {', '.join(m.name for m in rig.magnetometers)} but the dataset "
@@ -137,9 +140,16 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
     for mag in rig.magnetometers:
         imu = rig.mag_imu(mag)
         inp = mag_input(rig, mag, samples[mag.name], imus[imu.name], imu.T_body_imu[:3, :3])
-        check_recording(inp)
-        r = estimate(inp)
-        check_residuals(inp, r)
+        try:
+            check_recording(inp)
+            r = estimate(inp)
+            check_residuals(inp, r)
+        except CalibrationError as e:
+            if refuse:
+                raise
+            mags.append(mag)
+            notes.append(f"warning: {mag.name}: not calibrated, carried through unchanged: {e}")
+            continue
         results[mag.name] = r
         T = mag.T_body_mag.copy()
         T[:3, :3] = r.R_body_mag

@@ -131,15 +131,7 @@ def simulate_mag_dataset(rig: Rig, out_dir: str | Path, *, duration: float = DEF
     t0 = time.perf_counter()
     check_settings(rig, duration, label)
     traj = dance_trajectory(np.random.default_rng([seed, 21])) if trajectory is None else trajectory
-    frng = np.random.default_rng([seed, 22])
-    F = next((m.earth_field_uT for m in rig.magnetometers if m.earth_field_uT is not None), DEFAULT_FIELD_UT)
-    field = EarthField(float(F), float(frng.uniform(50.0, 70.0)), float(frng.uniform(-20.0, 20.0)))
-    mags, truths = [], {}
-    for i, m in enumerate(rig.magnetometers):
-        tm, tr = true_magnetometer(m, np.random.default_rng([seed, 23, i]), hard_iron_ut, soft_iron, misalignment_deg)
-        mags.append(tm)
-        truths[m.name] = tr
-    truth = replace(rig, magnetometers=tuple(mags))
+    truth, truths, field = true_magnetometers(rig, seed, hard_iron_ut, soft_iron, misalignment_deg)
     out_dir = Path(out_dir)
     with atomic_dir(out_dir, force=force) as tmp:
         (tmp / "rig.yaml").write_text(rig_text if rig_text is not None else _dump(rig_to_dict(rig)), encoding="utf-8")
@@ -157,6 +149,35 @@ def simulate_mag_dataset(rig: Rig, out_dir: str | Path, *, duration: float = DEF
                "render": {"seed": int(seed), "scene": "mag", "duration_s": float(duration), "epoch_ns": EPOCH_NS}}
         (tmp / "truth.yaml").write_text(_dump(doc), encoding="utf-8")
     return MagSimResult(out_dir, truth, truths, field, time.perf_counter() - t0)
+
+
+def true_magnetometers(rig: Rig, seed: int, hard_iron_ut: float = DEFAULTS["hard_iron_ut"],
+                       soft_iron: float = DEFAULTS["soft_iron"], misalignment_deg: float = DEFAULTS["misalignment_deg"]
+                       ) -> tuple[Rig, dict[str, MagTruth], EarthField]:
+    """The rig with its magnetometers' true mounts, their true errors and the local field."""
+    frng = np.random.default_rng([seed, 22])
+    F = next((m.earth_field_uT for m in rig.magnetometers if m.earth_field_uT is not None), DEFAULT_FIELD_UT)
+    field = EarthField(float(F), float(frng.uniform(50.0, 70.0)), float(frng.uniform(-20.0, 20.0)))
+    mags, truths = [], {}
+    for i, m in enumerate(rig.magnetometers):
+        tm, tr = true_magnetometer(m, np.random.default_rng([seed, 23, i]), hard_iron_ut, soft_iron, misalignment_deg)
+        mags.append(tm)
+        truths[m.name] = tr
+    return replace(rig, magnetometers=tuple(mags)), truths, field
+
+
+def add_magnetometers(tmp: Path, truth: Rig, traj: imu_model.SineTrajectory, seed: int, duration: float) -> None:
+    """`--scene imu` for a rig that declares magnetometers: mag/ along the same motion, and
+    truth.yaml's rig, `magnetometers` and `earth_field` to match."""
+    truth, truths, field = true_magnetometers(truth, seed)
+    write_mag_files(tmp, truth, truths, field, traj, seed, duration)
+    path = tmp / "truth.yaml"
+    doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    doc["rig"]["magnetometers"] = rig_to_dict(truth)["magnetometers"]
+    doc["magnetometers"] = magnetometer_truth(truth, truths)
+    doc["earth_field"] = {"field_uT": field.field_uT, "inclination_deg": field.inclination_deg,
+                          "declination_deg": field.declination_deg}
+    path.write_text(_dump(doc), encoding="utf-8")
 
 
 def write_mag_files(tmp: Path, truth: Rig, truths: dict[str, MagTruth], field: EarthField,
