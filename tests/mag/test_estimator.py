@@ -36,3 +36,25 @@ def test_jacobian_matches_finite_differences():
         Jn[:, i] = (est._residuals(x + d, p) - est._residuals(x - d, p)) / 2e-6
     scale = np.maximum(np.abs(Jn).max(axis=0), 1e-12)
     assert (np.abs(J - Jn).max(axis=0) / scale).max() < 1e-4
+
+
+def test_schur_levenberg_marquardt_agrees_with_scipy_least_squares(tmp_path):
+    from rigcal.core.rig import load_rig
+    from rigcal.data.imu_csv import read_imu_csv
+    from rigcal.data.mag_csv import read_mag_csv
+    from rigcal.mag.step import mag_input
+
+    from tests.support.mag_data import mag_dataset
+
+    sim = mag_dataset(tmp_path / "d", seed=1, duration=20.0)
+    rig = load_rig(sim.out_dir / "rig.yaml")
+    inp = mag_input(rig, rig.magnetometers[0], read_mag_csv(sim.out_dir / "mag" / "mag0.csv"),
+                    read_imu_csv(sim.out_dir / "imu" / "imu0.csv"), np.eye(3))
+    fast = est.estimate(inp)
+    slow = est.estimate(inp, solve=est.least_squares_solve)
+    # the same optimum, to a hundredth of a sigma
+    assert (np.abs(fast.hard_iron - slow.hard_iron) < 0.01 * fast.sigma_hard_iron).all()
+    assert (np.abs(fast.soft_iron - slow.soft_iron) < 0.01 * fast.sigma_soft_iron).all()
+    assert geo.rotation_angle_deg(fast.R_body_mag @ slow.R_body_mag.T) < 0.01 * fast.sigma_rotation_deg.min()
+    assert abs(fast.inclination_deg - slow.inclination_deg) < 0.01 * fast.sigma_inclination_deg
+    np.testing.assert_allclose(fast.sigma_hard_iron, slow.sigma_hard_iron, rtol=1e-3)

@@ -1,6 +1,6 @@
 """The joint estimate: hard iron, soft iron, R_imu_mag, the field's inclination (and its
 magnitude where the site's is declared), the gyroscope and accelerometer biases and one
-orientation per window, by nonlinear least squares (scipy.optimize.least_squares) over
+orientation per window, by nonlinear least squares over
 
   - every magnetometer reading:  m - (inv(A) R_imu_mag.T R_world_imu(t).T b_world + h), sigma the
     declared per-sample noise;
@@ -13,7 +13,13 @@ with R_world_imu(t) = R_world_window(k) dR(t; b_g), the gyroscope's integral ins
 (TRIAD). Without a declared site field the optimisation holds F at the ellipsoid's value and
 the result is rescaled to det A = 1.
 
-1-sigma: from the Jacobian at the solution (covariance inv(J.T J)), with each residual kind's
+The solver: Levenberg-Marquardt on the analytic Jacobian with the window orientations
+eliminated by a batched Schur complement (3x3 blocks), so a step costs one pass over the
+rows; scipy's least_squares (trf, lsmr) on the same residuals and Jacobian reaches the same
+optimum 5-10x slower and is the tests' reference (least_squares_solve).
+
+1-sigma: from the Jacobian at the solution (the inverse of the Schur complement of J.T J:
+the globals' covariance with the windows marginalised), with each residual kind's
 sigma inflated by its integrated autocorrelation time (correlated residuals carry fewer
 independent samples than rows), and the whole covariance scaled by (RMS / declared)^2 where the
 magnetometer's residuals exceed its declared noise; `sigma_basis` says which applied.
@@ -121,8 +127,9 @@ for _k, (_i, _j) in enumerate(model.SYM_INDEX):
     _E[_k, _i, _j] = _E[_k, _j, _i] = 1.0
 
 
-def _jacobian(x: np.ndarray, p: _Problem) -> sp.csr_matrix:
-    """d residuals / d x (sparse), analytic. Rotations are perturbed on the right (R Exp(d));
+def _jacobian_blocks(x: np.ndarray, p: _Problem) -> tuple[np.ndarray, np.ndarray]:
+    """d residuals / d x, analytic, as G (rows, 19) over the globals and W (rows, 3) over each
+    row's window. Rotations are perturbed on the right (R Exp(d));
     the Jacobian is exact where the rotation parameters are zero (the estimate folds them into
     R0 and Rk0 before the covariance) and first-order accurate near it, which only slows the
     iterations a little."""
@@ -155,11 +162,86 @@ def _jacobian(x: np.ndarray, p: _Problem) -> sp.csr_matrix:
     Wa = Da.transpose(0, 2, 1) @ geo.skew(GRAVITY * Rka[:, 2, :])
     G = np.concatenate([Gm / p.inp.sigma_uT, Ga / p.sigma_a]).reshape(-1, N_GLOBAL)
     W = np.concatenate([Wm / p.inp.sigma_uT, Wa / p.sigma_a]).reshape(-1, 3)
-    win = np.concatenate([np.repeat(p.wm.window, 3), np.repeat(p.wa.window, 3)])
+    return G, W
+
+
+def _row_windows(p: _Problem) -> np.ndarray:
+    return np.concatenate([np.repeat(p.wm.window, 3), np.repeat(p.wa.window, 3)])
+
+
+def _jacobian(x: np.ndarray, p: _Problem) -> sp.csr_matrix:
+    """d residuals / d x as one sparse matrix (_jacobian_blocks assembled)."""
+    G, W = _jacobian_blocks(x, p)
+    win = _row_windows(p)
     rows = np.arange(len(G))
     r = np.concatenate([np.repeat(rows, N_GLOBAL), np.repeat(rows, 3)])
     c = np.concatenate([np.tile(np.arange(N_GLOBAL), len(G)), (N_GLOBAL + 3 * win[:, None] + np.arange(3)).ravel()])
-    return sp.csr_matrix((np.concatenate([G.ravel(), W.ravel()]), (r, c)), shape=(len(G), N_GLOBAL + 3 * len(Rk)))
+    return sp.csr_matrix((np.concatenate([G.ravel(), W.ravel()]), (r, c)), shape=(len(G), N_GLOBAL + 3 * len(p.Rk0)))
+
+
+@dataclass(frozen=True)
+class _Normal:
+    """The normal equations J.T J, J.T r by blocks: globals (19) and one 3x3 block per window."""
+
+    Hgg: np.ndarray  # (19, 19)
+    Hgw: np.ndarray  # (K, 19, 3)
+    Hww: np.ndarray  # (K, 3, 3)
+    bg: np.ndarray  # (19,)
+    bw: np.ndarray  # (K, 3)
+
+
+def _normal(G: np.ndarray, W: np.ndarray, r: np.ndarray, win: np.ndarray, K: int) -> _Normal:
+    P = sp.csr_matrix((np.ones(len(win)), (win, np.arange(len(win)))), shape=(K, len(win)))  # window sums
+    Hgw = np.stack([(P @ (G * W[:, c:c + 1])) for c in range(3)], axis=2)
+    Hww = np.stack([np.stack([P @ (W[:, i] * W[:, j]) for j in range(3)], axis=1) for i in range(3)], axis=1)
+    return _Normal(G.T @ G, Hgw, Hww, G.T @ r, np.stack([P @ (W[:, c] * r) for c in range(3)], axis=1))
+
+
+def _schur_step(n: _Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
+    """The damped Gauss-Newton step (globals (19,), windows (K, 3)): the windows eliminated
+    by a batched Schur complement, Levenberg-Marquardt damping lam on every diagonal."""
+    Hww = n.Hww + lam * np.einsum("kii->ki", n.Hww)[:, :, None] * np.eye(3)
+    Hinv = np.linalg.inv(Hww)
+    HgwHinv = n.Hgw @ Hinv  # (K, 19, 3)
+    S = n.Hgg + lam * np.diag(np.diag(n.Hgg)) - np.einsum("kia,kja->ij", HgwHinv, n.Hgw)
+    rhs = -n.bg + np.einsum("kia,ka->i", HgwHinv, n.bw)
+    dg = np.linalg.solve(S, rhs)
+    dw = -np.einsum("kab,kb->ka", Hinv, n.bw + np.einsum("kia,i->ka", n.Hgw, dg))
+    return dg, dw
+
+
+def _global_covariance(n: _Normal) -> np.ndarray:
+    """(19, 19) covariance of the globals, the windows marginalised: inv of the Schur complement."""
+    Hinv = np.linalg.inv(n.Hww)
+    S = n.Hgg - np.einsum("kia,kab,kjb->ij", n.Hgw, Hinv, n.Hgw)
+    return np.linalg.inv(S)
+
+
+def _gauss_newton(p: _Problem, x: np.ndarray, tol: float, max_iter: int = 30) -> np.ndarray:
+    """Levenberg-Marquardt on the residuals with the Schur-complement step: the estimate x."""
+    K = len(p.Rk0)
+    win = _row_windows(p)
+    r = _residuals(x, p)
+    cost = float(r @ r)
+    lam = 1e-4
+    for _ in range(max_iter):
+        G, W = _jacobian_blocks(x, p)
+        n = _normal(G, W, r, win, K)
+        while True:
+            dg, dw = _schur_step(n, lam)
+            x_new = x + np.concatenate([dg, dw.ravel()])
+            r_new = _residuals(x_new, p)
+            c_new = float(r_new @ r_new)
+            if c_new <= cost:
+                break
+            lam *= 10.0
+            if lam > 1e6:
+                return x
+        done = cost - c_new <= tol * cost
+        x, r, cost, lam = x_new, r_new, c_new, max(lam / 10.0, 1e-9)
+        if done:
+            break
+    return x
 
 
 def _bias_jacobian(w: Windows, bg: np.ndarray) -> np.ndarray:
@@ -169,12 +251,14 @@ def _bias_jacobian(w: Windows, bg: np.ndarray) -> np.ndarray:
     return (np.eye(3) - 0.5 * geo.skew(phi)) @ w.J
 
 
-def _solve(p: _Problem, x: np.ndarray, tol: float):
+def least_squares_solve(p: _Problem, x: np.ndarray, tol: float) -> np.ndarray:
+    """scipy's least_squares (trf, lsmr) on the same residuals and Jacobian: the reference the
+    tests hold _gauss_newton to (5-10x slower on long recordings)."""
     # one BLAS thread: lsmr's many vector products slow down several-fold when BLAS threads
     # compete for 2 cores (measured: 14 s -> 7 s for a 60 s recording under load)
     with threadpool_limits(1, user_api="blas"):
             return least_squares(_residuals, x, jac=_jacobian, args=(p,), x_scale="jac", method="trf",
-                             tr_solver="lsmr", xtol=tol, ftol=tol)
+                             tr_solver="lsmr", xtol=tol, ftol=tol).x
 
 
 def _triad(f: np.ndarray, u: np.ndarray, b_w: np.ndarray) -> np.ndarray:
@@ -220,9 +304,20 @@ def _start(inp: MagInput, window_s: float):
     return fit, c, R_im
 
 
-def estimate(inp: MagInput, window_s: float = WINDOW_S) -> MagResult:
-    """The joint estimate of one magnetometer against its IMU (module docstring)."""
+def _fold(p: _Problem, x: np.ndarray) -> tuple[_Problem, np.ndarray]:
+    """The rotation parameters moved into R0 and Rk0 (x's rotation entries zero)."""
+    _, _, R_im, _, _, _, Rk = _unpack(p, x)
+    K = len(p.Rk0)
+    return (_Problem(p.inp, p.wm, p.wa, p.accel, p.F, R_im, Rk, p.sigma_a),
+            np.concatenate([x[:9], np.zeros(3), x[12:N_GLOBAL], np.zeros(3 * K)]))
+
+
+def estimate(inp: MagInput, window_s: float = WINDOW_S, solve=None) -> MagResult:
+    """The joint estimate of one magnetometer against its IMU (module docstring). `solve(p, x,
+    tol) -> x`: the least-squares solver (default the Schur-complement Levenberg-Marquardt;
+    the tests pass scipy's least_squares, the slow reference)."""
     t0 = time.perf_counter()
+    solve = _gauss_newton if solve is None else solve
     fit, c, R_im = _start(inp, window_s)
     step = max(1, int(round(len(inp.t_imu) / (inp.t_imu[-1] - inp.t_imu[0]) / 50.0)))  # accel rows at ~50 Hz
     ia = np.arange(0, len(inp.t_imu), step)
@@ -244,18 +339,16 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S) -> MagResult:
     # pass 1 with a guessed accelerometer sigma; pass 2 re-linearises the gyro integrals at the
     # bias found and weights the accelerometer by its own residuals (inflated by their correlation)
     p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, ACCEL_SIGMA_START)
-    sol = _solve(p, x, 1e-6)
-    ra = sol.fun[3 * len(inp.t_mag):].reshape(-1, 3) * ACCEL_SIGMA_START
+    x = solve(p, x, 1e-6)
+    ra = _residuals(x, p)[3 * len(inp.t_mag):].reshape(-1, 3) * ACCEL_SIGMA_START
     sigma_a = float(np.sqrt((ra ** 2).mean()) * np.sqrt(_autocorr_time(ra)))
-    h, A, R_im, incl, bg, ba, Rk0 = _unpack(p, sol.x)
-    x = np.concatenate([sol.x[:9], np.zeros(3), sol.x[12:N_GLOBAL], np.zeros(3 * K)])
-    wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, bg)
-    wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, bg)
-    p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, sigma_a)
-    sol = _solve(p, x, 1e-10)
-    h, A, R_im, incl, bg, ba, Rk0 = _unpack(p, sol.x)  # folded, so the Jacobian for the covariance is exact
-    p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, sigma_a)
-    x = np.concatenate([sol.x[:9], np.zeros(3), sol.x[12:N_GLOBAL], np.zeros(3 * K)])
+    for tol in (1e-10, 0.0):  # then once more from the folded rotations: the Jacobian there is exact
+        p, x = _fold(p, x)
+        wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, x[13:16])
+        wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, x[13:16])
+        p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, p.R0, p.Rk0, sigma_a)
+        if tol:
+            x = solve(p, x, tol)
     return _result(p, x, fit, c, t0)
 
 
@@ -266,9 +359,8 @@ def _result(p: _Problem, x: np.ndarray, fit: EllipsoidFit, c: np.ndarray, t0: fl
     rm = _residuals(x, p)[:n_m].reshape(-1, 3) * inp.sigma_uT
     rms = float(np.sqrt((rm ** 2).mean()))
     tau_m = _autocorr_time(rm)
-    J = _jacobian(x, p)
-    JtJ = (J.T @ J).toarray()
-    C = np.linalg.inv(JtJ)[:N_GLOBAL, :N_GLOBAL]
+    G, W = _jacobian_blocks(x, p)
+    C = _global_covariance(_normal(G, W, np.zeros(len(G)), _row_windows(p), len(p.Rk0)))
     ratio = rms / inp.sigma_uT
     # the declared noise is "off" beyond 5 % (the RMS of 10^4 residuals scatters by ~1 %)
     scale = (ratio ** 2 if ratio > 1.05 else 1.0) * (tau_m if tau_m > 1.5 else 1.0)
