@@ -164,3 +164,28 @@ def test_undeclared_missing_and_non_overlapping_files(dance, tmp_path):
         r = CliRunner().invoke(app, ["calibrate", str(ds), "--out", str(out)])
         assert r.exit_code == 2 and expected in r.stderr, (ds, r.stderr)
         assert len(r.stderr.strip().splitlines()) == 1 and not out.exists()
+
+
+def test_declared_site_field_and_a_wrongly_declared_mount(tmp_path):
+    """With earth_field_uT declared the soft iron keeps its true scale (det != 1) and F is the
+    declared value; a mount declared 90 degrees wrong is found all the same (the rate
+    alignment does not start from it) and calibrate warns about the declaration."""
+    from rigcal.core.rig import parse_rig
+    from rigcal.sim.mag_scene import simulate_mag_dataset
+
+    text = MAG_RIG.read_text().replace("    update_rate: 100.0\n", "    update_rate: 100.0\n    earth_field_uT: 47.5\n")
+    sim = simulate_mag_dataset(parse_rig(text), tmp_path / "d", duration=20.0, seed=1, rig_text=text)
+    assert abs(np.linalg.det(sim.mags["mag0"].soft_iron) - 1.0) > 0.01
+    wrong = tmp_path / "wrong.yaml"
+    wrong.write_text(text.replace("    axes: [F, -L, -U]\n    update_rate: 100.0", "    axes: [L, F, -U]\n    update_rate: 100.0"))
+    out = tmp_path / "cal.yaml"
+    r = CliRunner().invoke(app, ["calibrate", str(sim.out_dir), "--out", str(out), "--rig", str(wrong)])
+    assert r.exit_code == 0, r.stderr
+    assert "warning: mag0: the calibrated axes are" in r.stderr
+    mag = load_rig(out).magnetometers[0]
+    cal = mag.calibration
+    assert cal["field_uT"] == pytest.approx(47.5) and cal["sigma"]["field_uT"] == 0.0
+    A_err = np.array(cal["soft_iron"]) - sim.mags["mag0"].soft_iron
+    assert np.abs(A_err).max() < 0.004 and (np.abs(A_err) < 4 * np.array(cal["sigma"]["soft_iron"])).all()
+    R_true = sim.truth.magnetometers[0].T_body_mag[:3, :3]
+    assert geo.rotation_angle_deg(mag.T_body_mag[:3, :3] @ R_true.T) < 0.2

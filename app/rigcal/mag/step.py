@@ -26,6 +26,7 @@ from rigcal.mag.estimator import MagInput, MagResult, estimate
 
 DISTURBANCE_SHARE = 0.03  # a 1 s mean field magnitude this far (plus 5 sigma of noise) from the median is refused
 BIN_S = 1.0
+DECLARED_AXES_WARN_DEG = 10.0  # the fit is this far from the declared mount: a declaration to check
 OFFSET_SIGMAS = 6.0  # a second's mean residual beyond this many standard errors is a disturbance
 ADVICE = "record again away from steel, cars, cables and magnets"
 
@@ -157,6 +158,9 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
         turn = geo.rotation_angle_deg(r.R_body_mag @ mag.T_body_mag[:3, :3].T)
         notes.append(f"{mag.name}: calibrated against {imu.name} from {len(inp.t_mag)} readings in {r.seconds:.1f} s; "
                      f"its axes are {turn:.2f} deg from the declared ones; 1-sigma {r.sigma_basis}")
+        if turn > DECLARED_AXES_WARN_DEG:
+            notes.append(f"warning: {mag.name}: the calibrated axes are {turn:.1f} deg from the declared ones "
+                         f"(magnetometers.{mag.name}.axes / rotation); check how the chip is mounted")
         if r.residual_rms_uT > 1.5 * r.residual_rms_declared_uT:
             notes.append(f"{mag.name}: residual RMS {r.residual_rms_uT:.2f} uT is {r.residual_rms_uT / r.residual_rms_declared_uT:.1f}x "
                          f"what noise_density predicts ({r.residual_rms_declared_uT:.2f} uT): the declared noise is "
