@@ -189,3 +189,22 @@ def test_declared_site_field_and_a_wrongly_declared_mount(tmp_path):
     assert np.abs(A_err).max() < 0.004 and (np.abs(A_err) < 4 * np.array(cal["sigma"]["soft_iron"])).all()
     R_true = sim.truth.magnetometers[0].T_body_mag[:3, :3]
     assert geo.rotation_angle_deg(mag.T_body_mag[:3, :3] @ R_true.T) < 0.2
+
+
+def test_a_declared_clock_offset_is_estimated(tmp_path):
+    from rigcal.core.rig import parse_rig
+    from rigcal.sim.mag_scene import simulate_mag_dataset
+
+    text = MAG_RIG.read_text().replace("    update_rate: 100.0\n", "    update_rate: 100.0\n    time_offset_s: 0.002\n")
+    # seed 3: the true offset is 4.7 ms from the declared one
+    sim = simulate_mag_dataset(parse_rig(text), tmp_path / "d", duration=20.0, seed=3, rig_text=text)
+    true_offset = sim.truth.magnetometers[0].time_offset_s
+    assert abs(true_offset - 0.002) > 0.004
+    out = tmp_path / "cal.yaml"
+    r = CliRunner().invoke(app, ["calibrate", str(sim.out_dir), "--out", str(out)])
+    assert r.exit_code == 0, r.stderr
+    cal = load_rig(out).magnetometers[0].calibration
+    err = cal["time_offset_s"] - true_offset
+    assert abs(err) < 4 * cal["sigma"]["time_offset_s"] and cal["sigma"]["time_offset_s"] < 0.001
+    assert list(cal)[:6] == ["hard_iron_uT", "soft_iron", "field_uT", "inclination_deg", "time_offset_s",
+                             "residual_rms_uT"]

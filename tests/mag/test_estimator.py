@@ -1,5 +1,6 @@
 """The joint estimator's analytic Jacobian against central finite differences of its
-residuals, at a point away from the solution (biases, rotations and soft iron all non-trivial)."""
+residuals, at a point away from the solution (biases, rotations, soft iron and the clock
+offset all non-trivial), and its solver against scipy's least_squares."""
 
 from __future__ import annotations
 
@@ -18,16 +19,16 @@ def test_jacobian_matches_finite_differences():
     motion = traj.at(t)
     tm = np.arange(0.003, 5.9, 0.01)
     inp = est.MagInput(t, motion.omega_body + 0.01, np.ones((len(t), 3)), tm, rng.normal(size=(len(tm), 3)) * 30,
-                       np.eye(3), np.eye(3), 0.5)
+                       np.eye(3), np.eye(3), 0.5, estimate_offset=True)
     bias = np.array([0.001, 0.002, -0.001])
     ia = np.arange(0, len(t) - 1, 4)
     wm = integrate_windows(t, inp.gyro, tm, 2.0, bias)
     wa = integrate_windows(t, inp.gyro, t[ia], 2.0, bias)
     K = wm.n
     p = est._Problem(inp, wm, wa, inp.accel[ia], 50.0, geo.R_from_rotvec(np.array([0.3, -0.2, 0.1])),
-                     geo.R_from_rotvec(rng.normal(size=(K, 3))), 0.3)
+                     geo.R_from_rotvec(rng.normal(size=(K, 3))), 0.3, traj.at(tm).omega_body)
     x = np.concatenate([[3, -2, 1], [1.05, 0.97, 1.0, 0.02, -0.01, 0.03], [0, 0, 0], [1.0], [0.002, -0.001, 0.003],
-                        [0.1, 0.2, -0.1], np.zeros(3 * K)])
+                        [0.1, 0.2, -0.1], [0.004], np.zeros(3 * K)])
     J = est._jacobian(x, p).toarray()
     Jn = np.empty_like(J)
     for i in range(len(x)):

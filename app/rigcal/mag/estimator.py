@@ -42,7 +42,8 @@ from rigcal.mag.ellipsoid import EllipsoidFit, check_coverage, fit_ellipsoid
 
 GRAVITY = 9.80665
 WINDOW_S = 2.0  # each window's orientation is free; inside it the gyroscope holds
-N_GLOBAL = 19  # h 3, A 6, dR_imu_mag 3, inclination 1, gyro bias 3, accel bias 3
+N_GLOBAL = 20  # h 3, A 6, dR_imu_mag 3, inclination 1, gyro bias 3, accel bias 3, clock offset 1
+OFFSET = 19  # the clock offset's index: seconds added to the declared time_offset_s
 ACCEL_SIGMA_START = 0.2  # m/s^2: the first pass's weight, before the residuals give their own
 
 
@@ -62,6 +63,7 @@ class MagInput:
     sigma_uT: float
     earth_field_uT: float | None = None
     label: str = "magnetometer"
+    estimate_offset: bool = False  # also estimate the clock offset (the rig declares time_offset_s)
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,8 @@ class MagResult:
     R_imu_mag_start: np.ndarray
     seconds: float
     residuals_uT: np.ndarray = field(repr=False)  # (N, 3) raw-reading residuals at the solution
+    time_offset_s: float = 0.0  # the estimated correction to the declared offset (0 when not estimated)
+    sigma_time_offset_s: float | None = None  # None when not estimated
 
 
 @dataclass(frozen=True)
@@ -103,6 +107,7 @@ class _Problem:
     R0: np.ndarray  # R_imu_mag the rotation parameter perturbs
     Rk0: np.ndarray  # (K, 3, 3) window orientations the window parameters perturb
     sigma_a: float
+    omega_m: np.ndarray  # (N, 3) the raw gyroscope at the magnetometer's times (for the clock offset)
 
 
 def _unpack(p: _Problem, x: np.ndarray):
@@ -111,12 +116,20 @@ def _unpack(p: _Problem, x: np.ndarray):
     return h, model.sym_from_vec(a), p.R0 @ geo.R_from_rotvec(dr), incl, bg, ba, Rk
 
 
-def _residuals(x: np.ndarray, p: _Problem) -> np.ndarray:
-    h, A, R_im, incl, bg, ba, Rk = _unpack(p, x)
+def _field_imu(p: _Problem, x: np.ndarray, Rk: np.ndarray, bg: np.ndarray, incl: float):
+    """The field in IMU axes at each reading's instant shifted by the clock offset x[OFFSET]:
+    (b' (N, 3), b_imu (N, 3) unshifted, E (N, 3, 3) = Exp((omega - b_g) dt), R_wm (N, 3, 3))."""
     b_w = model.field_world(p.F, incl)
     R_wm = Rk[p.wm.window] @ corrected(p.wm, bg - p.wm.bias)
     b_imu = np.einsum("nji,j->ni", R_wm, b_w)
-    pred = b_imu @ (np.linalg.inv(A) @ R_im.T).T + h
+    E = geo.R_from_rotvec((p.omega_m - bg) * x[OFFSET])
+    return np.einsum("nji,nj->ni", E, b_imu), b_imu, E, R_wm
+
+
+def _residuals(x: np.ndarray, p: _Problem) -> np.ndarray:
+    h, A, R_im, incl, bg, ba, Rk = _unpack(p, x)
+    b_shift = _field_imu(p, x, Rk, bg, incl)[0]
+    pred = b_shift @ (np.linalg.inv(A) @ R_im.T).T + h
     R_wa = Rk[p.wa.window] @ corrected(p.wa, bg - p.wa.bias)
     f = GRAVITY * R_wa[:, 2, :] + ba  # R.T [0, 0, g]
     return np.concatenate([((pred - p.inp.m) / p.inp.sigma_uT).ravel(), ((f - p.accel) / p.sigma_a).ravel()])
@@ -137,10 +150,10 @@ def _jacobian_blocks(x: np.ndarray, p: _Problem) -> tuple[np.ndarray, np.ndarray
     Ainv = np.linalg.inv(A)
     b_w = model.field_world(p.F, incl)
     db_w = p.F * np.array([0.0, -np.sin(incl), -np.cos(incl)])
+    b_sh, b_imu, E, R_wm = _field_imu(p, x, Rk, bg, incl)
     Dm = corrected(p.wm, bg - p.wm.bias)
-    R_wm = Rk[p.wm.window] @ Dm
-    b_imu = np.einsum("nji,j->ni", R_wm, b_w)
-    w = b_imu @ R_im
+    ET = E.transpose(0, 2, 1)
+    w = b_sh @ R_im
     y = w @ Ainv.T
     M = Ainv @ R_im.T  # (3, 3)
     n = len(b_imu)
@@ -148,10 +161,12 @@ def _jacobian_blocks(x: np.ndarray, p: _Problem) -> tuple[np.ndarray, np.ndarray
     Gm[:, :, 0:3] = np.eye(3)
     Gm[:, :, 3:9] = -np.einsum("ij,kjl,nl->nik", Ainv, _E, y)
     Gm[:, :, 9:12] = Ainv @ geo.skew(w)
-    Gm[:, :, 12] = np.einsum("ij,nkj,k->ni", M, R_wm, db_w)
-    Gm[:, :, 13:16] = M @ geo.skew(b_imu) @ _bias_jacobian(p.wm, bg)
+    Gm[:, :, 12] = np.einsum("ij,njk,nlk,l->ni", M, ET, R_wm, db_w)
+    Gm[:, :, 13:16] = M @ (ET @ geo.skew(b_imu) @ _bias_jacobian(p.wm, bg) - x[OFFSET] * geo.skew(b_sh))
+    if p.inp.estimate_offset:
+        Gm[:, :, OFFSET] = np.cross(b_sh, p.omega_m - bg) @ M.T
     u = Rk[p.wm.window].transpose(0, 2, 1) @ b_w
-    Wm = M @ Dm.transpose(0, 2, 1) @ geo.skew(u)
+    Wm = M @ ET @ Dm.transpose(0, 2, 1) @ geo.skew(u)
     Da = corrected(p.wa, bg - p.wa.bias)
     Rka = Rk[p.wa.window]
     f0 = GRAVITY * (Rka @ Da)[:, 2, :]
@@ -194,7 +209,10 @@ def _normal(G: np.ndarray, W: np.ndarray, r: np.ndarray, win: np.ndarray, K: int
     P = sp.csr_matrix((np.ones(len(win)), (win, np.arange(len(win)))), shape=(K, len(win)))  # window sums
     Hgw = np.stack([(P @ (G * W[:, c:c + 1])) for c in range(3)], axis=2)
     Hww = np.stack([np.stack([P @ (W[:, i] * W[:, j]) for j in range(3)], axis=1) for i in range(3)], axis=1)
-    return _Normal(G.T @ G, Hgw, Hww, G.T @ r, np.stack([P @ (W[:, c] * r) for c in range(3)], axis=1))
+    Hgg = G.T @ G
+    held = np.flatnonzero(np.diag(Hgg) == 0)  # a parameter not estimated (the clock offset): its step is 0
+    Hgg[held, held] = 1.0
+    return _Normal(Hgg, Hgw, Hww, G.T @ r, np.stack([P @ (W[:, c] * r) for c in range(3)], axis=1))
 
 
 def _schur_step(n: _Normal, lam: float) -> tuple[np.ndarray, np.ndarray]:
@@ -308,7 +326,7 @@ def _fold(p: _Problem, x: np.ndarray) -> tuple[_Problem, np.ndarray]:
     """The rotation parameters moved into R0 and Rk0 (x's rotation entries zero)."""
     _, _, R_im, _, _, _, Rk = _unpack(p, x)
     K = len(p.Rk0)
-    return (_Problem(p.inp, p.wm, p.wa, p.accel, p.F, R_im, Rk, p.sigma_a),
+    return (_Problem(p.inp, p.wm, p.wa, p.accel, p.F, R_im, Rk, p.sigma_a, p.omega_m),
             np.concatenate([x[:9], np.zeros(3), x[12:N_GLOBAL], np.zeros(3 * K)]))
 
 
@@ -334,11 +352,12 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S, solve=None) -> MagResult
     sin_i = -np.einsum("ki,ki->k", u, f) / (np.linalg.norm(u, axis=1) * np.linalg.norm(f, axis=1))
     incl = float(np.arcsin(np.clip(np.median(sin_i), -1, 1)))
     Rk0 = _triad(f, u, model.field_world(fit.field_uT, incl))
-    x = np.concatenate([fit.hard_iron, model.vec_from_sym(fit.soft_iron), np.zeros(3), [incl], np.zeros(6),
+    x = np.concatenate([fit.hard_iron, model.vec_from_sym(fit.soft_iron), np.zeros(3), [incl], np.zeros(7),
                         np.zeros(3 * K)])
     # pass 1 with a guessed accelerometer sigma; pass 2 re-linearises the gyro integrals at the
     # bias found and weights the accelerometer by its own residuals (inflated by their correlation)
-    p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, ACCEL_SIGMA_START)
+    omega_m = np.stack([np.interp(inp.t_mag, inp.t_imu, inp.gyro[:, i]) for i in range(3)], axis=1)
+    p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, R_im, Rk0, ACCEL_SIGMA_START, omega_m)
     x = solve(p, x, 1e-6)
     ra = _residuals(x, p)[3 * len(inp.t_mag):].reshape(-1, 3) * ACCEL_SIGMA_START
     sigma_a = float(np.sqrt((ra ** 2).mean()) * np.sqrt(_autocorr_time(ra)))
@@ -346,7 +365,7 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S, solve=None) -> MagResult
         p, x = _fold(p, x)
         wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, x[13:16])
         wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, x[13:16])
-        p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, p.R0, p.Rk0, sigma_a)
+        p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, p.R0, p.Rk0, sigma_a, omega_m)
         if tol:
             x = solve(p, x, tol)
     return _result(p, x, fit, c, t0)
@@ -383,6 +402,7 @@ def _result(p: _Problem, x: np.ndarray, fit: EllipsoidFit, c: np.ndarray, t0: fl
     R_body_mag = inp.R_body_imu @ R_im
     C_rot = R_body_mag @ C[9:12, 9:12] @ R_body_mag.T
     heading = _heading_sigma(h, A, R_im, inp.R_body_imu, p.F, incl, C[:12, :12])
+    offset_sigma = float(np.sqrt(C[OFFSET, OFFSET])) if inp.estimate_offset else None
     return MagResult(
         hard_iron=h, soft_iron=A_n, R_imu_mag=R_im, R_body_mag=R_body_mag, field_uT=F_n,
         inclination_deg=float(np.degrees(incl)), residual_rms_uT=rms, residual_rms_declared_uT=float(inp.sigma_uT),
@@ -390,7 +410,8 @@ def _result(p: _Problem, x: np.ndarray, fit: EllipsoidFit, c: np.ndarray, t0: fl
         sigma_rotation_deg=np.degrees(np.sqrt(np.diag(C_rot))), sigma_field_uT=float(np.sqrt(Caf[6, 6])),
         sigma_inclination_deg=float(np.degrees(np.sqrt(C[12, 12]))), heading_sigma_deg=heading,
         sigma_basis=basis, gyro_bias=bg, accel_bias=ba, accel_residual_rms=p.sigma_a, windows=len(p.Rk0),
-        start=fit, R_imu_mag_start=p.R0, seconds=time.perf_counter() - t0, residuals_uT=rm)
+        start=fit, R_imu_mag_start=p.R0, seconds=time.perf_counter() - t0, residuals_uT=rm,
+        time_offset_s=float(x[OFFSET]), sigma_time_offset_s=offset_sigma)
 
 
 def _numeric_jacobian(fn, x: np.ndarray, eps: float = 1e-6) -> np.ndarray:

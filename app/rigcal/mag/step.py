@@ -50,7 +50,8 @@ def mag_input(rig: Rig, mag: Magnetometer, samples: MagSamples, imu: ImuSamples,
     return MagInput(t_imu=t_imu, gyro=imu.gyro, accel=imu.accel,
                     t_mag=t_mag[keep], m=samples.m_uT[keep], R_body_imu=R_body_imu,
                     R_body_mag_declared=mag.T_body_mag[:3, :3], sigma_uT=mag.sample_sigma_uT,
-                    earth_field_uT=mag.earth_field_uT, label=str(samples.path))
+                    earth_field_uT=mag.earth_field_uT, label=str(samples.path),
+                    estimate_offset=mag.time_offset_s is not None)
 
 
 def check_recording(inp: MagInput) -> None:
@@ -107,20 +108,24 @@ def _spans(bins: np.ndarray) -> str:
     return ", ".join(f"{a * BIN_S:.0f}-{b * BIN_S:.0f} s" for a, b in spans[:5]) + (" ..." if len(spans) > 5 else "")
 
 
-def calibration_block(r: MagResult, earth_field_declared: bool) -> dict[str, Any]:
-    """magnetometer.md's `calibration` mapping of a result."""
+def calibration_block(r: MagResult, mag: Magnetometer) -> dict[str, Any]:
+    """magnetometer.md's `calibration` mapping of a result (time_offset_s when estimated: the
+    rig declares one)."""
     fl = lambda v: [float(x) + 0.0 for x in v]  # noqa: E731
+    offset = r.sigma_time_offset_s is not None
+    sigma = {"hard_iron_uT": fl(r.sigma_hard_iron), "soft_iron": [fl(row) for row in r.sigma_soft_iron],
+             "rotation_deg": fl(r.sigma_rotation_deg),
+             "field_uT": 0.0 if mag.earth_field_uT is not None else float(r.sigma_field_uT),
+             "inclination_deg": float(r.sigma_inclination_deg)}
     return {
         "hard_iron_uT": fl(r.hard_iron),
         "soft_iron": [fl(row) for row in r.soft_iron],
         "field_uT": float(r.field_uT),
         "inclination_deg": float(r.inclination_deg),
+        **({"time_offset_s": float((mag.time_offset_s or 0.0) + r.time_offset_s)} if offset else {}),
         "residual_rms_uT": float(r.residual_rms_uT),
         "residual_rms_declared_uT": float(r.residual_rms_declared_uT),
-        "sigma": {"hard_iron_uT": fl(r.sigma_hard_iron), "soft_iron": [fl(row) for row in r.sigma_soft_iron],
-                  "rotation_deg": fl(r.sigma_rotation_deg),
-                  "field_uT": 0.0 if earth_field_declared else float(r.sigma_field_uT),
-                  "inclination_deg": float(r.sigma_inclination_deg)},
+        "sigma": {**sigma, **({"time_offset_s": float(r.sigma_time_offset_s)} if offset else {})},
         "heading_sigma_deg": float(r.heading_sigma_deg),
         "sigma_basis": r.sigma_basis,
     }
@@ -154,7 +159,7 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
         results[mag.name] = r
         T = mag.T_body_mag.copy()
         T[:3, :3] = r.R_body_mag
-        mags.append(replace(mag, T_body_mag=T, calibration=calibration_block(r, mag.earth_field_uT is not None)))
+        mags.append(replace(mag, T_body_mag=T, calibration=calibration_block(r, mag)))
         turn = geo.rotation_angle_deg(r.R_body_mag @ mag.T_body_mag[:3, :3].T)
         notes.append(f"{mag.name}: calibrated against {imu.name} from {len(inp.t_mag)} readings in {r.seconds:.1f} s; "
                      f"its axes are {turn:.2f} deg from the declared ones; 1-sigma {r.sigma_basis}")

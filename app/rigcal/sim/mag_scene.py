@@ -12,7 +12,8 @@ the rig declares the site field (earth_field_uT), whose magnitude it then keeps;
 R_body_mag the declared one turned by --misalignment-deg (uniform in [1/3, 1] of it) about a
 random axis; white noise of the declared density. The local field: magnitude the declared
 earth_field_uT or 50 uT, inclination uniform in 50-70 deg, declination uniform in +-20 deg.
-Magnetometer clocks carry their declared time_offset_s (t_imu = t_mag + time_offset_s).
+Magnetometer clocks (t_imu = t_mag + time_offset_s) carry the declared offset plus uniform
++-CLOCK_ERROR_S where the rig declares one, none otherwise.
 
 Randomness: streams [seed, 21] trajectory, [seed, 22] field, [seed, 23, i] magnetometer i's
 errors, [seed, 24, i] its noise, [seed, 4, i] IMU i's noise (as in --scene imu).
@@ -40,6 +41,7 @@ from rigcal.sim import imu_model
 
 EPOCH_NS = 1_600_000_000_000_000_000  # as --scene imu: the IMU clock at t = 0
 DEFAULT_FIELD_UT = 50.0
+CLOCK_ERROR_S = 0.005  # a declared time_offset_s is off by up to this in the truth
 DEFAULTS = {"duration": 60.0, "hard_iron_ut": 30.0, "soft_iron": 0.15, "misalignment_deg": 3.0}
 # the dance: two sines per angle (yaw, pitch, roll), slow and wide; a few cm of hand motion
 ANG_AMP_RAD = np.array([[3.0, 1.0], [0.9, 0.45], [2.6, 0.8]])
@@ -91,7 +93,10 @@ def true_magnetometer(mag: Magnetometer, rng: np.random.Generator, hard_iron_ut:
     angle = math.radians(misalignment_deg) * rng.uniform(1.0 / 3.0, 1.0)
     T = mag.T_body_mag.copy()
     T[:3, :3] = geo.R_from_rotvec(axis * angle) @ T[:3, :3]
-    return replace(mag, T_body_mag=T), MagTruth(h, A)
+    offset = mag.time_offset_s
+    if offset is not None:  # a declared clock offset is the nominal one: the truth is within CLOCK_ERROR_S of it
+        offset = float(offset + rng.uniform(-CLOCK_ERROR_S, CLOCK_ERROR_S))
+    return replace(mag, T_body_mag=T, time_offset_s=offset), MagTruth(h, A)
 
 
 def mag_readings(motion: imu_model.Motion, mag: Magnetometer, truth: MagTruth, b_world: np.ndarray,
