@@ -43,10 +43,12 @@ def test_simulate_scene_mag_writes_the_contract_files(tmp_path):
 
 def test_calibrate_recovers_the_truth_within_its_sigmas(dance, tmp_path):
     d, sim = dance
-    out = tmp_path / "cal.yaml"
-    r = CliRunner().invoke(app, ["calibrate", str(d), "--out", str(out)])
+    out, page = tmp_path / "cal.yaml", tmp_path / "report.html"
+    r = CliRunner().invoke(app, ["calibrate", str(d), "--out", str(out), "--report", str(page)])
     assert r.exit_code == 0, r.stderr
     assert "magnetometers" in r.stdout and "carried through unchanged" in r.stderr
+    text = page.read_text()
+    assert "mag0: readings on the sphere" in text and "mag0: heading error over the recording" in text
     rig = load_rig(out)
     mag = rig.magnetometers[0]
     cal = mag.calibration
@@ -71,11 +73,12 @@ def test_calibrate_recovers_the_truth_within_its_sigmas(dance, tmp_path):
 def test_poor_coverage_is_refused_naming_the_missing_directions(tmp_path):
     d = tmp_path / "flat"
     mag_dataset(d, seed=2, duration=20.0, yaw_only=True)
-    out = tmp_path / "cal.yaml"
-    r = CliRunner().invoke(app, ["calibrate", str(d), "--out", str(out)])
+    out, page = tmp_path / "cal.yaml", tmp_path / "report.html"
+    r = CliRunner().invoke(app, ["calibrate", str(d), "--out", str(out), "--report", str(page)])
     assert r.exit_code == 1, (r.stdout, r.stderr)
     line = r.stderr.strip().splitlines()[-1]
-    assert "mag0.csv" in line and "axis" in line and ("+z" in line or "-z" in line) and not out.exists()
+    assert "mag0.csv" in line and "axis" in line and ("+z" in line or "-z" in line)
+    assert not out.exists() and not page.exists()
 
 
 def test_a_magnetic_disturbance_is_refused_saying_when(dance, tmp_path):

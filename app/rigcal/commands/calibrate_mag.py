@@ -15,7 +15,7 @@ from rigcal.core.io import atomic_write_texts
 from rigcal.core.rig import Rig, dump_rig, load_rig
 from rigcal.data.imu_csv import ImuSamples
 from rigcal.data.mag_csv import check_mag_dataset
-from rigcal.errors import DatasetError, InputError
+from rigcal.errors import DatasetError
 from rigcal.mag.step import calibrate_magnetometers, console_table
 
 
@@ -48,8 +48,7 @@ def run_mag_only(dataset: Path, out_path: Path, rig_path: Path | None, report_pa
 
     check_output_path(out_path)
     if report_path is not None:
-        raise InputError(f"--report: {report_path}: the HTML report is not made for a dataset of imu/ and mag/ "
-                         f"only; leave --report out")
+        check_output_path(report_path)
     rig = load_rig(dataset_rig_path(dataset, rig_path))
     if not rig.magnetometers:
         raise DatasetError(f"{Path(dataset) / 'mag'}: the rig declares no magnetometer (add `magnetometers:`)")
@@ -59,6 +58,15 @@ def run_mag_only(dataset: Path, out_path: Path, rig_path: Path | None, report_pa
         console.print(f"note: {n}")
     console.print(f"note: no images: {len(rig.cameras)} camera(s) carried through unchanged; the IMUs keep their "
                   f"declared poses; magnetometers calibrated against them")
-    out_rig, tables = with_magnetometers(rig, dataset, motion.imus, console, refuse=True)
-    atomic_write_texts([(out_path, dump_rig(out_rig))])
-    return Group(f"wrote {out_path}: {len(out_rig.magnetometers)} magnetometer(s) calibrated", *tables)
+    step = calibrate_magnetometers(rig, dataset, motion.imus, refuse=True)
+    for n in step.notes:
+        console.print(n if n.startswith("warning: ") else f"note: {n}")
+    files = [(out_path, dump_rig(step.rig))]
+    if report_path is not None:
+        from rigcal.results.report_mag import mag_report
+
+        files.append((report_path, mag_report(step.rig, rig, dict(step.results),
+                                              {k: v.m for k, v in step.inputs.items()})))
+    atomic_write_texts(files)
+    wrote = f"wrote {out_path}" + (f" and {report_path}" if report_path is not None else "")
+    return Group(f"{wrote}: {len(step.rig.magnetometers)} magnetometer(s) calibrated", console_table(step))

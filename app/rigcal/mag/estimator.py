@@ -93,6 +93,8 @@ class MagResult:
     R_imu_mag_start: np.ndarray
     seconds: float
     residuals_uT: np.ndarray = field(repr=False)  # (N, 3) raw-reading residuals at the solution
+    R_world_imu: np.ndarray | None = field(default=None, repr=False)  # (N, 3, 3) at each reading, estimated
+    t_mag: np.ndarray | None = field(default=None, repr=False)  # (N,) the readings' times, s (IMU clock)
     time_offset_s: float = 0.0  # the estimated correction to the declared offset (0 when not estimated)
     sigma_time_offset_s: float | None = None  # None when not estimated
 
@@ -411,6 +413,7 @@ def _result(p: _Problem, x: np.ndarray, fit: EllipsoidFit, c: np.ndarray, t0: fl
         sigma_inclination_deg=float(np.degrees(np.sqrt(C[12, 12]))), heading_sigma_deg=heading,
         sigma_basis=basis, gyro_bias=bg, accel_bias=ba, accel_residual_rms=p.sigma_a, windows=len(p.Rk0),
         start=fit, R_imu_mag_start=p.R0, seconds=time.perf_counter() - t0, residuals_uT=rm,
+        R_world_imu=_field_imu(p, x, _unpack(p, x)[6], bg, incl)[3], t_mag=inp.t_mag,
         time_offset_s=float(x[OFFSET]), sigma_time_offset_s=offset_sigma)
 
 

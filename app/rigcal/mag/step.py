@@ -9,7 +9,8 @@ DISTURBANCE_SHARE of the field.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -38,6 +39,7 @@ class MagStep:
     rig: Rig
     results: Mapping[str, MagResult]
     notes: tuple[str, ...]
+    inputs: Mapping[str, MagInput] = field(default_factory=dict)  # what each estimate was given
 
 
 def mag_input(rig: Rig, mag: Magnetometer, samples: MagSamples, imu: ImuSamples, R_body_imu: np.ndarray) -> MagInput:
@@ -142,7 +144,7 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
         note = (f"the rig declares magnetometer(s) {', '.join(m.name for m in rig.magnetometers)} but the dataset "
                 f"has no mag/ folder: their blocks are carried through unchanged",) if rig.magnetometers else ()
         return MagStep(rig, {}, note)
-    results, mags, notes = {}, [], []
+    results, mags, notes, inputs = {}, [], [], {}
     for mag in rig.magnetometers:
         imu = rig.mag_imu(mag)
         inp = mag_input(rig, mag, samples[mag.name], imus[imu.name], imu.T_body_imu[:3, :3])
@@ -157,6 +159,7 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
             notes.append(f"warning: {mag.name}: not calibrated, carried through unchanged: {e}")
             continue
         results[mag.name] = r
+        inputs[mag.name] = inp
         T = mag.T_body_mag.copy()
         T[:3, :3] = r.R_body_mag
         mags.append(replace(mag, T_body_mag=T, calibration=calibration_block(r, mag)))
@@ -170,7 +173,7 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
             notes.append(f"{mag.name}: residual RMS {r.residual_rms_uT:.2f} uT is {r.residual_rms_uT / r.residual_rms_declared_uT:.1f}x "
                          f"what noise_density predicts ({r.residual_rms_declared_uT:.2f} uT): the declared noise is "
                          f"too low, or the field was disturbed")
-    return MagStep(replace(rig, magnetometers=tuple(mags)), results, tuple(notes))
+    return MagStep(replace(rig, magnetometers=tuple(mags)), results, tuple(notes), MappingProxyType(inputs))
 
 
 def console_table(step: MagStep) -> Table:
