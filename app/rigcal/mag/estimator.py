@@ -294,6 +294,7 @@ def _triad(f: np.ndarray, u: np.ndarray, b_w: np.ndarray) -> np.ndarray:
 
 
 def _window_means(w: Windows, v: np.ndarray, K: int) -> np.ndarray:
+    """(K, 3) per window the sum of vectors v (N, 3) carried into the window's first frame."""
     out = np.zeros((K, 3))
     np.add.at(out, w.window, np.einsum("nij,nj->ni", w.dR, v))
     return out
@@ -315,7 +316,9 @@ def _autocorr_time(r: np.ndarray, max_lag: int = 400) -> float:
     return tau
 
 
-def _start(inp: MagInput, window_s: float):
+def _start(inp: MagInput) -> tuple[EllipsoidFit, np.ndarray, np.ndarray]:
+    """The closed-form start: the ellipsoid fit (refusing poor coverage), the readings it
+    calibrates (N, 3, chip axes) and R_imu_mag from the rotation-rate alignment."""
     fit = fit_ellipsoid(inp.m, inp.earth_field_uT, inp.label)
     check_coverage(inp.m, fit, inp.label)
     c = (inp.m - fit.hard_iron) @ fit.soft_iron.T
@@ -338,7 +341,7 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S, solve=None) -> MagResult
     the tests pass scipy's least_squares, the slow reference)."""
     t0 = time.perf_counter()
     solve = _gauss_newton if solve is None else solve
-    fit, c, R_im = _start(inp, window_s)
+    fit, c, R_im = _start(inp)
     step = max(1, int(round(len(inp.t_imu) / (inp.t_imu[-1] - inp.t_imu[0]) / 50.0)))  # accel rows at ~50 Hz
     ia = np.arange(0, len(inp.t_imu), step)
     ia = ia[(inp.t_imu[ia] >= inp.t_imu[0]) & (inp.t_imu[ia] < inp.t_imu[-1])]
