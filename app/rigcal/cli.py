@@ -361,7 +361,14 @@ def ingest(
     copy: bool = typer.Option(False, help="copy image files instead of linking them (EuRoC)"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
 ):
-    """Turn a recording (EuRoC folder, ROS bag, videos) into a dataset folder."""
+    """Turn a recording (EuRoC folder, ROS bag, videos, ArduPilot .bin log) into a dataset folder."""
+    from rigcal.mag.flightlog import is_flight_log
+
+    if is_flight_log(source):  # ArduPilot DataFlash: imu/ + mag/ for the magnetometer calibration (--rig)
+        from rigcal.mag.flightlog import run as ingest_log
+
+        out(ingest_log(source, out_dir, rig, force=force))
+        return
     from rigcal.data import ingest as ing
 
     out(ing.run(source, out_dir, rig_path=rig, target_path=target, cameras=camera, imus=imu, rate=rate, start=start,
