@@ -119,8 +119,8 @@ def run(source: str | Path, out_dir: str | Path, rig_path: str | Path | None, fo
     """Write DATASET (rig.yaml from --rig, imu/<first IMU>.csv, mag/<first magnetometer>.csv)."""
     source = Path(source)
     if rig_path is None:
-        raise InputError(f"--rig: a flight log has no cameras or mounts to build a rig from; give a rig YAML "
-                         f"with an IMU (axes [F, -L, -U]: ArduPilot logs forward-right-down) and a magnetometer")
+        raise InputError("--rig: a flight log has no cameras or mounts to build a rig from; give a rig YAML "
+                         "with an IMU (axes [F, -L, -U]: ArduPilot logs forward-right-down) and a magnetometer")
     rig = load_rig(rig_path)
     if not rig.imus or not rig.magnetometers:
         raise InputError(f"{rig_path}: a flight log fills the rig's first IMU and first magnetometer; declare both")
