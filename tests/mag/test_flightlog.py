@@ -84,3 +84,50 @@ def test_truncated_log_and_log_without_mag_are_refused(log, tmp_path):
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and expected in lines[0] and str(bad) in lines[0], r.stderr
         assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def ulog(tmp_path_factory, log):
+    from tests.support.ulog import write_ulog
+
+    _, rig, sim, mag = log
+    imu = read_imu_csv(sim.out_dir / "imu" / "imu0.csv")
+    t0 = int(imu.t_ns[0])
+    combined = [((t - t0) // 1000, *(FRD @ g), 5000, 0, *(FRD @ a)) for t, g, a in zip(imu.t_ns, imu.gyro, imu.accel)]
+    mags = [((t - t0) // 1000 + 300, (t - t0) // 1000, 7, *(m / 100.0), 25.0) for t, m in zip(mag.t_ns, mag.m_uT)]
+    path = tmp_path_factory.mktemp("ulog") / "flight.ulg"
+    write_ulog(path, {"sensor_combined": combined, "sensor_mag": mags}, {"CAL_MAG0_ROT": 0.0})
+    return path, rig, sim, mag
+
+
+def test_px4_ulog_is_read_as_logged_and_calibrates(ulog, tmp_path):
+    path, rig, sim, mag = ulog
+    out = tmp_path / "ds"
+    r = CliRunner().invoke(app, ["ingest", str(path), "--out", str(out), "--rig", str(rig)])
+    assert r.exit_code == 0, r.stderr
+    got = read_mag_csv(out / "mag" / "mag0.csv")
+    np.testing.assert_array_equal(got.t_ns, (mag.t_ns - mag.t_ns[0]) // 1000 * 1000)  # timestamp_sample, us
+    assert np.abs(got.m_uT - mag.m_uT).max() < 1e-4  # float32 gauss
+    cal_out = tmp_path / "cal.yaml"
+    r = CliRunner().invoke(app, ["calibrate", str(out), "--out", str(cal_out)])
+    assert r.exit_code == 0, r.stderr
+    m = load_rig(cal_out).magnetometers[0]
+    assert np.abs(np.array(m.calibration["hard_iron_uT"]) - sim.mags["mag0"].hard_iron).max() < 0.2
+
+
+def test_truncated_ulog_and_ulog_without_sensor_mag_are_refused(ulog, tmp_path):
+    from tests.support.ulog import write_ulog
+
+    path, rig, _, _ = ulog
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(path.read_bytes()[:-5])
+    nomag = tmp_path / "nomag.ulg"
+    write_ulog(nomag, {"sensor_combined": [(i * 5000, 0, 0, 0, 5000, 0, 0, 0, -9.8) for i in range(10)]})
+    for bad, expected in ((cut, "truncated"), (nomag, "no sensor_mag messages (instance 0); the log has: "
+                                                      "sensor_combined")):
+        out = tmp_path / f"out-{bad.stem}"
+        r = CliRunner().invoke(app, ["ingest", str(bad), "--out", str(out), "--rig", str(rig)])
+        assert r.exit_code == 2, (bad, r.stdout, r.stderr)
+        lines = r.stderr.strip().splitlines()
+        assert len(lines) == 1 and expected in lines[0] and str(bad) in lines[0], r.stderr
+        assert not out.exists()

@@ -1,5 +1,10 @@
-"""`rigcal ingest LOG.bin`: an ArduPilot DataFlash log (pymavlink's reader) -> a dataset of
-imu/ and mag/ for the magnetometer calibration.
+"""`rigcal ingest LOG.bin | LOG.ulg`: an ArduPilot DataFlash log (pymavlink's reader) or a PX4
+ULog (pyulog's) -> a dataset of imu/ and mag/ for the magnetometer calibration.
+
+PX4 logs `sensor_mag` uncalibrated (gauss, the sensor's axes; its calibration is applied
+downstream, in vehicle_magnetometer), so the readings are taken as they are; the IMU is
+`sensor_combined` (gyro_rad, accelerometer_m_s2: calibrated, forward-right-down), stamped
+with its `timestamp` (microseconds).
 
 ArduPilot logs the IMU (message IMU: TimeUS, GyrX..Z rad/s, AccX..Z m/s^2) in the vehicle's
 forward-right-down axes, and the magnetometer (MAG: MagX..Z, OfsX..Z, MOX..Z, milligauss) with
@@ -29,7 +34,9 @@ from rigcal.errors import InputError
 from rigcal.mag.autopilot import CUSTOM_ENUMS, ROTATION_ENUM, R_from_euler_deg
 
 UT_PER_MILLIGAUSS = 0.1
-LOG_SUFFIXES = (".bin",)
+UT_PER_GAUSS = 100.0
+LOG_SUFFIXES = (".bin", ".ulg")
+ULOG_MAGIC = b"ULog\x01\x12\x35"
 
 
 @dataclass(frozen=True)
@@ -115,6 +122,65 @@ def raw_readings_uT(log: DataflashLog, path: Path) -> np.ndarray:
     return rotated @ R * UT_PER_MILLIGAUSS  # R.T @ v per row
 
 
+@dataclass(frozen=True)
+class Samples:
+    """What a log gives the dataset: IMU and magnetometer stamps (us), gyro, accel, raw m (uT)."""
+
+    imu_t_us: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    mag_t_us: np.ndarray
+    m_uT: np.ndarray
+    summary: str
+
+
+def check_ulog_framing(path: Path) -> None:
+    """InputError unless `path` is a ULog whose last message is whole (pyulog stops quietly at
+    a cut message): the 16-byte header, then messages of (uint16 size, uint8 type, payload)."""
+    data = path.read_bytes()
+    if data[:7] != ULOG_MAGIC:
+        raise InputError(f"{path}: not a ULog file (no ULog header)")
+    pos = 16
+    while pos + 3 <= len(data):
+        size = int.from_bytes(data[pos:pos + 2], "little")
+        if pos + 3 + size > len(data):
+            break
+        pos += 3 + size
+    if pos != len(data):
+        raise InputError(f"{path}: truncated: the message at byte {pos} needs more than the {len(data) - pos} "
+                         f"bytes left")
+
+
+def read_ulog(path: Path) -> Samples:
+    """sensor_combined and sensor_mag (instance 0) of a PX4 ULog; InputError naming the topics
+    the log has when one is missing."""
+    from pyulog import ULog
+
+    check_ulog_framing(path)
+    try:
+        ulog = ULog(str(path), ["sensor_combined", "sensor_mag"])
+    except Exception as e:  # pyulog raises its own and plain errors on malformed files
+        raise InputError(f"{path}: not a readable ULog ({e.__class__.__name__}: {e})") from None
+    got = {d.name: d for d in ulog.data_list if d.multi_id == 0}
+    for topic in ("sensor_combined", "sensor_mag"):
+        if topic not in got or len(got[topic].data["timestamp"]) < 2:
+            have = ", ".join(sorted({d.name for d in ULog(str(path)).data_list})) or "none"
+            raise InputError(f"{path}: no {topic} messages (instance 0); the log has: {have}")
+    imu, mag = got["sensor_combined"].data, got["sensor_mag"].data
+    vec = lambda d, k: np.column_stack([d[f"{k}[{i}]"] for i in range(3)]).astype(float)  # noqa: E731
+    t_mag = mag["timestamp_sample"] if "timestamp_sample" in mag else mag["timestamp"]
+    m = np.column_stack([mag[a] for a in "xyz"]).astype(float) * UT_PER_GAUSS
+    return Samples(imu["timestamp"].astype(np.int64), vec(imu, "gyro_rad"), vec(imu, "accelerometer_m_s2"),
+                   np.asarray(t_mag, np.int64), m, "a PX4 ULog (sensor_mag read as logged: uncalibrated)")
+
+
+def _dataflash_samples(path: Path) -> Samples:
+    log = read_dataflash(path)
+    return Samples(log.imu_t_us, log.gyro, log.accel, log.mag_t_us, raw_readings_uT(log, path),
+                   f"an ArduPilot DataFlash log (its compass calibration, COMPASS_ORIENT "
+                   f"{int(log.params.get('COMPASS_ORIENT', 0))}, offsets and soft iron, undone)")
+
+
 def run(source: str | Path, out_dir: str | Path, rig_path: str | Path | None, force: bool = False) -> str:
     """Write DATASET (rig.yaml from --rig, imu/<first IMU>.csv, mag/<first magnetometer>.csv)."""
     source = Path(source)
@@ -124,16 +190,14 @@ def run(source: str | Path, out_dir: str | Path, rig_path: str | Path | None, fo
     rig = load_rig(rig_path)
     if not rig.imus or not rig.magnetometers:
         raise InputError(f"{rig_path}: a flight log fills the rig's first IMU and first magnetometer; declare both")
-    log = read_dataflash(source)
-    m = raw_readings_uT(log, source)
+    log = read_ulog(source) if source.suffix.lower() == ".ulg" else _dataflash_samples(source)
     imu, mag = rig.imus[0].name, rig.magnetometers[0].name
     with atomic_dir(Path(out_dir), force=force) as tmp:
         (tmp / "rig.yaml").write_text(Path(rig_path).read_text(encoding="utf-8"), encoding="utf-8")
         (tmp / "imu").mkdir()
         (tmp / "mag").mkdir()
         (tmp / "imu" / f"{imu}.csv").write_text(imu_csv(log.imu_t_us * 1000, log.gyro, log.accel), encoding="utf-8")
-        (tmp / "mag" / f"{mag}.csv").write_text(mag_csv(log.mag_t_us * 1000, m), encoding="utf-8")
+        (tmp / "mag" / f"{mag}.csv").write_text(mag_csv(log.mag_t_us * 1000, log.m_uT), encoding="utf-8")
     span = (log.imu_t_us[-1] - log.imu_t_us[0]) * 1e-6
-    return (f"wrote {out_dir} from an ArduPilot DataFlash log: {len(log.imu_t_us)} IMU and {len(log.mag_t_us)} MAG "
-            f"samples over {span:.1f} s; the compass calibration in the log (COMPASS_ORIENT "
-            f"{int(log.params.get('COMPASS_ORIENT', 0))}, offsets, soft iron) undone")
+    return (f"wrote {out_dir} from {log.summary}: {len(log.imu_t_us)} IMU and {len(log.mag_t_us)} magnetometer "
+            f"samples over {span:.1f} s")
