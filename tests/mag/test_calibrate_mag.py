@@ -211,3 +211,20 @@ def test_a_declared_clock_offset_is_estimated(tmp_path):
     assert abs(err) < 4 * cal["sigma"]["time_offset_s"] and cal["sigma"]["time_offset_s"] < 0.001
     assert list(cal)[:6] == ["hard_iron_uT", "soft_iron", "field_uT", "inclination_deg", "time_offset_s",
                              "residual_rms_uT"]
+
+
+def test_the_fast_reader_and_the_row_reader_agree(dance):
+    """read_mag_csv's numpy path gives what the row-by-row checker gives, and leaves every
+    file it should refuse (or is unsure of) to the checker."""
+    from rigcal.data import mag_csv
+
+    d, _ = dance
+    f = d / "mag" / "mag0.csv"
+    fast = mag_csv.read_mag_csv(f)
+    slow = mag_csv._read_rows(f, f.read_text())
+    np.testing.assert_array_equal(fast.t_ns, slow.t_ns)
+    np.testing.assert_array_equal(fast.m_uT, slow.m_uT)
+    good = [f"{17 + i},1,2,3" for i in range(12)]
+    for bad in ("+16,1,2,3", "16,nan,2,3", "16,1,2", "16,1,2,3,4", "1.6e1,1,2,3", "99,1,2,3"):
+        assert mag_csv._read_fast("#h\n" + "\n".join([bad] + good)) is None, bad
+    assert mag_csv._read_fast("#h\n" + "\n".join(["16,-1,2,3"] + good)) is not None
