@@ -24,6 +24,8 @@ Sections (each also runs alone: python -m bench.<name>):
   imu_coverage `rigcal calibrate` end to end on 20 rendered 4 s IMU recordings: every reported camera-IMU
                and intrinsic parameter's error / its 1-sigma (issue 18: 90-98 % within 2 sigma)
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
+  mag          magnetometer vs truth on 20 simulated 60 s compass dances (hard/soft iron, R_body_mag,
+               inclination, share within 2 sigma) and the heading error beside an ellipsoid fit alone
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
   imu_noise    `rigcal imu-noise` on simulated static recordings (seeds x 3 h at 200 Hz) vs truth, interval
@@ -57,8 +59,8 @@ from types import ModuleType
 from typing import Any, Callable
 
 from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_coverage, imu_euroc, imu_noise, imu_speed, indie,
-               indie_noise, ingest, intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale,
-               simulate_imu, solver_libraries, speed)
+               indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo, noise_limit, peer_opencv, real,
+               scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -106,6 +108,7 @@ TABLE = (
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),
+    Section("mag", "mag", lambda q, d: mag.run(seeds=3 if q else 20, duration=30.0 if q else 60.0), _only(mag)),
     Section("aprilgrid", "aprilgrid_excess", lambda q, d: aprilgrid_excess.run(frames=1 if q else 3),
             _only(aprilgrid_excess)),
     Section("imu_noise", "imu_noise", lambda q, d: imu_noise.run(seeds=3 if q else 10, hours=1.0 if q else 3.0,

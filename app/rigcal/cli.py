@@ -78,6 +78,7 @@ class Scene(str, Enum):
     board = "board"
     imu = "imu"
     static = "static"
+    mag = "mag"
 
 
 class Distortion(str, Enum):
@@ -152,7 +153,7 @@ class ImportFormat(str, Enum):
 def simulate(
     rig: Path = typer.Argument(..., help="rig YAML (every camera needs a pose)"),
     out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md)"),
-    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md); static: the rig's IMUs at rest (imu-noise). Default: room when some camera shares no view with the others"),
+    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md); static: the rig's IMUs at rest (imu-noise); mag: the rig turned through every orientation, IMU and magnetometer streams, no images (magnetometer.md). Default: room when some camera shares no view with the others"),
     frames: Optional[int] = typer.Option(None, help="number of frames (default 60 room, 40 board)"),
     seed: int = typer.Option(0, help="random seed; the same seed writes byte-identical images"),
     noise: float = typer.Option(2.0, help="Gaussian image noise, grey levels (sigma)"),
@@ -163,7 +164,7 @@ def simulate(
     target: Optional[Path] = typer.Option(None, help="target YAML to use instead of one generated from the rig"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
     jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
-    duration: Optional[float] = typer.Option(None, help="--scene imu: seconds of motion (default 30); --scene static: seconds at rest (default 10800)"),
+    duration: Optional[float] = typer.Option(None, help="--scene imu / mag: seconds of motion (default 30 / 60); --scene static: seconds at rest (default 10800)"),
     camera_rate: Optional[float] = typer.Option(None, help="--scene imu: images per second per camera (default 20)"),
     exposure: Optional[float] = typer.Option(None, help="--scene imu: exposure in seconds, gives motion blur (default 0.005)"),
     time_offset_ms: Optional[float] = typer.Option(None, help="--scene imu: true camera clock offsets are uniform in +-this (default 10)"),
@@ -181,6 +182,16 @@ def simulate(
                 raise InputError(f"{flag}: not used with --scene static (its options: --duration, --seed, --force)")
         out(static_imu.simulate_static(rig, out_dir, static_imu.DEFAULT_DURATION_S if duration is None else duration,
                                        seed=seed, force=force))
+        return
+    if scene is Scene.mag:  # the compass dance: IMU and magnetometer streams, no images (magnetometer.md)
+        from rigcal.sim import mag_scene
+
+        unused = {"--frames": frames is not None, "--blur": blur != 0.0, "--target": target is not None,
+                  **{f: v is not None for f, v in motion_flags.items() if f != "--duration"}}
+        for flag, given in unused.items():
+            if given:
+                raise InputError(f"{flag}: not used with --scene mag (no images; --duration and --seed apply)")
+        out(mag_scene.run(rig_path=rig, out_dir=out_dir, duration=duration, seed=seed, force=force))
         return
     if scene is Scene.imu:
         from rigcal.sim import imu_scene as simulate_imu
@@ -374,7 +385,14 @@ def ingest(
     copy: bool = typer.Option(False, help="copy image files instead of linking them (EuRoC)"),
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
 ):
-    """Turn a recording (EuRoC folder, ROS bag, videos) into a dataset folder."""
+    """Turn a recording (EuRoC folder, ROS bag, videos, ArduPilot .bin log) into a dataset folder."""
+    from rigcal.mag.flightlog import is_flight_log
+
+    if is_flight_log(source):  # ArduPilot DataFlash: imu/ + mag/ for the magnetometer calibration (--rig)
+        from rigcal.mag.flightlog import run as ingest_log
+
+        out(ingest_log(source, out_dir, rig, force=force))
+        return
     from rigcal.data import ingest as ing
 
     out(ing.run(source, out_dir, rig_path=rig, target_path=target, cameras=camera, imus=imu, rate=rate, start=start,

@@ -93,6 +93,11 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     the console summary."""
     t0 = time.perf_counter()
     dataset = Path(dataset)
+    from rigcal.commands import calibrate_mag
+
+    if calibrate_mag.mag_only_dataset(dataset):  # imu/ + mag/, no images: magnetometers only
+        _check_arguments(dataset, out_path, report_path, jobs)
+        return calibrate_mag.run_mag_only(dataset, out_path, rig_path, report_path, _err(), check_output_path)
     from rigcal.imucal.step import Options
 
     if fix_intrinsics:  # the declared intrinsics stay in the camera-IMU estimate too
@@ -125,6 +130,7 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
 
         imu_res, out_rig = calibrate_with_imu(cal, out_rig, inp.motion, imu_name, reference, inp.target,
                                               imu_options or {})
+    out_rig, mag_tables = calibrate_mag.with_magnetometers(out_rig, dataset, inp.motion.imus, console)
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
     _write_outputs(out_path, report_path, out_rig, cal, found.det, pairs, timings,
                    imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]))
@@ -135,10 +141,10 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
         console.print(f"note: {n}")
     summary = console_summary(cal, out_rig, found.det, timings, out_path, report_path)
     if imu_res is None:
-        return summary
+        return Group(summary, *mag_tables) if mag_tables else summary
     from rigcal.results.imu_outputs import console_tables
 
-    return Group(summary, *console_tables(out_rig, imu_res))
+    return Group(summary, *console_tables(out_rig, imu_res), *mag_tables)
 
 
 @dataclass(frozen=True)

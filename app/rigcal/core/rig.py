@@ -22,7 +22,7 @@ from rigcal.core.validate import (check_finite_tree, describe, finite_number, nu
                                   read_text, refuse_unknown_keys, shorten)
 
 NAME_RE = re.compile(r"^[a-z0-9_]+$")
-TOP_KEYS = ("rig", "body_frame", "imus", "cameras", "stereo_pairs", "calibration")
+TOP_KEYS = ("rig", "body_frame", "imus", "magnetometers", "cameras", "stereo_pairs", "calibration")
 CAMERA_KEYS = ("model", "resolution", "intrinsics", "distortion", "position", "look", "axes", "rotation",
                "quaternion", "time_offset_s", "line_delay_s", "calibration")
 # imu.md: Kalibr's imu.yaml names and units; every one is required and positive
@@ -30,6 +30,10 @@ IMU_NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk", "accelerom
                   "accelerometer_random_walk")
 IMU_KEYS = ("position", "axes", "rotation", "quaternion", "update_rate") + IMU_NOISE_KEYS + ("calibration",)
 MIN_IMU_RATE_HZ = 1.0
+# magnetometer.md: the pose keys (position optional), the noise figure, its IMU, clock and site field
+MAG_KEYS = ("position", "axes", "rotation", "quaternion", "update_rate", "noise_density", "imu", "time_offset_s",
+            "earth_field_uT", "calibration")
+MAX_EARTH_FIELD_UT = 100.0  # the Earth's field is 22-67 uT everywhere; more is a unit error (gauss, nT)
 MAX_TIME_OFFSET_S = 10.0  # a larger clock offset is a wrong unit (ms, ns) rather than a real offset
 MAX_FRAME_READOUT_S = 1.0  # line_delay_s times the image height
 ORIENTATION_KEYS = ("look", "axes", "rotation", "quaternion")
@@ -101,6 +105,36 @@ class Imu:
                 self.accelerometer_random_walk)
 
 
+@dataclass(frozen=True, eq=False)
+class Magnetometer:
+    """One magnetometer (magnetometer.md): its pose T_body_mag (4x4; its axes are the
+    measurement axes; the position is not estimated), nominal rate (Hz), noise density
+    (uT/sqrt(Hz)), the IMU it is calibrated against (None: the rig's first), its clock
+    offset (t_imu = t_mag + time_offset_s; None when not declared) and the site's field
+    magnitude (uT; None: unknown, the soft iron is then normalised to determinant 1)."""
+
+    name: str
+    T_body_mag: np.ndarray
+    update_rate: float
+    noise_density: float
+    imu: str | None = None
+    time_offset_s: float | None = None
+    earth_field_uT: float | None = None
+    calibration: Mapping[str, Any] | None = None
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Magnetometer):
+            return NotImplemented
+        keys = lambda m: (m.name, m.update_rate, m.noise_density, m.imu, m.time_offset_s,  # noqa: E731
+                          m.earth_field_uT, m.calibration)
+        return keys(self) == keys(other) and _same_pose(self.T_body_mag, other.T_body_mag)
+
+    @property
+    def sample_sigma_uT(self) -> float:
+        """The per-sample 1-sigma of one axis: noise_density * sqrt(update_rate)."""
+        return self.noise_density * float(np.sqrt(self.update_rate))
+
+
 @dataclass(frozen=True)
 class Projection:
     """Points in one camera: p_cam (N, 3); uv (N, 2), NaN where not valid;
@@ -143,12 +177,24 @@ class Rig:
     calibration: Mapping[str, Any] | None = None
     body_frame: str = "FLU"
     imus: tuple[Imu, ...] = ()
+    magnetometers: tuple[Magnetometer, ...] = ()
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Rig):
             return NotImplemented
-        return (self.name, self.cameras, self.stereo_pairs, self.calibration, self.body_frame, self.imus) == (
-            other.name, other.cameras, other.stereo_pairs, other.calibration, other.body_frame, other.imus)
+        return (self.name, self.cameras, self.stereo_pairs, self.calibration, self.body_frame, self.imus,
+                self.magnetometers) == (other.name, other.cameras, other.stereo_pairs, other.calibration,
+                                        other.body_frame, other.imus, other.magnetometers)
+
+    def magnetometer(self, name: str) -> Magnetometer:
+        for m in self.magnetometers:
+            if m.name == name:
+                return m
+        raise KeyError(name)
+
+    def mag_imu(self, mag: Magnetometer) -> Imu:
+        """The IMU `mag` is calibrated against: its declared `imu`, else the rig's first."""
+        return self.imu(mag.imu) if mag.imu is not None else self.imus[0]
 
     def imu(self, name: str) -> Imu:
         for i in self.imus:
@@ -375,11 +421,70 @@ def rig_from_dict(doc: Any, label: str = "<rig>") -> Rig:
         cameras.append(_camera_from_dict(cname, cdoc, f"cameras.{cname}", err))
     pairs = _pairs_from_doc(doc.get("stereo_pairs"), {c.name: c for c in cameras}, err)
     imus = _imus_from_doc(doc.get("imus"), {c.name for c in cameras}, err) if "imus" in doc else ()
+    mags = (_mags_from_doc(doc.get("magnetometers"), {c.name for c in cameras}, imus, err)
+            if "magnetometers" in doc else ())
     calib = doc.get("calibration")
     if calib is not None and not isinstance(calib, dict):
         raise err("calibration", f"expected a mapping, got {describe(calib)}")
     check_finite_tree(calib, "calibration", err)
-    return Rig(name=str(name), cameras=tuple(cameras), stereo_pairs=pairs, calibration=calib, imus=imus)
+    return Rig(name=str(name), cameras=tuple(cameras), stereo_pairs=pairs, calibration=calib, imus=imus,
+               magnetometers=mags)
+
+
+def _mags_from_doc(v: Any, camera_names: set[str], imus: tuple[Imu, ...], err) -> tuple[Magnetometer, ...]:
+    if not isinstance(v, dict) or not v:
+        raise err("magnetometers", f"expected a non-empty mapping of magnetometer name -> magnetometer, "
+                                   f"got {describe(v)}")
+    imu_names = [i.name for i in imus]
+    out = []
+    for name, d in v.items():
+        key = f"magnetometers.{name}"
+        if not isinstance(name, str) or not NAME_RE.match(name):
+            raise err(key, f"magnetometer names must match [a-z0-9_]+, got {describe(name)}")
+        if name in camera_names or name in imu_names:
+            what = "a camera's" if name in camera_names else "an IMU's"
+            raise err(key, f"the name {name!r} is also {what}; sensor names must be unique")
+        out.append(_mag_from_dict(name, d, key, imu_names, err))
+    return tuple(out)
+
+
+def _mag_from_dict(name: str, d: Any, key: str, imu_names: list[str], err) -> Magnetometer:
+    if not isinstance(d, dict):
+        raise err(key, f"expected a mapping, got {describe(d)}")
+    if "look" in d:
+        raise err(f"{key}.look", "a magnetometer has no viewing direction; give its axes, rotation or quaternion")
+    refuse_unknown_keys(d, MAG_KEYS, key, err)
+    if not any(k in d for k in ORIENTATION_KEYS):
+        raise err(key, "missing orientation (expected one of axes, rotation, quaternion: R_body_mag)")
+    T = _pose({"position": [0.0, 0.0, 0.0], **d}, key, err)
+    if "update_rate" not in d:
+        raise err(f"{key}.update_rate", "missing (expected the nominal sample rate in Hz)")
+    rate = finite_number(d["update_rate"], f"{key}.update_rate", err)
+    if rate < MIN_IMU_RATE_HZ:
+        raise err(f"{key}.update_rate", f"expected at least {MIN_IMU_RATE_HZ:g} Hz, got {d['update_rate']!r}")
+    if "noise_density" not in d:
+        raise err(f"{key}.noise_density", "missing (expected microtesla / sqrt(Hz))")
+    noise = positive_number(d["noise_density"], f"{key}.noise_density", err)
+    imu = d.get("imu")
+    if not imu_names:
+        raise err(key, "a magnetometer is calibrated against an IMU; declare one under `imus:`")
+    if imu is not None and imu not in imu_names:
+        raise err(f"{key}.imu", f"expected one of the rig's IMUs ({', '.join(imu_names)}), got {describe(imu)}")
+    offset = field = None
+    if "time_offset_s" in d:
+        offset = finite_number(d["time_offset_s"], f"{key}.time_offset_s", err)
+        if abs(offset) > MAX_TIME_OFFSET_S:
+            raise err(f"{key}.time_offset_s", f"expected seconds within +-{MAX_TIME_OFFSET_S:g}, got {offset!r}")
+    if "earth_field_uT" in d:
+        field = positive_number(d["earth_field_uT"], f"{key}.earth_field_uT", err)
+        if field > MAX_EARTH_FIELD_UT:
+            raise err(f"{key}.earth_field_uT", f"expected microtesla (the Earth's field is 22-67 uT), got {field!r}")
+    calib = d.get("calibration")
+    if calib is not None and not isinstance(calib, dict):
+        raise err(f"{key}.calibration", f"expected a mapping, got {describe(calib)}")
+    check_finite_tree(calib, f"{key}.calibration", err)
+    return Magnetometer(name, T, rate, noise, imu=imu, time_offset_s=offset, earth_field_uT=field,
+                        calibration=calib)
 
 
 def _imus_from_doc(v: Any, camera_names: set[str], err) -> tuple[Imu, ...]:
@@ -600,6 +705,20 @@ def _imu_to_dict(imu: Imu) -> dict[str, Any]:
     return d
 
 
+def _mag_to_dict(mag: Magnetometer) -> dict[str, Any]:
+    d: dict[str, Any] = {**_pose_keys(mag.T_body_mag), "update_rate": float(mag.update_rate),
+                         "noise_density": float(mag.noise_density)}
+    if mag.imu is not None:
+        d["imu"] = mag.imu
+    if mag.time_offset_s is not None:
+        d["time_offset_s"] = float(mag.time_offset_s)
+    if mag.earth_field_uT is not None:
+        d["earth_field_uT"] = float(mag.earth_field_uT)
+    if mag.calibration is not None:
+        d["calibration"] = _plain(mag.calibration)
+    return d
+
+
 def rig_to_dict(rig: Rig) -> dict:
     """The calibrated-file form: every posed camera and every IMU gets `rotation` and
     `quaternion`; `imus`, `time_offset_s` and `line_delay_s` only when the rig has them."""
@@ -624,6 +743,8 @@ def rig_to_dict(rig: Rig) -> dict:
     out: dict[str, Any] = {"rig": rig.name, "body_frame": rig.body_frame}
     if rig.imus:
         out["imus"] = {i.name: _imu_to_dict(i) for i in rig.imus}
+    if rig.magnetometers:
+        out["magnetometers"] = {m.name: _mag_to_dict(m) for m in rig.magnetometers}
     out["cameras"] = cams
     if rig.stereo_pairs:
         pairs = []

@@ -29,6 +29,7 @@ def rig_extent(rig: Rig) -> float:
     """Distance of the farthest posed camera from the body origin (m); 0.1 when none is away from it."""
     d = [float(np.linalg.norm(c.T_body_cam[:3, 3])) for c in rig.cameras if c.has_pose]
     d += [float(np.linalg.norm(i.T_body_imu[:3, 3])) for i in rig.imus]
+    d += [float(np.linalg.norm(m.T_body_mag[:3, 3])) for m in rig.magnetometers]
     return max(d) if d and max(d) > 1e-6 else 0.1
 
 
@@ -133,6 +134,8 @@ def rig_figure(rig: Rig) -> go.Figure:
             fig.add_traces(camera_traces(cam, 0.4 * extent))
     for imu in rig.imus:
         fig.add_traces(imu_traces(imu, 0.3 * extent))
+    for mag in rig.magnetometers:  # dashed: a magnetometer's measurement axes (magnetometer.md)
+        fig.add_traces(axes_traces(mag.T_body_mag, mag.name, 0.25 * extent, "x", 7, dash="dash"))
     unit = {"showbackground": False, "zeroline": False}
     fig.update_layout(
         title=f"rig {rig.name}: camera frames in the body frame (FLU; camera x red, y green, z blue"
@@ -156,6 +159,7 @@ def run(rig_path: str | Path, out_path: str | Path) -> str:
     atomic_write_text(out_path, html)
     drawn = [c.name for c in rig.cameras if c.has_pose]
     lines = [f"wrote {out_path}: body axes F, L, U and {len(drawn)} camera(s): {', '.join(drawn) or 'none'}"
-             + (f"; IMU(s): {', '.join(i.name for i in rig.imus)}" if rig.imus else "")]
+             + (f"; IMU(s): {', '.join(i.name for i in rig.imus)}" if rig.imus else "")
+             + (f"; magnetometer(s): {', '.join(m.name for m in rig.magnetometers)}" if rig.magnetometers else "")]
     lines += [f"{c.name}: no pose in the rig file; not drawn" for c in rig.cameras if not c.has_pose]
     return "\n".join(lines)

@@ -361,6 +361,10 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
                                preload="rigcal.sim.imu_scene")
         _write_files(tmp, rig, truth, target, T_world_board, traj, streams, timing, settings, exposure, rig_text,
                      target_text, perturbation)
+        if truth.magnetometers:  # magnetometer.md: mag/ along the same motion, its truth in truth.yaml
+            from rigcal.sim.mag_scene import add_magnetometers
+
+            add_magnetometers(tmp, truth, traj, seed, t_end)
     return MotionSimResult(out_dir, rig, truth, target, T_world_board, traj, timing, streams, paths, cover,
                            imu_model.excitation(traj.at(np.arange(0.0, t_end, 0.005))), time.perf_counter() - t0, cpu)
 
