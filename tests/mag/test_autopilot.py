@@ -92,3 +92,45 @@ def test_ardupilot_correction_gives_the_calibrated_field(off_deg):
     np.testing.assert_allclose(corrected, b_frd * 10.0, atol=1e-9)
     if off_deg:  # PX4 has only the enum: the 2 degrees remain
         assert px4_rotation_residual_deg(rig)["mag0"] == pytest.approx(2.0, abs=1e-6)
+
+
+def _rig_text(calibrated: bool) -> str:
+    cal = f", calibration: {{hard_iron_uT: {H.tolist()}, soft_iron: {A.tolist()}}}" if calibrated else ""
+    return f"""rig: t
+imus:
+  imu0: {{position: [0, 0, 0], axes: [F, L, U], update_rate: 200.0, gyroscope_noise_density: 1.0e-4,
+         gyroscope_random_walk: 1.0e-5, accelerometer_noise_density: 1.0e-3, accelerometer_random_walk: 1.0e-3}}
+magnetometers:
+  mag0: {{axes: [F, -L, -U], update_rate: 100.0, noise_density: 0.05{cal}}}
+cameras:
+  cam0: {{resolution: [640, 480], intrinsics: {{focal: 300.0}}, position: [0.1, 0.0, 0.0], look: forward}}
+"""
+
+
+@pytest.mark.parametrize("fmt, name, key", [("px4", "rigcal.params", "CAL_MAG0_XOFF"),
+                                            ("ardupilot", "rigcal.param", "COMPASS_OFS_X")])
+def test_autopilot_exports_carry_the_compass_parameters(tmp_path, fmt, name, key):
+    """`rigcal export --format px4|ardupilot` writes the calibrated compass's parameters beside
+    the vision sensor's (the values of px4_mag_params / ardupilot_mag_params); a declared
+    magnetometer without a calibration is refused: one line, exit 2, nothing written."""
+    from typer.testing import CliRunner
+
+    from rigcal.cli import app
+
+    (tmp_path / "cal.yaml").write_text(_rig_text(True))
+    out = tmp_path / "out"
+    r = CliRunner().invoke(app, ["export", str(tmp_path / "cal.yaml"), "--format", fmt, "--out", str(out)])
+    assert r.exit_code == 0, r.output
+    text = out.read_text()
+    expected = (px4_mag_params if fmt == "px4" else ardupilot_mag_params)(parse_rig(_rig_text(True)))
+    sep = "\t" if fmt == "px4" else ","
+    got = {f[-3 if fmt == "px4" else 0]: f[-2 if fmt == "px4" else 1]
+           for f in (ln.split(sep) for ln in text.splitlines() if ln and not ln.startswith("#"))}
+    assert float(got[key]) == pytest.approx(expected[key], rel=1e-9)
+    assert set(expected) <= set(got)
+
+    (tmp_path / "decl.yaml").write_text(_rig_text(False))
+    out2 = tmp_path / "out2"
+    r = CliRunner().invoke(app, ["export", str(tmp_path / "decl.yaml"), "--format", fmt, "--out", str(out2)])
+    assert r.exit_code == 2 and "magnetometers.mag0: no calibration" in r.output
+    assert len(r.output.strip().splitlines()) == 1 and not out2.exists()

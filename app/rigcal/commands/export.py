@@ -10,6 +10,7 @@ This module chains them.
 from __future__ import annotations
 
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from rigcal.errors import InputError, OutputError
@@ -17,6 +18,7 @@ from rigcal.exports.formats import (FORMATS, Export, json_text, kalibr_camchain,
                                     parse_camchain, rig_from_camchain, ros_files)
 from rigcal.exports.imu_formats import IMU_FORMATS, euroc_files, imucam_rig, kalibr_imu_files
 from rigcal.exports.autopilot import ardupilot_params, px4_params
+from rigcal.mag.autopilot import ardupilot_mag_params, px4_mag_params, px4_rotation_residual_deg
 from rigcal.exports.basalt import basalt_file
 from rigcal.exports.openvins import openvins_files
 from rigcal.exports.orbslam3 import orbslam3_file
@@ -32,6 +34,27 @@ CAMERA_FORMATS = ("vins", "orbslam3", "px4", "ardupilot")
 FILE_FORMATS = ("kalibr", "json", "orbslam3", "basalt", "px4", "ardupilot")  # --out is a file; the others a folder
 
 
+def _mag_params(rig: Rig, label: str, fmt: str) -> dict[str, float | int]:
+    """The autopilot's compass parameters (CAL_MAGn_* / COMPASS_*) of the rig's magnetometers;
+    a declared magnetometer without a calibration block is refused: its parameters would be
+    the autopilot's defaults, silently."""
+    for m in rig.magnetometers:
+        if not m.calibration or "hard_iron_uT" not in m.calibration:
+            raise InputError(f"{label}: magnetometers.{m.name}: no calibration; --format {fmt} writes the compass "
+                             f"parameters of calibrated magnetometers (run `rigcal calibrate` on a recording with mag/, "
+                             f"or export a rig without the magnetometer)")
+    return px4_mag_params(rig) if fmt == "px4" else ardupilot_mag_params(rig)
+
+
+def _with_mag_warnings(export: Export, rig: Rig) -> Export:
+    """PX4 holds a compass's orientation only as one of its rotation enums: what the fitted
+    orientation differs from that enum stays as heading error."""
+    extra = tuple(f"{name}: CAL_MAG ROT is the nearest PX4 rotation enum, {deg:.2f} deg from the calibrated "
+                  f"orientation: up to that much heading error remains (ArduPilot's export holds it exactly)"
+                  for name, deg in px4_rotation_residual_deg(rig).items() if deg > 0.05)
+    return replace(export, warnings=export.warnings + extra) if extra else export
+
+
 def build(rig: Rig, fmt: str, label: str = "<rig>", camera: str | None = None) -> Export:
     """Every file one export writes, without writing anything."""
     if camera is not None and fmt not in CAMERA_FORMATS:
@@ -39,7 +62,8 @@ def build(rig: Rig, fmt: str, label: str = "<rig>", camera: str | None = None) -
     if fmt in TARGET_FORMATS:
         builders = {"openvins": lambda: openvins_files(rig, label), "vins": lambda: vins_files(rig, label, camera),
                     "orbslam3": lambda: orbslam3_file(rig, label, camera), "basalt": lambda: basalt_file(rig, label),
-                    "px4": lambda: px4_params(rig, label, camera), "ardupilot": lambda: ardupilot_params(rig, label, camera)}
+                    "px4": lambda: _with_mag_warnings(px4_params(rig, label, camera, _mag_params(rig, label, "px4")), rig),
+                    "ardupilot": lambda: ardupilot_params(rig, label, camera, _mag_params(rig, label, "ardupilot"))}
         return builders[fmt]()
     if fmt == "kalibr":
         return kalibr_camchain(rig, label)

@@ -26,6 +26,7 @@ import numpy as np
 
 from rigcal.core import geometry as geo
 from rigcal.core.rig import Magnetometer, Rig
+from rigcal.errors import InputError
 
 R_FRD_FLU = np.diag([1.0, -1.0, -1.0])
 UT_PER_GAUSS = 100.0
@@ -106,7 +107,7 @@ def ardupilot_mag_params(rig: Rig) -> dict[str, float | int]:
         if off_deg > ENUM_TOLERANCE_DEG:
             enum = next(custom, None)
             if enum is None:
-                raise ValueError(f"{m.name}: ArduPilot holds two custom rotations; a third magnetometer off the enums "
+                raise InputError(f"{m.name}: ArduPilot holds two custom rotations; a third magnetometer off the enums "
                                  f"({off_deg:.2f} deg) cannot be written")
             k = enum - CUSTOM_ENUMS[0] + 1
             out["CUST_ROT_ENABLE"] = 1
