@@ -242,7 +242,7 @@ def build_euroc(dst: Path, every: int = 1) -> Path:
 
     import numpy as np
 
-    from rigcal.target import load_target
+    from rigcal.core.target import load_target
 
     board = load_target(EUROC / "kalibr_target.yaml").boards[0]
     _fresh(dst)
