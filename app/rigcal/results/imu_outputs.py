@@ -39,7 +39,7 @@ def body_from_imu(reference: str, imu_name: str, T_imu_cam: np.ndarray, declared
     return geo.fit_rigid_to(T_imu_cam[posed], np.stack([declared.cameras[k].T_body_cam for k in posed]))
 
 
-def _camera_block(old: dict | None, k: int, res: ImuCalibration) -> dict:
+def _camera_block(old: dict | None, k: int, res: ImuCalibration, held_sigma: dict | None = None) -> dict:
     block = dict(old or {})
     sig = dict(block.get("sigma", {}))
     pose = res.sigma["pose"][k]
@@ -50,7 +50,11 @@ def _camera_block(old: dict | None, k: int, res: ImuCalibration) -> dict:
         sig["line_delay_us"] = _r(1e6 * res.sigma["line_delay"][k], 5)
     if res.sigma.get("intrinsics") is not None:  # estimated with the rest: their sigma replaces the camera-only one
         sig["intrinsics"] = {key: _r(res.sigma["intrinsics"][k][key], 4) for key in ("fx", "fy", "cx", "cy")}
+    elif held_sigma:  # held at the declared camera calibration: its uncertainty is still theirs
+        sig["intrinsics"] = dict(held_sigma)
     block["sigma"] = sig
+    # formal: from the solution covariance; subsets: raised to what the recording's halves show
+    block["sigma_source"] = res.subsets.source(k) if res.subsets is not None and res.subsets.compared[k] else "formal"
     return block
 
 
@@ -123,7 +127,8 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
         delay = float(est.state.line_delay_s[k]) if res.sigma["line_delay"] is not None else c.line_delay_s
         lens = c.intrinsics.with_values(res.intrinsics[k].values) if res.intrinsics else c.intrinsics
         cams.append(replace(c, T_body_cam=T_body_imu @ est.T_imu_cam[k], time_offset_s=float(est.time_offset_s[k]),
-                            line_delay_s=delay, intrinsics=lens, calibration=_camera_block(c.calibration, k, res)))
+                            line_delay_s=delay, intrinsics=lens,
+                            calibration=_camera_block(c.calibration, k, res, _declared_sigma(declared, c.name, res))))
     imus = tuple(replace(i, T_body_imu=T_body_imu, calibration=imu_block(res, reference != f"imu:{res.imu.name}"))
                  if i.name == res.imu.name
                  else i for i in out_rig.imus)
@@ -135,8 +140,22 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
     top["reference"] = reference
     top["camera_imu"] = {"imu": res.imu.name, "corner_rms_px": _r(res.corner_rms_px, 4),
                          "gravity_m_s2": _r(est.state.gravity, 5), "passes": res.passes,
-                         "iterations": int(est.iterations), "seconds": _r(res.seconds, 2)}
+                         "iterations": int(est.iterations), "seconds": _r(res.seconds, 2),
+                         "knot_spacing_s": _r(res.knot_dt, 6),
+                         "knot_spacing_from": "imu" if res.knot is not None else "--knot-spacing",
+                         "intrinsics": res.intrinsics_source}
+    if res.subsets is not None:
+        top["camera_imu"]["sigma_check"] = {"halves_split_s": _r(res.subsets.split_s, 3),
+                                            "seconds": _r(res.subsets.seconds, 2)}
     return replace(out_rig, cameras=tuple(cams), imus=imus, stereo_pairs=pairs, calibration=top)
+
+
+def _declared_sigma(declared: Rig, name: str, res: ImuCalibration) -> dict | None:
+    """The declared camera calibration's sigma.intrinsics when its intrinsics were held."""
+    if res.intrinsics_source != "declared" or name not in declared.names:
+        return None
+    sig = ((declared.camera(name).calibration or {}).get("sigma") or {}).get("intrinsics")
+    return dict(sig) if isinstance(sig, dict) else None
 
 
 def console_tables(rig: Rig, res: ImuCalibration) -> list:
