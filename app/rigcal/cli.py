@@ -112,6 +112,7 @@ class ImuIntrinsics(str, Enum):
     auto = "auto"
     joint = "joint"
     held = "held"
+    prior = "prior"
 
 
 class Guided(str, Enum):
@@ -237,7 +238,9 @@ def calibrate(
                                  "earlier `rigcal calibrate` (a camera calibration: its cameras carry calibration "
                                  "sigmas), else joint; joint = every camera's intrinsics are estimated again with "
                                  "the trajectory, poses and clocks (their 1-sigma then includes it); held = kept at "
-                                 "the camera-only step's, as Kalibr does (--fix-intrinsics implies held)"),
+                                 "the camera-only step's, as Kalibr does (--fix-intrinsics implies held); prior = "
+                                 "estimated with the rest, weighted by the declared camera calibration's values "
+                                 "and sigmas"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from rigcal.commands import calibrate as cal

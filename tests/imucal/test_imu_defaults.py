@@ -192,3 +192,26 @@ def test_state_window_is_the_same_curve_there():
     a, b = spl.evaluate(spline, t), spl.evaluate(w.spline, t)
     assert np.allclose(a.R_world_body, b.R_world_body, atol=1e-12) and np.allclose(a.p_world, b.p_world, atol=1e-12)
     assert np.allclose(np.concatenate(ir.bias_values(st, t)), np.concatenate(ir.bias_values(w, t)), atol=1e-12)
+
+
+def test_intrinsics_prior_block_known_answer():
+    from rigcal.camcal.solve import Intrinsics
+
+    spline = spl.Spline(0.0, 0.1, np.stack([np.eye(3)] * 6), np.zeros((6, 3)))
+    intr = (Intrinsics("pinhole", np.array([300.0, 301.0, 320.0, 240.0, 0.1, 0.0, 0.0, 0.0, 0.0])),
+            Intrinsics("pinhole", np.array([400.0, 400.0, 330.0, 250.0, 0.0, 0.0, 0.0, 0.0, 0.0])))
+    st = ir.State(spline, np.eye(4), np.stack([np.eye(4)] * 2), np.zeros(2), np.zeros(2), 0.0, 1.0, np.zeros((2, 3)),
+                  np.zeros((2, 3)), np.eye(3), intrinsics=intr)
+    lay = ir.layout_for(st, frozenset({"imu_rot", "imu_pos", "line_delay", "scale"}))
+    prior = (None, (np.array([399.0, 402.0, 330.0, 250.5]), np.array([0.5, 1.0, 2.0, 0.25])))
+    b = ir.intrinsics_prior_block(st, lay, prior)
+    assert b.r.shape == (1, 4) and np.allclose(b.r[0], [2.0, -2.0, 0.0, -2.0])
+    assert np.allclose(b.J[0], np.diag([2.0, 1.0, 0.5, 4.0]))
+    assert np.array_equal(b.cols[0], lay.intr_start(1) + np.arange(4))
+    # a step along the block's Jacobian moves its residual exactly so (linear)
+    dx = np.zeros(lay.size)
+    dx[lay.intr_start(1):lay.intr_start(1) + 4] = [0.1, -0.2, 0.3, 0.05]
+    b2 = ir.intrinsics_prior_block(ir.retract(st, lay, dx), lay, prior)
+    assert np.allclose(b2.r[0] - b.r[0], b.J[0] @ [0.1, -0.2, 0.3, 0.05])
+    held = ir.layout_for(st, frozenset({"imu_rot", "imu_pos", "line_delay", "scale", "intrinsics"}))
+    assert np.all(ir.intrinsics_prior_block(st, held, prior).cols == -1)

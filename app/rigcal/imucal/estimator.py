@@ -79,6 +79,9 @@ class Settings:
     huber: float | None = None  # Huber loss on each corner's residual beyond this many sigma_px
     scale_misalignment: bool = False
     intrinsics: bool = False  # estimate the intrinsics the state carries (State.intrinsics)
+    # with intrinsics: per camera (fx fy cx cy (4,), their 1-sigma (4,)) of an earlier camera
+    # calibration weighing them (residuals.intrinsics_prior_block), or None; empty: no prior
+    intrinsics_prior: tuple = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -229,10 +232,13 @@ def residual_blocks(state: ir.State, lay: ir.Layout, obs: ir.Corners, models: li
     accelerometer and the biases' random walk, on the IMU samples `use` (imu_span)."""
     sg, sa = imu_sigmas(imu)
     mj = ir.motion_jacobian(state, imu.t[use])  # shared by both IMU blocks
-    return [ir.reprojection_rows(state, lay, obs, models, settings.sigma_px, settings.huber),
-            ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg, mj),
-            ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa, mj),
-            ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
+    blocks = [ir.reprojection_rows(state, lay, obs, models, settings.sigma_px, settings.huber),
+              ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg, mj),
+              ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa, mj),
+              ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
+    if settings.intrinsics and settings.intrinsics_prior and state.intrinsics:
+        blocks.append(ir.intrinsics_prior_block(state, lay, settings.intrinsics_prior))
+    return blocks
 
 
 def band_order(lay: ir.Layout) -> np.ndarray:

@@ -50,8 +50,9 @@ MIN_PNP_CORNERS = 8
 NOISE_WARN_RATIO = 3.0  # residual RMS vs what the declared density predicts, either way
 IMU_MODELS = ("auto", "calibrated", "scale-misalignment")
 # auto: held when the declared rig is itself a camera calibration (every camera carries
-# calibration.sigma.intrinsics: the two-recording workflow), else joint (resolve_intrinsics)
-INTRINSICS = ("auto", "joint", "held")
+# calibration.sigma.intrinsics: the two-recording workflow), else joint (resolve_intrinsics);
+# prior: estimated with the rest, weighted by that calibration's values and sigmas
+INTRINSICS = ("auto", "joint", "held", "prior")
 SCALE_PARAMETERS = 12  # L of M_gyro and of M_accel, 6 each
 
 
@@ -458,7 +459,10 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     settings = replace(base, sigma_px=max(float(cal.rms_px) / math.sqrt(2.0), 0.01), gravity=options.gravity,
                        window_s=options.window_s, line_delay=estimate_delay,
                        scale_misalignment=options.imu_model == "scale-misalignment",
-                       intrinsics=options.intrinsics == "joint")
+                       intrinsics=options.intrinsics in ("joint", "prior"))
+    if options.intrinsics == "prior":
+        inp, prior = with_prior(inp, cal.declared if cal.declared is not None else cal.rig, list(cal.cam_names))
+        settings = replace(settings, intrinsics_prior=prior)
     try:
         res, settings, passes = estimate(inp, cal.state.T_world_board, settings)
         test = None
@@ -499,9 +503,11 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
     reweighted = " (the second with the corners re-weighted by the noise the first measured)" if passes > 1 else ""
-    source = "joint" if settings.intrinsics else ("declared" if options.intrinsics_from_rig else "camera-only")
+    source = ("prior" if settings.intrinsics_prior else "joint") if settings.intrinsics else (
+        "declared" if options.intrinsics_from_rig else "camera-only")
     held = {"joint": "too", "declared": "held at the declared rig's own calibration (--imu-intrinsics joint "
                                         "re-estimates them)",
+            "prior": "too, weighted by the declared rig's own calibration and its sigmas (--imu-intrinsics prior)",
             "camera-only": "held at the camera-only ones (--imu-intrinsics held)"}[source]
     notes = [knot.line() if knot is not None else f"knot spacing {settings.knot_dt:g} s (--knot-spacing)",
              f"camera-IMU: {passes} estimate(s){reweighted}, {res.iterations} "
@@ -544,13 +550,29 @@ def is_camera_calibration(rig) -> bool:
 
 
 def resolve_intrinsics(choice: str, rig) -> tuple[str, bool]:
-    """(`joint` or `held`, whether held intrinsics are the declared rig's own calibration) for
-    --imu-intrinsics `choice`: auto holds a camera calibration's intrinsics (Kalibr's and
-    basalt's workflow: calibrate the cameras on a recording made for it, then camera-IMU),
-    else estimates them with the rest."""
+    """(`joint`, `held` or `prior`, whether the intrinsics start from the declared rig's own
+    calibration) for --imu-intrinsics `choice`: auto holds a camera calibration's intrinsics
+    (Kalibr's and basalt's workflow: calibrate the cameras on a recording made for it, then
+    camera-IMU), else estimates them with the rest; prior needs a camera calibration."""
+    calibrated = is_camera_calibration(rig)
     if choice == "auto":
-        return ("held", True) if is_camera_calibration(rig) else ("joint", False)
-    return choice, choice == "held" and is_camera_calibration(rig)
+        return ("held", True) if calibrated else ("joint", False)
+    if choice == "prior" and not calibrated:
+        raise InputError("--imu-intrinsics prior: the declared rig is not a camera calibration (every camera needs "
+                         "calibration.sigma.intrinsics, as `rigcal calibrate` writes); pass one with --rig")
+    return choice, choice in ("held", "prior") and calibrated
+
+
+def with_prior(inp: Inputs, declared, names: list[str]) -> tuple[Inputs, tuple]:
+    """(inputs whose intrinsics have fx, fy, cx, cy as parameters of their own, per camera
+    (fx fy cx cy, their 1-sigma) of the declared camera calibration) for --imu-intrinsics
+    prior. The camera-only step held the declared intrinsics, so they are the start too."""
+    intr = tuple(replace(i, tie_focal=False, hold_centre=False) for i in inp.intrinsics)
+    prior = []
+    for name, i in zip(names, intr):
+        sig = declared.camera(name).calibration["sigma"]["intrinsics"]
+        prior.append((i.values[:4].copy(), np.array([max(float(sig[k]), 1e-6) for k in INTRINSIC_KEYS])))
+    return replace(inp, intrinsics=intr), tuple(prior)
 
 
 # ----------------------------------------------------------------------------- subset sigmas

@@ -145,9 +145,26 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
                          "knot_spacing_from": "imu" if res.knot is not None else "--knot-spacing",
                          "intrinsics": res.intrinsics_source}
     if res.subsets is not None:
-        top["camera_imu"]["sigma_check"] = {"halves_split_s": _r(res.subsets.split_s, 3),
-                                            "seconds": _r(res.subsets.seconds, 2)}
+        top["camera_imu"]["sigma_check"] = halves_entry(res.subsets, names)
     return replace(out_rig, cameras=tuple(cams), imus=imus, stereo_pairs=pairs, calibration=top)
+
+
+def halves_entry(check, names: list[str]) -> dict:
+    """`sigma_check`: where the recording was split, and per camera compared the halves'
+    differences (first minus second) in the sigmas' units: rotation about body F, L, U
+    (deg), position (mm), time offset (ms), line delay (us), intrinsics (px)."""
+    cams = {}
+    for k in np.flatnonzero(check.compared):
+        e = {"rotation_deg": [_r(np.degrees(x), 5) for x in check.d_rot[k]],
+             "position_mm": [_r(1000 * x, 4) for x in check.d_pos[k]],
+             "time_offset_ms": _r(1000 * check.d_offset[k], 5)}
+        if check.d_delay is not None:
+            e["line_delay_us"] = _r(1e6 * check.d_delay[k], 5)
+        if check.d_intr is not None:
+            e["intrinsics"] = {key: _r(x, 4) for key, x in zip(("fx", "fy", "cx", "cy"), check.d_intr[k])}
+        cams[names[k]] = e
+    return {"method": "halves", "split_s": _r(check.split_s, 3), "seconds": _r(check.seconds, 2),
+            "halves_difference": cams}
 
 
 def _declared_sigma(declared: Rig, name: str, res: ImuCalibration) -> dict | None:
@@ -181,7 +198,7 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
         parts.append(scale_table(res.imu.name, b))
     c = Table(title=f"cameras relative to {res.imu.name} (clocks: t_imu = t_cam + offset)")
     cols = ["camera", "time offset ms", "1-sigma ms", "line delay us/row", "1-sigma us", "sigma pos mm (F L U)",
-            "sigma rot deg (F L U)"]
+            "sigma rot deg (F L U)", "sigmas from"]
     for col in cols:
         c.add_column(col, justify="left" if col == "camera" else "right")
     for cam in rig.cameras:
@@ -189,7 +206,8 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
         c.add_row(cam.name, f"{1000 * cam.time_offset_s:+.3f}", f"{s['time_offset_ms']:.4f}",
                   f"{1e6 * cam.line_delay_s:.3f}" if cam.line_delay_s is not None else "-",
                   f"{s['line_delay_us']:.3f}" if "line_delay_us" in s else "-",
-                  " ".join(f"{x:.3f}" for x in s["position_mm"]), " ".join(f"{x:.4f}" for x in s["rotation_deg"]))
+                  " ".join(f"{x:.3f}" for x in s["position_mm"]), " ".join(f"{x:.4f}" for x in s["rotation_deg"]),
+                  cam.calibration.get("sigma_source", "formal"))
     return parts + [c]
 
 
