@@ -371,6 +371,17 @@ def in_band(row: dict) -> dict:
             "offset_ms": max(abs(x) for x in row["offset_ms"]) <= BAND["offset_ms"]}
 
 
+def band_distance_in_sigmas(row: dict) -> dict:
+    """Per camera how far the result lies outside the band (0 inside), in units of its
+    reported 1-sigma (the norm over the three axes): rotation and position."""
+    out = {}
+    for i, cam in enumerate(CAMERAS):
+        rot = max(row["rot_deg"][i] - BAND["rot_deg"], 0.0) / np.linalg.norm(row["sigma_rot_deg"][i])
+        pos = max(row["pos_mm"][i] - BAND["pos_mm"], 0.0) / np.linalg.norm(row["sigma_pos_mm"][i])
+        out[cam] = {"rot": float(rot), "pos": float(pos)}
+    return out
+
+
 def defaults_runs(log=say) -> dict | None:
     """`rigcal calibrate DATASET --out X` with nothing else (but --jobs 2), without and with
     a camera calibration as the declared rig (camera_calibration_rig)."""
@@ -402,6 +413,7 @@ def defaults_runs(log=say) -> dict | None:
         row["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
         row["halves"] = halves_in_sigmas(out_yaml)
         row["band"] = in_band(row)
+        row["outside_band_in_sigmas"] = band_distance_in_sigmas(row)
         row["warnings"] = [ln for ln in run.stderr.splitlines() if ln.startswith("warning:")]
         row["knot_spacing_s"] = row["camera_imu"]["knot_spacing_s"]
         log(f"  {label}: knot {row['knot_spacing_s']} s, band {row['band']}, halves max "
@@ -431,7 +443,8 @@ def main(argv: list[str] | None = None) -> int:
         for label, r in rows.items():
             print(f"{label}: knot {r['knot_spacing_s']} s, in band {r['band']}, halves/sigma max "
                   f"{ {c: round(h['max'], 2) for c, h in r['halves'].items()} }, start to YAML {r['seconds']:.1f} s "
-                  f"(cpu {r['cpu_s']:.1f} s)")
+                  f"(cpu {r['cpu_s']:.1f} s); outside the band in sigmas {r['outside_band_in_sigmas']}; "
+                  f"warnings: {len(r['warnings'])}")
         return 0
     if a.calibrate_only:
         row = via_calibrate()

@@ -715,15 +715,23 @@ def subset_check(res: ic.CameraImuResult, obs: ir.Corners, models: list, imu: ic
     lo, hi = float(t_c.min()), float(t_c.max())
     mid = 0.5 * (lo + hi)
     quick = replace(settings, max_iter=SUBSET_MAX_ITER)
-    halves = []
-    for a, b in ((lo - 1.0, mid), (mid, hi + 1.0)):
-        part = state_window(st, max(a, st.spline.t0), min(b, st.spline.t_end))
+
+    def half(span):
+        part = state_window(st, max(span[0], st.spline.t0), min(span[1], st.spline.t_end))
         try:
             r = ic.solve_from(part, obs, models, imu, quick, sigmas=False, cost_tol=SUBSET_COST_TOL)
         except (CalibrationError, ValueError, np.linalg.LinAlgError):
             return None
-        seen = np.bincount(obs.cam[r.corners_used], minlength=len(models))
-        halves.append((r.state, seen))
+        return r.state, np.bincount(obs.cam[r.corners_used], minlength=len(models))
+
+    # two threads: the halves are independent and numpy / SuperLU release the GIL in their
+    # heavy parts
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=2) as ex:
+        halves = list(ex.map(half, ((lo - 1.0, mid), (mid, hi + 1.0))))
+    if any(h is None for h in halves):
+        return None
     compared = (halves[0][1] >= MIN_SUBSET_CORNERS) & (halves[1][1] >= MIN_SUBSET_CORNERS)
     if not compared.any():
         return None
