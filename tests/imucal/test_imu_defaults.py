@@ -161,6 +161,14 @@ def test_subset_sigmas_raise_only_what_the_halves_show_and_say_so():
     # a camera not compared keeps its formal sigmas
     sig2, factor2 = step.subset_sigmas(formal, diffs, np.array([True, False]))
     assert np.allclose(sig2["pose"][1], 1e-3) and factor2[1] == {}
+    # the intrinsics' excess variance carried into the poses: camera 0's rotation about L
+    # follows its fx by 0.01 rad/px; fx's sigma went 0.1 -> 0.5 px, so 0.24 px^2 more
+    B = np.zeros((6 * C, 4 * C))
+    B[1, 0] = 0.01
+    sig3, factor3 = step.subset_sigmas(formal, diffs, np.array([True, True]), B)
+    assert sig3["pose"][0, 1] == pytest.approx(np.sqrt(1e-6 + 1e-4 * 0.24))
+    assert np.allclose(np.delete(sig3["pose"][0], 1), 1e-3) and np.allclose(sig3["pose"][1], sig["pose"][1])
+    assert factor3[0]["rotation"] == pytest.approx(5.0)
 
 
 def test_halves_differences_in_the_sigmas_axes():

@@ -421,6 +421,25 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bo
     return out
 
 
+def intrinsics_coupling(J, lay: ir.Layout, intrinsics: tuple) -> np.ndarray:
+    """B (6 C, 4 C): how every camera's pose (rotation rad about body axes, position m: the
+    sigmas' parameters) follows every camera's fx, fy, cx, cy at the optimum, from the formal
+    covariance: B = C_PI C_II^+ (the regression of the poses on the intrinsics; held values
+    have zero rows and drop out of the pseudo-inverse). When the intrinsics are less certain
+    than the formal covariance says by Delta, the poses are by B Delta B^T."""
+    C = lay.n_cam
+    A_P = np.zeros((6 * C, lay.size))
+    A_P[np.arange(6 * C), lay.cam + np.arange(6 * C)] = 1.0
+    A_I = np.zeros((4 * C, lay.size))
+    for c, intr in enumerate(intrinsics):
+        E = intr.basis()[:4]
+        A_I[4 * c:4 * c + 4, lay.intr_start(c):lay.intr_start(c) + E.shape[1]] = E
+    solve, active = ic.factor((J.T @ J).tocsc(), ic.band_order(lay))
+    S = solve(np.asarray(A_I[:, active].T, dtype=float))
+    C_II, C_PI = A_I[:, active] @ S, A_P[:, active] @ S
+    return C_PI @ np.linalg.pinv(C_II, rcond=1e-12, hermitian=True)
+
+
 def noise_warnings(imu: Imu, gyro: tuple[float, float], accel: tuple[float, float]) -> list[str]:
     """A warning per sensor whose residual RMS differs from the declared density's
     prediction by more than NOISE_WARN_RATIO either way: the figures look wrong."""
@@ -494,7 +513,9 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     warnings = []
     if options.subsets:
         _, _, obs_all = estimator_corners(inp, len(cal.state.T_world_board))
-        check = subset_check(res, obs_all, [c.model for c in inp.cams], inp.imu, settings, sig, estimate_delay)
+        coupling = intrinsics_coupling(J, lay, res.state.intrinsics) if settings.intrinsics else None
+        check = subset_check(res, obs_all, [c.model for c in inp.cams], inp.imu, settings, sig, estimate_delay,
+                             coupling)
         if check is not None:
             sig = check.sigma
             warnings += intrinsics_warnings(check, names)
@@ -667,10 +688,14 @@ def inflated(formal: np.ndarray, diff: np.ndarray) -> np.ndarray:
     return np.maximum(np.maximum(f, half), k * f)
 
 
-def subset_sigmas(formal: dict, diffs: tuple, compared: np.ndarray) -> tuple[dict, list]:
+def subset_sigmas(formal: dict, diffs: tuple, compared: np.ndarray, coupling: np.ndarray | None = None
+                  ) -> tuple[dict, list]:
     """(reported sigma dict, per camera {group: reported / formal at most}) from the formal
     parameter_sigmas and the halves' differences (halves_differences), cameras `compared`
-    only; other entries (biases, scale) stay formal."""
+    only; other entries (biases, scale) stay formal. `coupling` (intrinsics_coupling's B):
+    the intrinsics' variance beyond the formal one carried into every pose through B (a
+    principal point the halves place pixels apart turns the camera's extrinsic rotation by
+    about that over the focal length; the halves alone share such a bias and miss it)."""
     d_rot, d_pos, d_off, d_delay, d_intr = diffs
     out = {**formal, "pose": formal["pose"].copy(), "offset": formal["offset"].copy()}
     C = len(formal["offset"])
@@ -700,11 +725,23 @@ def subset_sigmas(formal: dict, diffs: tuple, compared: np.ndarray) -> tuple[dic
             v = inflated(f, d)
             put(v)
             factor[c][name] = float(np.max(v / np.maximum(f, 1e-300)))
+    if coupling is not None and out.get("intrinsics") is not None:
+        excess = np.array([[max(out["intrinsics"][c][k] ** 2 - formal["intrinsics"][c][k] ** 2, 0.0)
+                            for k in INTRINSIC_KEYS] for c in range(C)]).ravel()
+        extra = np.einsum("pk,k,pk->p", coupling, excess, coupling).reshape(C, 6)
+        if extra.any():
+            pose = np.sqrt(out["pose"] ** 2 + extra)
+            for c in range(C):
+                for name, cols in (("rotation", slice(0, 3)), ("position", slice(3, 6))):
+                    r = float(np.max(pose[c, cols] / np.maximum(formal["pose"][c, cols], 1e-300)))
+                    if r > factor[c].get(name, 1.0):
+                        factor[c][name] = r
+            out["pose"] = pose
     return out, factor
 
 
 def subset_check(res: ic.CameraImuResult, obs: ir.Corners, models: list, imu: ic.ImuInput, settings: ic.Settings,
-                 formal: dict, estimate_delay: bool) -> SubsetCheck | None:
+                 formal: dict, estimate_delay: bool, coupling: np.ndarray | None = None) -> SubsetCheck | None:
     """The estimate on each half of the recording in time (its corners and IMU samples),
     each started from the whole recording's solution (state_window) and stopped early
     (SUBSET_MAX_ITER, SUBSET_COST_TOL), and the sigmas it supports (subset_sigmas). None
@@ -736,7 +773,7 @@ def subset_check(res: ic.CameraImuResult, obs: ir.Corners, models: list, imu: ic
     if not compared.any():
         return None
     diffs = halves_differences(halves[0][0], halves[1][0], estimate_delay, settings.intrinsics)
-    sigma, factor = subset_sigmas(formal, diffs, compared)
+    sigma, factor = subset_sigmas(formal, diffs, compared, coupling)
     return SubsetCheck(*diffs, compared, formal, sigma, factor, time.perf_counter() - t0, mid)
 
 
