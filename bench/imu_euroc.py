@@ -423,6 +423,21 @@ def defaults_runs(log=say) -> dict | None:
     return out
 
 
+def defaults_tables(rows: dict | None) -> str:
+    """The two default runs: accuracy against T_BS (tables()), then per run the knot
+    spacing, the band, the halves' largest difference in reported sigmas, the distance
+    outside the band in sigmas, the warnings and the time."""
+    if not rows:
+        return ""
+    lines = [tables({"runs": list(rows.values())}), ""]
+    for label, r in rows.items():
+        lines.append(f"- {label}: knot {r['knot_spacing_s']} s; in band {r['band']}; halves / reported sigma at most "
+                     f"{ {c: round(h['max'], 2) for c, h in r['halves'].items()} }; outside the band in sigmas "
+                     f"{ {c: {k: round(v, 2) for k, v in x.items()} for c, x in r['outside_band_in_sigmas'].items()} }; "
+                     f"{len(r['warnings'])} warning(s); start to YAML {r['seconds']:.1f} s (cpu {r['cpu_s']:.1f} s)")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-halves", action="store_true")
@@ -439,12 +454,7 @@ def main(argv: list[str] | None = None) -> int:
             say("imu_euroc: ../shared/data/real/euroc_imu_april not found; skipped")
             return 0
         write_json("imu_euroc_defaults", rows)
-        print(tables({"runs": list(rows.values())}))
-        for label, r in rows.items():
-            print(f"{label}: knot {r['knot_spacing_s']} s, in band {r['band']}, halves/sigma max "
-                  f"{ {c: round(h['max'], 2) for c, h in r['halves'].items()} }, start to YAML {r['seconds']:.1f} s "
-                  f"(cpu {r['cpu_s']:.1f} s); outside the band in sigmas {r['outside_band_in_sigmas']}; "
-                  f"warnings: {len(r['warnings'])}")
+        print(defaults_tables(rows))
         return 0
     if a.calibrate_only:
         row = via_calibrate()

@@ -3,8 +3,15 @@ the camera-only calibration's corners, intrinsics and board poses in, every came
 T_imu_cam, clock offset (and line delay), the IMU's biases and gravity out, through the
 public API of rigcal.imucal.estimator.
 
-The intrinsics (`--imu-intrinsics joint`, the default; `held` keeps the camera-only
-calibration's, as Kalibr does) and every board's pose but the gauge board's (most corners:
+Defaults from the data: the spline's knot spacing from how well a spline follows the IMU's
+own signal (imu_start.choose_knot_spacing); the intrinsics (`--imu-intrinsics auto`) held at
+the declared rig's when it is itself a camera calibration (resolve_intrinsics: the
+two-recording workflow of Kalibr and basalt), else estimated with the rest (`joint`;
+`held` keeps the camera-only step's, `prior` weighs them by the declared calibration's
+sigmas). The sigmas are checked on the recording's halves (subset_check) and raised where
+the formal ones are smaller than the halves show.
+
+The intrinsics (when estimated) and every board's pose but the gauge board's (most corners:
 the world frame whose gravity direction the estimator finds) are estimated with the
 trajectory. The camera-only calibration's board poses are not a safe start for the
 trajectory: it treats images of different cameras with equal stems as the same instant, so
