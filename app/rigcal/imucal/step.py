@@ -525,7 +525,7 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
                              coupling)
         if check is not None:
             sig = check.sigma
-            warnings += intrinsics_warnings(check, names)
+            warnings += intrinsics_warnings(check, names, bool(settings.intrinsics_prior))
     w = mean_weights(lay.n_bias)
     rate = math.sqrt(imu.update_rate)
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
@@ -784,7 +784,7 @@ def subset_check(res: ic.CameraImuResult, obs: ir.Corners, models: list, imu: ic
     return SubsetCheck(*diffs, compared, formal, sigma, factor, time.perf_counter() - t0, mid)
 
 
-def intrinsics_warnings(check: SubsetCheck, names: list[str]) -> list[str]:
+def intrinsics_warnings(check: SubsetCheck, names: list[str], prior: bool = False) -> list[str]:
     """A warning per camera whose intrinsics, estimated from this motion recording, differ
     between its halves by over INTRINSICS_SPREAD_PX or by over FORMAL_TOO_SMALL formal
     sigmas: the recording determines them poorly; the fix is a camera calibration first."""
@@ -803,9 +803,11 @@ def intrinsics_warnings(check: SubsetCheck, names: list[str]) -> list[str]:
         spread = ", ".join(f"{k} {d[i]:+.1f}" for i, k in enumerate(INTRINSIC_KEYS) if est[i])
         out.append(f"camera {names[c]}: this recording determines its intrinsics poorly: its two halves differ by "
                    f"{spread} px (reported 1-sigma now {', '.join(f'{k} {rep[k]:.2f}' for k, e in zip(INTRINSIC_KEYS, est) if e)} px, "
-                   f"{ratio:.0f}x the formal); calibrate the cameras first on a recording made for it (the board "
-                   f"filling the corners of each image, moved slowly) and pass that output as --rig: its "
-                   f"intrinsics are then held here")
+                   f"{ratio:.0f}x the formal); " + (
+                       "the declared calibration's prior did not hold them: --imu-intrinsics auto holds them"
+                       if prior else
+                       "calibrate the cameras first on a recording made for it (the board filling the corners of "
+                       "each image, moved slowly) and pass that output as --rig: its intrinsics are then held here"))
     return out
 
 
