@@ -431,9 +431,10 @@ def defaults_tables(rows: dict | None) -> str:
         return ""
     lines = [tables({"runs": list(rows.values())}), ""]
     for label, r in rows.items():
+        out = {c: {k: round(v, 2) for k, v in x.items()} for c, x in r["outside_band_in_sigmas"].items()}
         lines.append(f"- {label}: knot {r['knot_spacing_s']} s; in band {r['band']}; halves / reported sigma at most "
                      f"{ {c: round(h['max'], 2) for c, h in r['halves'].items()} }; outside the band in sigmas "
-                     f"{ {c: {k: round(v, 2) for k, v in x.items()} for c, x in r['outside_band_in_sigmas'].items()} }; "
+                     f"{out}; "
                      f"{len(r['warnings'])} warning(s); start to YAML {r['seconds']:.1f} s (cpu {r['cpu_s']:.1f} s)")
     return "\n".join(lines)
 

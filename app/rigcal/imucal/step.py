@@ -801,8 +801,9 @@ def intrinsics_warnings(check: SubsetCheck, names: list[str], prior: bool = Fals
             continue
         rep = check.sigma["intrinsics"][c]
         spread = ", ".join(f"{k} {d[i]:+.1f}" for i, k in enumerate(INTRINSIC_KEYS) if est[i])
+        now = ", ".join(f"{k} {rep[k]:.2f}" for k, e in zip(INTRINSIC_KEYS, est) if e)
         out.append(f"camera {names[c]}: this recording determines its intrinsics poorly: its two halves differ by "
-                   f"{spread} px (reported 1-sigma now {', '.join(f'{k} {rep[k]:.2f}' for k, e in zip(INTRINSIC_KEYS, est) if e)} px, "
+                   f"{spread} px (reported 1-sigma now {now} px, "
                    f"{ratio:.0f}x the formal); " + (
                        "the declared calibration's prior did not hold them: --imu-intrinsics auto holds them"
                        if prior else
