@@ -485,7 +485,9 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     settings = replace(base, sigma_px=max(float(cal.rms_px) / math.sqrt(2.0), 0.01), gravity=options.gravity,
                        window_s=options.window_s, line_delay=estimate_delay,
                        scale_misalignment=options.imu_model == "scale-misalignment",
-                       intrinsics=options.intrinsics in ("joint", "prior"))
+                       # auto unresolved (a caller other than calibrate.run, which resolves it against the
+                       # declared rig first): estimated with the rest, as before there was a choice
+                       intrinsics=options.intrinsics in ("auto", "joint", "prior"))
     if options.intrinsics == "prior":
         inp, prior = with_prior(inp, cal.declared if cal.declared is not None else cal.rig, list(cal.cam_names))
         settings = replace(settings, intrinsics_prior=prior)
