@@ -19,6 +19,8 @@ Sections (each also runs alone: python -m bench.<name>):
   imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds + 30 s rendered
   imu_euroc    the camera-IMU estimator on EuRoC's real 72 s imu_april corners + IMU vs EuRoC's T_BS (Kalibr);
                with EuRoC's intrinsics and on each half of the recording; then `rigcal calibrate` on it
+  imu_euroc_defaults  `rigcal calibrate` on EuRoC with nothing but --jobs 2: knot spacing chosen, the
+               accuracy band without and with a camera calibration as --rig, halves / sigma, time
   imu_speed    `rigcal calibrate` on a simulated 30 s 3-camera IMU recording: whole time / detection time
                (issue 18: <= 1.5), errors via compare
   imu_coverage `rigcal calibrate` end to end on 20 rendered 4 s IMU recordings: every reported camera-IMU
@@ -103,6 +105,8 @@ TABLE = (
     Section("imu_euroc", "imu_euroc",
             lambda q, d: imu_euroc.run(halves=not q, euroc_intrinsics=not q, calibrate=True),
             _only(imu_euroc)),
+    Section("imu_euroc_defaults", "imu_euroc_defaults", lambda q, d: imu_euroc.defaults_runs(),
+            lambda r, d: imu_euroc.defaults_tables(r)),
     Section("imu_speed", "imu_speed", lambda q, d: imu_speed.run(duration=8.0 if q else 30.0), _only(imu_speed)),
     Section("imu_coverage", "imu_coverage", lambda q, d: imu_coverage.run(seeds=3 if q else 20), _only(imu_coverage)),
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),

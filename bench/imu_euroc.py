@@ -13,7 +13,18 @@ The recording is also calibrated end to end by `rigcal calibrate` (`--calibrate`
 motion dataset of dataset.md's `corners/` input (the camera-only set of bench.real) plus
 imu/imu0.csv and the IMU declared in rig.yaml, with EuRoC's gravity and Kalibr's knot spacing.
 
+`--defaults` runs `rigcal calibrate DATASET --out X` as a user would, nothing else given
+(the knot spacing chosen from the IMU, the sigmas checked on the recording's halves), twice:
+on the dataset as above (the intrinsics estimated from this recording) and with a declared
+rig that is a camera calibration (EuRoC's published intrinsics and distortion, standing in
+for a calibration of EuRoC's separate camera-calibration recording, with a calibration block
+whose sigma.intrinsics are 0.5 px: EuRoC publishes none), as in the two-recording workflow.
+Each against the accuracy band (0.35 deg, 8 mm from T_BS, baseline within 0.3 mm of
+110.07 mm, offsets within 1 ms), and every reported parameter's halves difference in units
+of its reported sigma.
+
     python -m bench.imu_euroc [--no-halves] [--no-euroc-intrinsics] [--huber K] [--calibrate | --calibrate-only]
+    python -m bench.imu_euroc --defaults
 """
 
 from __future__ import annotations
@@ -309,6 +320,125 @@ def score(out_yaml, wall_s: float, console: str, log=say) -> dict:
     return row
 
 
+BAND = {"rot_deg": 0.35, "pos_mm": 8.0, "baseline_mm": 0.3, "offset_ms": 1.0}
+STANDIN_SIGMA_PX = 0.5  # sigma.intrinsics of the stand-in camera calibration (EuRoC publishes none)
+
+
+def camera_calibration_rig(src_rig: str, reference: dict) -> str:
+    """The declared rig text with EuRoC's intrinsics and distortion per camera and a
+    calibration block (sigma.intrinsics): a camera calibration, as `rigcal calibrate`
+    writes one."""
+    import yaml
+
+    doc = yaml.safe_load(src_rig)
+    for cam in CAMERAS:
+        fx, fy, cx, cy = reference[cam]["intrinsics"]
+        c = doc["cameras"][cam]
+        c["intrinsics"] = {"fx": fx, "fy": fy, "cx": cx, "cy": cy}
+        c["distortion"] = list(reference[cam]["distortion"])
+        c["calibration"] = {"sigma": {"intrinsics": {k: STANDIN_SIGMA_PX for k in ("fx", "fy", "cx", "cy")}}}
+    return yaml.safe_dump(doc, sort_keys=False)
+
+
+def halves_in_sigmas(out_yaml) -> dict:
+    """Per camera and reported parameter |halves difference| / reported 1-sigma (from the
+    output's camera_imu.sigma_check), and the largest."""
+    import yaml
+
+    doc = yaml.safe_load(out_yaml.read_text())
+    chk = (doc["calibration"].get("camera_imu") or {}).get("sigma_check")
+    if not chk:
+        return {}
+    out = {}
+    for cam, d in chk["halves_difference"].items():
+        sig = doc["cameras"][cam]["calibration"]["sigma"]
+        r = {}
+        for key in ("rotation_deg", "position_mm"):
+            r[key] = [abs(a) / b for a, b in zip(d[key], sig[key])]
+        r["time_offset_ms"] = [abs(d["time_offset_ms"]) / sig["time_offset_ms"]]
+        if "intrinsics" in d:
+            r["intrinsics"] = [abs(d["intrinsics"][k]) / sig["intrinsics"][k] for k in ("fx", "fy", "cx", "cy")
+                               if sig["intrinsics"].get(k)]
+        out[cam] = {"ratios": r, "max": max(max(v) for v in r.values()),
+                    "sigma_source": doc["cameras"][cam]["calibration"].get("sigma_source")}
+    return out
+
+
+def in_band(row: dict) -> dict:
+    """Which of the band's figures the row meets."""
+    return {"rot_deg": max(row["rot_deg"]) <= BAND["rot_deg"], "pos_mm": max(row["pos_mm"]) <= BAND["pos_mm"],
+            "baseline_mm": abs(row["baseline_mm"] - BASELINE_MM) <= BAND["baseline_mm"],
+            "offset_ms": max(abs(x) for x in row["offset_ms"]) <= BAND["offset_ms"]}
+
+
+def band_distance_in_sigmas(row: dict) -> dict:
+    """Per camera how far the result lies outside the band (0 inside), in units of its
+    reported 1-sigma (the norm over the three axes): rotation and position."""
+    out = {}
+    for i, cam in enumerate(CAMERAS):
+        rot = max(row["rot_deg"][i] - BAND["rot_deg"], 0.0) / np.linalg.norm(row["sigma_rot_deg"][i])
+        pos = max(row["pos_mm"][i] - BAND["pos_mm"], 0.0) / np.linalg.norm(row["sigma_pos_mm"][i])
+        out[cam] = {"rot": float(rot), "pos": float(pos)}
+    return out
+
+
+def defaults_runs(log=say) -> dict | None:
+    """`rigcal calibrate DATASET --out X` with nothing else (but --jobs 2), without and with
+    a camera calibration as the declared rig (camera_calibration_rig)."""
+    import resource
+    import subprocess
+    import sys
+
+    import yaml
+
+    d = build_dataset(OUT / "euroc_imu_dataset", log)
+    if d is None:
+        return None
+    ref = yaml.safe_load((SHARED / "euroc_imu_april" / "reference.yaml").read_text())
+    cal_rig = OUT / "euroc_camera_calibration.yaml"
+    cal_rig.write_text(camera_calibration_rig((d / "rig.yaml").read_text(), ref))
+    out = {}
+    for label, extra in (("defaults, intrinsics from this recording", []),
+                         ("defaults, camera calibration as --rig (EuRoC's intrinsics)", ["--rig", str(cal_rig)])):
+        out_yaml = OUT / f"euroc_defaults_{len(out)}.yaml"
+        cmd = [sys.executable, "-m", "rigcal", "calibrate", str(d), "--out", str(out_yaml), "--jobs", "2", *extra]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        with Timer() as t:
+            run = subprocess.run(cmd, capture_output=True, text=True)
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
+        if run.returncode != 0:
+            raise RuntimeError(f"rigcal calibrate failed ({run.returncode}): {run.stderr.strip()[-2000:]}")
+        row = score(out_yaml, t.wall, run.stderr + run.stdout, log)
+        row["label"] = label
+        row["cpu_s"] = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+        row["halves"] = halves_in_sigmas(out_yaml)
+        row["band"] = in_band(row)
+        row["outside_band_in_sigmas"] = band_distance_in_sigmas(row)
+        row["warnings"] = [ln for ln in run.stderr.splitlines() if ln.startswith("warning:")]
+        row["knot_spacing_s"] = row["camera_imu"]["knot_spacing_s"]
+        log(f"  {label}: knot {row['knot_spacing_s']} s, band {row['band']}, halves max "
+            f"{ {c: round(h['max'], 2) for c, h in row['halves'].items()} } sigma, wall {t.wall:.1f} s, "
+            f"cpu {row['cpu_s']:.1f} s; warnings: {row['warnings']}")
+        out[label] = row
+    return out
+
+
+def defaults_tables(rows: dict | None) -> str:
+    """The two default runs: accuracy against T_BS (tables()), then per run the knot
+    spacing, the band, the halves' largest difference in reported sigmas, the distance
+    outside the band in sigmas, the warnings and the time."""
+    if not rows:
+        return ""
+    lines = [tables({"runs": list(rows.values())}), ""]
+    for label, r in rows.items():
+        out = {c: {k: round(v, 2) for k, v in x.items()} for c, x in r["outside_band_in_sigmas"].items()}
+        lines.append(f"- {label}: knot {r['knot_spacing_s']} s; in band {r['band']}; halves / reported sigma at most "
+                     f"{ {c: round(h['max'], 2) for c, h in r['halves'].items()} }; outside the band in sigmas "
+                     f"{out}; "
+                     f"{len(r['warnings'])} warning(s); start to YAML {r['seconds']:.1f} s (cpu {r['cpu_s']:.1f} s)")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-halves", action="store_true")
@@ -316,7 +446,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--huber", type=float, default=None, help="Huber loss on the corners beyond this many sigma")
     ap.add_argument("--calibrate", action="store_true", help="also run `rigcal calibrate` on the recording")
     ap.add_argument("--calibrate-only", action="store_true", help="only `rigcal calibrate` on the recording")
+    ap.add_argument("--defaults", action="store_true",
+                    help="only `rigcal calibrate` with its defaults, without and with a camera calibration as --rig")
     a = ap.parse_args(argv)
+    if a.defaults:
+        rows = defaults_runs()
+        if rows is None:
+            say("imu_euroc: ../shared/data/real/euroc_imu_april not found; skipped")
+            return 0
+        write_json("imu_euroc_defaults", rows)
+        print(defaults_tables(rows))
+        return 0
     if a.calibrate_only:
         row = via_calibrate()
         res = None if row is None else {"calibrate": row, "runs": [row]}

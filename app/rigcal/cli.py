@@ -112,8 +112,10 @@ class ImuModel(str, Enum):
 class ImuIntrinsics(str, Enum):
     """`calibrate --imu-intrinsics`: the intrinsics in the camera-IMU estimate (calibrate_imu)."""
 
+    auto = "auto"
     joint = "joint"
     held = "held"
+    prior = "prior"
 
 
 class Guided(str, Enum):
@@ -253,16 +255,22 @@ def calibrate(
     camera_only: bool = typer.Option(False, help="with imu/: calibrate the cameras only (the IMU blocks are "
                                                  "carried through unchanged, the reference is 'aligned')"),
     knot_spacing: Optional[float] = typer.Option(None, help="with imu/: the trajectory spline's knot spacing, s "
-                                                            "(default 0.05; 0.01, Kalibr's, for fast hand-waved motion)"),
+                                                            "(default: the coarsest of 0.05 .. 0.005 s at which a "
+                                                            "spline follows the IMU's signal within 1.5x its "
+                                                            "declared noise; printed and written)"),
     imu_model: ImuModel = typer.Option(
         ImuModel.auto, help="with imu/: calibrated (gyro = omega + bias, accel = f + bias) or scale-misalignment "
                             "(each sensor reads M @ ideal + bias, M = I + lower-triangular: 3 scales and 3 "
                             "misalignments per sensor); auto: calibrated unless a likelihood-ratio test at the "
                             "lens models' level (p = 1e-4) finds scale and misalignment"),
     imu_intrinsics: ImuIntrinsics = typer.Option(
-        ImuIntrinsics.joint, help="with imu/: joint = every camera's intrinsics are estimated again with the "
-                                  "trajectory, poses and clocks (their 1-sigma then includes it); held = kept at "
-                                  "the camera-only step's, as Kalibr does (--fix-intrinsics implies held)"),
+        ImuIntrinsics.auto, help="with imu/: auto = held when --rig (or DATASET/rig.yaml) is the output of an "
+                                 "earlier `rigcal calibrate` (a camera calibration: its cameras carry calibration "
+                                 "sigmas), else joint; joint = every camera's intrinsics are estimated again with "
+                                 "the trajectory, poses and clocks (their 1-sigma then includes it); held = kept at "
+                                 "the camera-only step's, as Kalibr does (--fix-intrinsics implies held); prior = "
+                                 "estimated with the rest, weighted by the declared camera calibration's values "
+                                 "and sigmas"),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from rigcal.commands import calibrate as cal

@@ -113,6 +113,50 @@ def test_joint_intrinsics_agree_with_the_truth_within_their_sigma_and_held_keeps
         assert all(0 < sigma[k] < 0.5 for k in keys) and max(z) < 5.0, (c.name, sigma, z)
 
 
+def test_the_output_says_how_the_defaults_were_chosen(run):
+    """The knot spacing chosen from the IMU (the simulator's motion: the coarsest, 0.05 s) and
+    the halves' check behind the sigmas: every reported pose and offset sigma is at least
+    half the halves' difference."""
+    _, out, text = run
+    doc = yaml.safe_load(out.read_text())
+    ci = doc["calibration"]["camera_imu"]
+    assert ci["knot_spacing_from"] == "imu" and ci["knot_spacing_s"] == pytest.approx(0.05)
+    assert "knot spacing 0.05 s" in text and ci["intrinsics"] == "joint"
+    chk = ci["sigma_check"]
+    assert chk["method"] == "halves" and set(chk["halves_difference"]) == set(doc["cameras"])
+    for name, cam in doc["cameras"].items():
+        sig, d = cam["calibration"]["sigma"], chk["halves_difference"][name]
+        assert cam["calibration"]["sigma_source"] in ("formal", "subsets")
+        for key in ("rotation_deg", "position_mm"):
+            assert all(abs(x) <= 2 * s + 1e-4 for x, s in zip(d[key], sig[key])), (name, key, d[key], sig[key])
+        assert abs(d["time_offset_ms"]) <= 2 * sig["time_offset_ms"] + 1e-4
+
+
+def test_a_camera_calibration_as_rig_holds_its_intrinsics_by_default(run, tmp_path):
+    """The two-recording workflow: a rig written by `rigcal calibrate` given as --rig keeps
+    its intrinsics and their sigmas in both steps; the camera-IMU answer still meets truth."""
+    ds, out, _ = run
+    again = tmp_path / "again.yaml"
+    r = _cli("calibrate", ds, "--rig", out, "--out", again, "--jobs", 1, "--guided", "off")
+    assert r.exit_code == 0, r.output
+    assert "the declared rig is a camera calibration" in r.output
+    first, second = load_rig(out), load_rig(again)
+    doc = yaml.safe_load(again.read_text())
+    assert doc["calibration"]["camera_imu"]["intrinsics"] == "declared"
+    for c in first.cameras:
+        assert second.camera(c.name).intrinsics == c.intrinsics
+        assert second.camera(c.name).calibration["sigma"]["intrinsics"] == c.calibration["sigma"]["intrinsics"]
+    res = compare_imu(second, load_truth(ds / "truth.yaml").rig, yaml.safe_load((ds / "truth.yaml").read_text()))
+    for name, e in res["cameras"].items():
+        assert e["imu0_rot_deg"] < 0.1 and e["imu0_pos_mm"] < 5.0 and abs(e["offset_ms"]) < 0.3, (name, e)
+
+
+def test_a_prior_needs_a_camera_calibration(run, tmp_path):
+    ds, _, _ = run
+    _refused(_variant(ds, tmp_path), 2, "--imu-intrinsics prior", "camera calibration",
+             extra=("--imu-intrinsics", "prior"))
+
+
 def test_kalibr_imu_and_euroc_exports_read_back(run, tmp_path):
     ds, out, _ = run
     rig = load_rig(out)

@@ -105,6 +105,18 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
     Options.chosen("", imu_options or {})  # the IMU options' values, before any work
     inp = _read_inputs(dataset, out_path, report_path, rig_path, target_path, jobs)
     imu_name, reference, plan_notes = _imu_plan(inp, reference, camera_only)
+    if imu_name is not None:  # --imu-intrinsics auto: a declared camera calibration's intrinsics are held
+        from rigcal.imucal.step import resolve_intrinsics
+
+        choice, from_rig = resolve_intrinsics((imu_options or {}).get("intrinsics") or "auto", inp.rig)
+        imu_options = {**(imu_options or {}), "intrinsics": choice, "intrinsics_from_rig": from_rig}
+        if from_rig:
+            fix_intrinsics = True  # the camera-only step keeps the declared calibration's intrinsics
+            plan_notes.append("the declared rig is a camera calibration (its cameras carry calibration sigmas): its "
+                              "intrinsics and distortion are " + (
+                                  "held in both steps (--imu-intrinsics joint re-estimates them from this recording)"
+                                  if choice == "held" else "held in the camera-only step and the camera-IMU step's "
+                                                           "prior"))
     console = _err()
     found = _detect_views(inp, jobs, scheduler, allow_resize, fix_intrinsics, console)
     console.print(f"calibrating {len(found.rig.names)} cameras from {len(found.views)} board views ...")

@@ -79,6 +79,9 @@ class Settings:
     huber: float | None = None  # Huber loss on each corner's residual beyond this many sigma_px
     scale_misalignment: bool = False
     intrinsics: bool = False  # estimate the intrinsics the state carries (State.intrinsics)
+    # with intrinsics: per camera (fx fy cx cy (4,), their 1-sigma (4,)) of an earlier camera
+    # calibration weighing them (residuals.intrinsics_prior_block), or None; empty: no prior
+    intrinsics_prior: tuple = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,7 +104,8 @@ class CameraImuResult:
     costs: dict
 
 
-def _imu_sigmas(imu: ImuInput) -> tuple[float, float]:
+def imu_sigmas(imu: ImuInput) -> tuple[float, float]:
+    """The declared discrete noise (gyroscope rad/s, accelerometer m/s^2): density x sqrt(rate)."""
     r = math.sqrt(imu.update_rate)
     return imu.gyroscope_noise_density * r, imu.accelerometer_noise_density * r
 
@@ -226,12 +230,15 @@ def residual_blocks(state: ir.State, lay: ir.Layout, obs: ir.Corners, models: li
                     use: np.ndarray, settings: Settings) -> list:
     """The blocks the estimate minimises at `state`: corners (normal_rows' form), gyroscope,
     accelerometer and the biases' random walk, on the IMU samples `use` (imu_span)."""
-    sg, sa = _imu_sigmas(imu)
+    sg, sa = imu_sigmas(imu)
     mj = ir.motion_jacobian(state, imu.t[use])  # shared by both IMU blocks
-    return [ir.reprojection_rows(state, lay, obs, models, settings.sigma_px, settings.huber),
-            ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg, mj),
-            ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa, mj),
-            ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
+    blocks = [ir.reprojection_rows(state, lay, obs, models, settings.sigma_px, settings.huber),
+              ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg, mj),
+              ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa, mj),
+              ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
+    if settings.intrinsics and settings.intrinsics_prior and state.intrinsics:
+        blocks.append(ir.intrinsics_prior_block(state, lay, settings.intrinsics_prior))
+    return blocks
 
 
 def band_order(lay: ir.Layout) -> np.ndarray:
@@ -391,16 +398,17 @@ def refine(res: CameraImuResult, models: list[CameraModel], obs: ir.Corners, imu
 
 
 def solve_from(state: ir.State, obs: ir.Corners, models: list[CameraModel], imu: ImuInput, settings: Settings,
-               starts: tuple = (), sigmas: bool = True) -> CameraImuResult:
+               starts: tuple = (), sigmas: bool = True, cost_tol: float = ESTIMATE_COST_TOL) -> CameraImuResult:
     """The joint estimate from a given state (e.g. a trajectory found on one board, the other
-    boards and cameras placed in it) on the corners whose frames the state's spline spans;
-    sigmas as calibrate_camera_imu's."""
+    boards and cameras placed in it, or a time window of a solution) on the corners whose
+    frames the state's spline spans and the IMU samples inside it; sigmas as
+    calibrate_camera_imu's; cost_tol as levenberg_marquardt's."""
     t0 = time.perf_counter()
     keep = frame_span(state, obs)
     if not keep.any():
         raise CalibrationError("no corner falls inside the IMU stream")
     return _solve(state, starts, keep, obs.subset(keep), models, imu, imu_span(state.spline, imu.t), settings, t0,
-                  ESTIMATE_COST_TOL, sigmas)
+                  cost_tol, sigmas)
 
 
 def imu_span(spline: spl.Spline, t: np.ndarray) -> np.ndarray:

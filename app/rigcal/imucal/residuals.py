@@ -596,6 +596,24 @@ def bias_prior_block(state: State, lay: Layout, gyro_random_walk: float, accel_r
     return Block(db, J, start[:, None] + np.arange(6))
 
 
+def intrinsics_prior_block(state: State, lay: Layout, prior: tuple) -> Block:
+    """(values - prior) / sigma of each camera's fx, fy, cx, cy: an earlier camera
+    calibration as a prior (`prior`: per camera (values (4,), sigma (4,)) or None for none).
+    The four must be parameters of their own (Intrinsics with tie_focal and hold_centre
+    False: basis columns 0-3). Linear: exact J."""
+    rows, Js, cols = [], [], []
+    for c, (intr, pr) in enumerate(zip(state.intrinsics, prior)):
+        if pr is None:
+            continue
+        v0, sig = (np.asarray(x, float) for x in pr)
+        rows.append((intr.values[:4] - v0) / sig)
+        Js.append(np.diag(1.0 / sig))
+        cols.append(lay.group("intrinsics", lay.intr_start(c), 4))
+    if not rows:
+        return Block(np.zeros((0, 4)), np.zeros((0, 4, 4)), np.zeros((0, 4), int))
+    return Block(np.stack(rows), np.stack(Js), np.stack(cols))
+
+
 def assemble(blocks: list[Block], n_cols: int) -> tuple[sp.csr_matrix, np.ndarray]:
     """The sparse Jacobian (rows: every residual of every block in order) and residual vector.
     Built as CSR directly (rows come in order, each with its block's columns): going through

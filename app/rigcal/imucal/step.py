@@ -3,8 +3,15 @@ the camera-only calibration's corners, intrinsics and board poses in, every came
 T_imu_cam, clock offset (and line delay), the IMU's biases and gravity out, through the
 public API of rigcal.imucal.estimator.
 
-The intrinsics (`--imu-intrinsics joint`, the default; `held` keeps the camera-only
-calibration's, as Kalibr does) and every board's pose but the gauge board's (most corners:
+Defaults from the data: the spline's knot spacing from how well a spline follows the IMU's
+own signal (imu_start.choose_knot_spacing); the intrinsics (`--imu-intrinsics auto`) held at
+the declared rig's when it is itself a camera calibration (resolve_intrinsics: the
+two-recording workflow of Kalibr and basalt), else estimated with the rest (`joint`;
+`held` keeps the camera-only step's, `prior` weighs them by the declared calibration's
+sigmas). The sigmas are checked on the recording's halves (subset_check) and raised where
+the formal ones are smaller than the halves show.
+
+The intrinsics (when estimated) and every board's pose but the gauge board's (most corners:
 the world frame whose gravity direction the estimator finds) are estimated with the
 trajectory. The camera-only calibration's board poses are not a safe start for the
 trajectory: it treats images of different cameras with equal stems as the same instant, so
@@ -28,8 +35,10 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.stats import chi2
 
 from rigcal.core import geometry as geo
+from rigcal.core import spline as spl
 from rigcal.imucal import estimator as ic
 from rigcal.imucal import residuals as ir
 from rigcal.imucal import start as imu_start
@@ -47,7 +56,10 @@ MIN_FRAMES = 10  # per camera: the clock-offset search needs rates over ~10 fram
 MIN_PNP_CORNERS = 8
 NOISE_WARN_RATIO = 3.0  # residual RMS vs what the declared density predicts, either way
 IMU_MODELS = ("auto", "calibrated", "scale-misalignment")
-INTRINSICS = ("joint", "held")
+# auto: held when the declared rig is itself a camera calibration (every camera carries
+# calibration.sigma.intrinsics: the two-recording workflow), else joint (resolve_intrinsics);
+# prior: estimated with the rest, weighted by that calibration's values and sigmas
+INTRINSICS = ("auto", "joint", "held", "prior")
 SCALE_PARAMETERS = 12  # L of M_gyro and of M_accel, 6 each
 
 
@@ -57,7 +69,8 @@ class Options:
     half-width, whether every camera's line delay is estimated (None: where declared
     non-zero), the spline's knot spacing (None: imu_calib.Settings' default), the IMU model
     (IMU_MODELS; auto: chosen by imu_model_test), the intrinsics (INTRINSICS: estimated with
-    the rest, or held at the camera-only step's)."""
+    the rest, or held at the camera-only step's; auto: resolve_intrinsics), whether the
+    sigmas are checked on the recording's halves (subset_sigmas)."""
 
     imu: str
     gravity: float = ir.GRAVITY
@@ -65,7 +78,9 @@ class Options:
     rolling_shutter: bool | None = None
     knot_dt: float | None = None
     imu_model: str = "auto"
-    intrinsics: str = "joint"
+    intrinsics: str = "auto"
+    subsets: bool = True
+    intrinsics_from_rig: bool = False  # held intrinsics are the declared rig's own calibration
 
     def __post_init__(self):
         # calibrate.run builds these before detection: a typo (--gravity 981) is then one
@@ -134,6 +149,10 @@ class ImuCalibration:
     imu_model: str = "calibrated"
     model_test: "ImuModelTest | None" = None
     intrinsics: tuple = ()  # per camera rigcal.camcal.solve.Intrinsics when estimated with the rest
+    knot: imu_start.KnotChoice | None = None  # None: --knot-spacing given
+    knot_dt: float = 0.05
+    subsets: "SubsetCheck | None" = None  # the halves' re-estimate behind the sigmas (None: not run)
+    intrinsics_source: str = "joint"  # joint | camera-only (held) | declared (held: the rig's own calibration)
 
 
 @dataclass(frozen=True)
@@ -409,6 +428,25 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bo
     return out
 
 
+def intrinsics_coupling(J, lay: ir.Layout, intrinsics: tuple) -> np.ndarray:
+    """B (6 C, 4 C): how every camera's pose (rotation rad about body axes, position m: the
+    sigmas' parameters) follows every camera's fx, fy, cx, cy at the optimum, from the formal
+    covariance: B = C_PI C_II^+ (the regression of the poses on the intrinsics; held values
+    have zero rows and drop out of the pseudo-inverse). When the intrinsics are less certain
+    than the formal covariance says by Delta, the poses are by B Delta B^T."""
+    C = lay.n_cam
+    A_P = np.zeros((6 * C, lay.size))
+    A_P[np.arange(6 * C), lay.cam + np.arange(6 * C)] = 1.0
+    A_I = np.zeros((4 * C, lay.size))
+    for c, intr in enumerate(intrinsics):
+        E = intr.basis()[:4]
+        A_I[4 * c:4 * c + 4, lay.intr_start(c):lay.intr_start(c) + E.shape[1]] = E
+    solve, active = ic.factor((J.T @ J).tocsc(), ic.band_order(lay))
+    S = solve(np.asarray(A_I[:, active].T, dtype=float))
+    C_II, C_PI = A_I[:, active] @ S, A_P[:, active] @ S
+    return C_PI @ np.linalg.pinv(C_II, rcond=1e-12, hermitian=True)
+
+
 def noise_warnings(imu: Imu, gyro: tuple[float, float], accel: tuple[float, float]) -> list[str]:
     """A warning per sensor whose residual RMS differs from the declared density's
     prediction by more than NOISE_WARN_RATIO either way: the figures look wrong."""
@@ -434,8 +472,12 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
         v > 0 for v in line_delays.values())
     inp = build_inputs(cal, samples, imu, faces, time_offsets, line_delays)
     base = settings or ic.Settings()
+    knot = None
     if options.knot_dt is not None:
         base = replace(base, knot_dt=options.knot_dt)
+    elif settings is None:
+        knot = choose_knots(inp.imu)
+        base = replace(base, knot_dt=knot.knot_dt)
     check_span(inp, list(cal.cam_names), base.knot_dt)
     # the camera-only RMS is of each corner's residual norm; the estimator's sigma_px is per
     # coordinate. Started at the norm's, a single-board recording needed a second full pass
@@ -443,7 +485,12 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     settings = replace(base, sigma_px=max(float(cal.rms_px) / math.sqrt(2.0), 0.01), gravity=options.gravity,
                        window_s=options.window_s, line_delay=estimate_delay,
                        scale_misalignment=options.imu_model == "scale-misalignment",
-                       intrinsics=options.intrinsics == "joint")
+                       # auto unresolved (a caller other than calibrate.run, which resolves it against the
+                       # declared rig first): estimated with the rest, as before there was a choice
+                       intrinsics=options.intrinsics in ("auto", "joint", "prior"))
+    if options.intrinsics == "prior":
+        inp, prior = with_prior(inp, cal.declared if cal.declared is not None else cal.rig, list(cal.cam_names))
+        settings = replace(settings, intrinsics_prior=prior)
     try:
         res, settings, passes = estimate(inp, cal.state.T_world_board, settings)
         test = None
@@ -470,24 +517,301 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     J, lay = jacobian(res, inp, _settings_with(settings, res))
     sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment,
                            res.state.intrinsics if settings.intrinsics else ())
+    names = list(cal.cam_names)
+    check = None
+    warnings = []
+    if options.subsets:
+        _, _, obs_all = estimator_corners(inp, len(cal.state.T_world_board))
+        coupling = intrinsics_coupling(J, lay, res.state.intrinsics) if settings.intrinsics else None
+        check = subset_check(res, obs_all, [c.model for c in inp.cams], inp.imu, settings, sig, estimate_delay,
+                             coupling)
+        if check is not None:
+            sig = check.sigma
+            warnings += intrinsics_warnings(check, names, bool(settings.intrinsics_prior))
     w = mean_weights(lay.n_bias)
     rate = math.sqrt(imu.update_rate)
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
     reweighted = " (the second with the corners re-weighted by the noise the first measured)" if passes > 1 else ""
-    notes = [f"camera-IMU: {passes} estimate(s){reweighted}, {res.iterations} "
+    source = ("prior" if settings.intrinsics_prior else "joint") if settings.intrinsics else (
+        "declared" if options.intrinsics_from_rig else "camera-only")
+    held = {"joint": "too", "declared": "held at the declared rig's own calibration (--imu-intrinsics joint "
+                                        "re-estimates them)",
+            "prior": "too, weighted by the declared rig's own calibration and its sigmas (--imu-intrinsics prior)",
+            "camera-only": "held at the camera-only ones (--imu-intrinsics held)"}[source]
+    notes = [knot.line() if knot is not None else f"knot spacing {settings.knot_dt:g} s (--knot-spacing)",
+             f"camera-IMU: {passes} estimate(s){reweighted}, {res.iterations} "
              f"Levenberg-Marquardt iterations in the last, every board but the gauge estimated with it, the "
-             f"intrinsics {'too' if settings.intrinsics else 'held at the camera-only ones (--imu-intrinsics held)'}, "
-             f"corners weighted at {settings.sigma_px:.3g} px"]
+             f"intrinsics {held}, corners weighted at {settings.sigma_px:.3g} px"]
+    if check is not None:
+        notes.append(check.line(names))
+    elif options.subsets:
+        notes.append("sigmas: formal only (the recording's halves could not be estimated apart)")
     chosen = "scale-misalignment" if settings.scale_misalignment else "calibrated"
     notes.append(f"IMU model {chosen}: " + (test.line() + f" (the larger fit {test.seconds:.1f} s)" if test is not None
                                             else f"--imu-model {chosen} (not tested)"))
     T_world_board = np.empty_like(res.state.T_world_board)
     T_world_board[order] = res.state.T_world_board
+    warnings = noise_warnings(imu, (rms[0], pred[0]), (rms[1], pred[1])) + warnings
     return ImuCalibration(res, imu, T_world_board, sig, w @ res.state.gyro_bias, w @ res.state.accel_bias,
                           rms[0], rms[1], pred[0], pred[1], settings.sigma_px * res.normalised_rms["corners"], passes,
-                          time.perf_counter() - t0, tuple(noise_warnings(imu, (rms[0], pred[0]), (rms[1], pred[1]))),
-                          tuple(notes), chosen, test, res.state.intrinsics if settings.intrinsics else ())
+                          time.perf_counter() - t0, tuple(warnings),
+                          tuple(notes), chosen, test, res.state.intrinsics if settings.intrinsics else (), knot,
+                          settings.knot_dt, check, source)
+
+
+# ----------------------------------------------------------------------------- defaults
+
+
+def choose_knots(imu: ic.ImuInput) -> imu_start.KnotChoice:
+    """The knot spacing the IMU's own signal asks for (imu_start.choose_knot_spacing)."""
+    sg, sa = ic.imu_sigmas(imu)
+    return imu_start.choose_knot_spacing(imu.t, imu.gyro, imu.accel, sg, sa, imu.update_rate)
+
+
+def is_camera_calibration(rig) -> bool:
+    """Every camera of the declared rig carries calibration.sigma.intrinsics: the rig is the
+    output of an earlier `rigcal calibrate` (a camera calibration)."""
+    def has(c):
+        sigma = (c.calibration or {}).get("sigma")
+        return isinstance(sigma, dict) and bool(sigma.get("intrinsics"))
+
+    return bool(rig.cameras) and all(has(c) for c in rig.cameras)
+
+
+def resolve_intrinsics(choice: str, rig) -> tuple[str, bool]:
+    """(`joint`, `held` or `prior`, whether the intrinsics start from the declared rig's own
+    calibration) for --imu-intrinsics `choice`: auto holds a camera calibration's intrinsics
+    (Kalibr's and basalt's workflow: calibrate the cameras on a recording made for it, then
+    camera-IMU), else estimates them with the rest; prior needs a camera calibration."""
+    calibrated = is_camera_calibration(rig)
+    if choice == "auto":
+        return ("held", True) if calibrated else ("joint", False)
+    if choice == "prior" and not calibrated:
+        raise InputError("--imu-intrinsics prior: the declared rig is not a camera calibration (every camera needs "
+                         "calibration.sigma.intrinsics, as `rigcal calibrate` writes); pass one with --rig")
+    return choice, choice in ("held", "prior") and calibrated
+
+
+def with_prior(inp: Inputs, declared, names: list[str]) -> tuple[Inputs, tuple]:
+    """(inputs whose intrinsics have fx, fy, cx, cy as parameters of their own, per camera
+    (fx fy cx cy, their 1-sigma) of the declared camera calibration) for --imu-intrinsics
+    prior. The camera-only step held the declared intrinsics, so they are the start too."""
+    intr = tuple(replace(i, tie_focal=False, hold_centre=False) for i in inp.intrinsics)
+    prior = []
+    for name, i in zip(names, intr):
+        sig = declared.camera(name).calibration["sigma"]["intrinsics"]
+        prior.append((i.values[:4].copy(), np.array([max(float(sig[k]), 1e-6) for k in INTRINSIC_KEYS])))
+    return replace(inp, intrinsics=intr), tuple(prior)
+
+
+# ----------------------------------------------------------------------------- subset sigmas
+
+SUBSET_MAX_ITER = 8  # each half from the full solution: LM needs few steps
+SUBSET_COST_TOL = 0.5  # chi-square units: a step gaining less ends a half's estimate
+MIN_SUBSET_CORNERS = 200  # per camera and half, else that camera is not compared
+INTRINSICS_SPREAD_PX = 1.0  # halves differing by more (fx, fy, cx or cy): the intrinsics are poorly determined
+FORMAL_TOO_SMALL = 3.0  # ... or the halves' sigma over the formal one beyond this
+SUBSET_LEVEL = 0.01  # a group's halves disagreeing beyond the formal sigmas at this level: the group is scaled
+INTRINSIC_KEYS = ("fx", "fy", "cx", "cy")
+
+
+@dataclass(frozen=True, eq=False)
+class SubsetCheck:
+    """The estimate repeated on each half of the recording (in time) from the full
+    solution: per camera the halves' difference of rotation (rad, body axes), position
+    (m), clock offset (s), line delay (s) and intrinsics (fx, fy, cx, cy px; None when held),
+    `compared` (C,) bool (each half saw the camera), the formal and the reported sigma dicts
+    (parameter_sigmas' form), per camera `factor` {group: reported / formal, max over the
+    group} and the seconds it took."""
+
+    d_rot: np.ndarray
+    d_pos: np.ndarray
+    d_offset: np.ndarray
+    d_delay: np.ndarray | None
+    d_intr: np.ndarray | None
+    compared: np.ndarray
+    formal: dict
+    sigma: dict
+    factor: list
+    seconds: float
+    split_s: float
+
+    def source(self, c: int) -> str:
+        """`subsets` when any of camera c's sigmas was raised to what the halves show."""
+        return "subsets" if max(self.factor[c].values(), default=1.0) > 1.0 else "formal"
+
+    def line(self, names: list[str]) -> str:
+        raised = [f"{n} {k} x{v:.1f}" for n, f in zip(names, self.factor) for k, v in f.items() if v > 1.0]
+        what = ("raised to what the halves show where the formal ones were smaller: " + ", ".join(raised)
+                if raised else "the formal ones cover the halves' differences")
+        return (f"sigmas checked on the recording's halves (split at {self.split_s:.1f} s, each estimated from the "
+                f"whole recording's solution, {self.seconds:.1f} s): {what}")
+
+
+def state_window(state: ir.State, t_lo: float, t_hi: float) -> ir.State:
+    """The state restricted to the IMU-clock times [t_lo, t_hi]: the spline's controls and
+    the bias knots that reach them (same curve there), everything else as is."""
+    sp_ = state.spline
+    n_seg = len(sp_.p) - spl.ORDER + 1
+    i0 = int(np.clip(np.floor((t_lo - sp_.t0) / sp_.dt), 0, n_seg - 1))
+    i1 = int(np.clip(np.ceil((t_hi - sp_.t0) / sp_.dt), i0 + 1, n_seg))
+    spline = spl.Spline(sp_.t0 + i0 * sp_.dt, sp_.dt, sp_.R[i0:i1 + spl.ORDER - 1], sp_.p[i0:i1 + spl.ORDER - 1])
+    nb = len(state.gyro_bias)
+    j0 = int(np.clip(np.floor((spline.t0 - state.bias_t0) / state.bias_dt), 0, nb - 2))
+    j1 = int(np.clip(np.ceil((spline.t_end - state.bias_t0) / state.bias_dt), j0 + 1, nb - 1))
+    return replace(state, spline=spline, bias_t0=state.bias_t0 + j0 * state.bias_dt,
+                   gyro_bias=state.gyro_bias[j0:j1 + 1].copy(), accel_bias=state.accel_bias[j0:j1 + 1].copy())
+
+
+def _values(st: ir.State, estimate_delay: bool, intrinsics: bool):
+    """(T_body_cam, offsets, line delays or None, intrinsics (C, 4) or None) of a state."""
+    intr = np.stack([i.values[:4] for i in st.intrinsics]) if intrinsics and st.intrinsics else None
+    return st.T_body_cam, st.time_offset_s, st.line_delay_s if estimate_delay else None, intr
+
+
+def halves_differences(a: ir.State, b: ir.State, estimate_delay: bool, intrinsics: bool) -> tuple:
+    """(rotation (C, 3) rad about body axes, position (C, 3) m, offset (C,), line delay (C,)
+    or None, intrinsics (C, 4) or None): a's values minus b's, as the sigmas are expressed
+    (rotations perturbed on the left: Log(R_a R_b^T))."""
+    Ta, oa, la, ia = _values(a, estimate_delay, intrinsics)
+    Tb, ob, lb, ib = _values(b, estimate_delay, intrinsics)
+    d_rot = geo.rotvecs_from_R(Ta[:, :3, :3] @ np.swapaxes(Tb[:, :3, :3], 1, 2))
+    return (d_rot, Ta[:, :3, 3] - Tb[:, :3, 3], oa - ob, None if la is None else la - lb,
+            None if ia is None else ia - ib)
+
+
+def inflated(formal: np.ndarray, diff: np.ndarray) -> np.ndarray:
+    """The sigma a group of K parameters (formal (K,), the halves' differences (K,)) is
+    reported with. Each half holds about half the data, so under the formal covariance the
+    halves' difference has twice the full estimate's sigma (sqrt(2) per half) and a
+    parameter's sigma as the halves show it is |d| / 2. Per parameter the larger of the
+    formal sigma and |d| / 2; and when the group's q = sum (d / 2 formal)^2 exceeds the
+    chi-square quantile of K degrees of freedom at SUBSET_LEVEL (the halves disagree by more
+    than the formal sigmas allow, not by chance) every sigma of the group is at least the
+    formal one times sqrt(q / K)."""
+    f = np.maximum(np.asarray(formal, float), 1e-300)
+    half = 0.5 * np.abs(np.asarray(diff, float))
+    q = float(np.sum((half / f) ** 2))
+    k = math.sqrt(q / len(f)) if q > chi2.ppf(1.0 - SUBSET_LEVEL, len(f)) else 1.0
+    return np.maximum(np.maximum(f, half), k * f)
+
+
+def subset_sigmas(formal: dict, diffs: tuple, compared: np.ndarray, coupling: np.ndarray | None = None
+                  ) -> tuple[dict, list]:
+    """(reported sigma dict, per camera {group: reported / formal at most}) from the formal
+    parameter_sigmas and the halves' differences (halves_differences), cameras `compared`
+    only; other entries (biases, scale) stay formal. `coupling` (intrinsics_coupling's B):
+    the intrinsics' variance beyond the formal one carried into every pose through B (a
+    principal point the halves place pixels apart turns the camera's extrinsic rotation by
+    about that over the focal length; the halves alone share such a bias and miss it)."""
+    d_rot, d_pos, d_off, d_delay, d_intr = diffs
+    out = {**formal, "pose": formal["pose"].copy(), "offset": formal["offset"].copy()}
+    C = len(formal["offset"])
+    factor = [{} for _ in range(C)]
+    if formal.get("line_delay") is not None:
+        out["line_delay"] = formal["line_delay"].copy()
+    if formal.get("intrinsics") is not None:
+        out["intrinsics"] = [dict(i) for i in formal["intrinsics"]]
+    for c in np.flatnonzero(compared):
+        groups = [("rotation", formal["pose"][c, :3], d_rot[c], lambda v: out["pose"].__setitem__((c, slice(0, 3)), v)),
+                  ("position", formal["pose"][c, 3:], d_pos[c], lambda v: out["pose"].__setitem__((c, slice(3, 6)), v)),
+                  ("time_offset", formal["offset"][c:c + 1], d_off[c:c + 1],
+                   lambda v: out["offset"].__setitem__(c, v[0]))]
+        if d_delay is not None and formal.get("line_delay") is not None:
+            groups.append(("line_delay", formal["line_delay"][c:c + 1], d_delay[c:c + 1],
+                           lambda v: out["line_delay"].__setitem__(c, v[0])))
+        if d_intr is not None and formal.get("intrinsics") is not None:
+            fi = np.array([formal["intrinsics"][c][k] for k in INTRINSIC_KEYS])
+            held = fi <= 0  # a held value (the principal point of `centred`) has no sigma and no difference
+
+            def put(v, c=c, held=held):
+                for k, key in enumerate(INTRINSIC_KEYS):
+                    if not held[k]:
+                        out["intrinsics"][c][key] = float(v[k])
+            groups.append(("intrinsics", np.where(held, 1.0, fi), np.where(held, 0.0, d_intr[c]), put))
+        for name, f, d, put in groups:
+            v = inflated(f, d)
+            put(v)
+            factor[c][name] = float(np.max(v / np.maximum(f, 1e-300)))
+    if coupling is not None and out.get("intrinsics") is not None:
+        excess = np.array([[max(out["intrinsics"][c][k] ** 2 - formal["intrinsics"][c][k] ** 2, 0.0)
+                            for k in INTRINSIC_KEYS] for c in range(C)]).ravel()
+        extra = np.einsum("pk,k,pk->p", coupling, excess, coupling).reshape(C, 6)
+        if extra.any():
+            pose = np.sqrt(out["pose"] ** 2 + extra)
+            for c in range(C):
+                for name, cols in (("rotation", slice(0, 3)), ("position", slice(3, 6))):
+                    r = float(np.max(pose[c, cols] / np.maximum(formal["pose"][c, cols], 1e-300)))
+                    if r > factor[c].get(name, 1.0):
+                        factor[c][name] = r
+            out["pose"] = pose
+    return out, factor
+
+
+def subset_check(res: ic.CameraImuResult, obs: ir.Corners, models: list, imu: ic.ImuInput, settings: ic.Settings,
+                 formal: dict, estimate_delay: bool, coupling: np.ndarray | None = None) -> SubsetCheck | None:
+    """The estimate on each half of the recording in time (its corners and IMU samples),
+    each started from the whole recording's solution (state_window) and stopped early
+    (SUBSET_MAX_ITER, SUBSET_COST_TOL), and the sigmas it supports (subset_sigmas). None
+    when a half cannot be estimated (too short for its spline, or its LM fails)."""
+    t0 = time.perf_counter()
+    st = res.state
+    t_c = ir.corner_times(st, obs.subset(res.corners_used))
+    lo, hi = float(t_c.min()), float(t_c.max())
+    mid = 0.5 * (lo + hi)
+    quick = replace(settings, max_iter=SUBSET_MAX_ITER)
+
+    def half(span):
+        part = state_window(st, max(span[0], st.spline.t0), min(span[1], st.spline.t_end))
+        try:
+            r = ic.solve_from(part, obs, models, imu, quick, sigmas=False, cost_tol=SUBSET_COST_TOL)
+        except (CalibrationError, ValueError, np.linalg.LinAlgError):
+            return None
+        return r.state, np.bincount(obs.cam[r.corners_used], minlength=len(models))
+
+    # two threads: the halves are independent and numpy / SuperLU release the GIL in their
+    # heavy parts
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=2) as ex:
+        halves = list(ex.map(half, ((lo - 1.0, mid), (mid, hi + 1.0))))
+    if any(h is None for h in halves):
+        return None
+    compared = (halves[0][1] >= MIN_SUBSET_CORNERS) & (halves[1][1] >= MIN_SUBSET_CORNERS)
+    if not compared.any():
+        return None
+    diffs = halves_differences(halves[0][0], halves[1][0], estimate_delay, settings.intrinsics)
+    sigma, factor = subset_sigmas(formal, diffs, compared, coupling)
+    return SubsetCheck(*diffs, compared, formal, sigma, factor, time.perf_counter() - t0, mid)
+
+
+def intrinsics_warnings(check: SubsetCheck, names: list[str], prior: bool = False) -> list[str]:
+    """A warning per camera whose intrinsics, estimated from this motion recording, differ
+    between its halves by over INTRINSICS_SPREAD_PX or by over FORMAL_TOO_SMALL formal
+    sigmas: the recording determines them poorly; the fix is a camera calibration first."""
+    if check.d_intr is None:
+        return []
+    out = []
+    for c in np.flatnonzero(check.compared):
+        d = check.d_intr[c]
+        f = np.array([check.formal["intrinsics"][c][k] for k in INTRINSIC_KEYS])
+        est = f > 0
+        worst = int(np.argmax(np.where(est, np.abs(d), -1)))
+        ratio = check.factor[c].get("intrinsics", 1.0)
+        if not est.any() or (abs(d[worst]) <= INTRINSICS_SPREAD_PX and ratio <= FORMAL_TOO_SMALL):
+            continue
+        rep = check.sigma["intrinsics"][c]
+        spread = ", ".join(f"{k} {d[i]:+.1f}" for i, k in enumerate(INTRINSIC_KEYS) if est[i])
+        now = ", ".join(f"{k} {rep[k]:.2f}" for k, e in zip(INTRINSIC_KEYS, est) if e)
+        out.append(f"camera {names[c]}: this recording determines its intrinsics poorly: its two halves differ by "
+                   f"{spread} px (reported 1-sigma now {now} px, "
+                   f"{ratio:.0f}x the formal); " + (
+                       "the declared calibration's prior did not hold them: --imu-intrinsics auto holds them"
+                       if prior else
+                       "calibrate the cameras first on a recording made for it (the board filling the corners of "
+                       "each image, moved slowly) and pass that output as --rig: its intrinsics are then held here"))
+    return out
 
 
 def plan(rig, imus_read: dict, reference: str | None, camera_only: bool = False) -> tuple[str | None, str]:

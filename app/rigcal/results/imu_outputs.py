@@ -39,7 +39,7 @@ def body_from_imu(reference: str, imu_name: str, T_imu_cam: np.ndarray, declared
     return geo.fit_rigid_to(T_imu_cam[posed], np.stack([declared.cameras[k].T_body_cam for k in posed]))
 
 
-def _camera_block(old: dict | None, k: int, res: ImuCalibration) -> dict:
+def _camera_block(old: dict | None, k: int, res: ImuCalibration, held_sigma: dict | None = None) -> dict:
     block = dict(old or {})
     sig = dict(block.get("sigma", {}))
     pose = res.sigma["pose"][k]
@@ -50,7 +50,11 @@ def _camera_block(old: dict | None, k: int, res: ImuCalibration) -> dict:
         sig["line_delay_us"] = _r(1e6 * res.sigma["line_delay"][k], 5)
     if res.sigma.get("intrinsics") is not None:  # estimated with the rest: their sigma replaces the camera-only one
         sig["intrinsics"] = {key: _r(res.sigma["intrinsics"][k][key], 4) for key in ("fx", "fy", "cx", "cy")}
+    elif held_sigma:  # held at the declared camera calibration: its uncertainty is still theirs
+        sig["intrinsics"] = dict(held_sigma)
     block["sigma"] = sig
+    # formal: from the solution covariance; subsets: raised to what the recording's halves show
+    block["sigma_source"] = res.subsets.source(k) if res.subsets is not None and res.subsets.compared[k] else "formal"
     return block
 
 
@@ -123,7 +127,8 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
         delay = float(est.state.line_delay_s[k]) if res.sigma["line_delay"] is not None else c.line_delay_s
         lens = c.intrinsics.with_values(res.intrinsics[k].values) if res.intrinsics else c.intrinsics
         cams.append(replace(c, T_body_cam=T_body_imu @ est.T_imu_cam[k], time_offset_s=float(est.time_offset_s[k]),
-                            line_delay_s=delay, intrinsics=lens, calibration=_camera_block(c.calibration, k, res)))
+                            line_delay_s=delay, intrinsics=lens,
+                            calibration=_camera_block(c.calibration, k, res, _declared_sigma(declared, c.name, res))))
     imus = tuple(replace(i, T_body_imu=T_body_imu, calibration=imu_block(res, reference != f"imu:{res.imu.name}"))
                  if i.name == res.imu.name
                  else i for i in out_rig.imus)
@@ -135,8 +140,39 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
     top["reference"] = reference
     top["camera_imu"] = {"imu": res.imu.name, "corner_rms_px": _r(res.corner_rms_px, 4),
                          "gravity_m_s2": _r(est.state.gravity, 5), "passes": res.passes,
-                         "iterations": int(est.iterations), "seconds": _r(res.seconds, 2)}
+                         "iterations": int(est.iterations), "seconds": _r(res.seconds, 2),
+                         "knot_spacing_s": _r(res.knot_dt, 6),
+                         "knot_spacing_from": "imu" if res.knot is not None else "--knot-spacing",
+                         "intrinsics": res.intrinsics_source}
+    if res.subsets is not None:
+        top["camera_imu"]["sigma_check"] = halves_entry(res.subsets, names)
     return replace(out_rig, cameras=tuple(cams), imus=imus, stereo_pairs=pairs, calibration=top)
+
+
+def halves_entry(check, names: list[str]) -> dict:
+    """`sigma_check`: where the recording was split, and per camera compared the halves'
+    differences (first minus second) in the sigmas' units: rotation about body F, L, U
+    (deg), position (mm), time offset (ms), line delay (us), intrinsics (px)."""
+    cams = {}
+    for k in np.flatnonzero(check.compared):
+        e = {"rotation_deg": [_r(np.degrees(x), 5) for x in check.d_rot[k]],
+             "position_mm": [_r(1000 * x, 4) for x in check.d_pos[k]],
+             "time_offset_ms": _r(1000 * check.d_offset[k], 5)}
+        if check.d_delay is not None:
+            e["line_delay_us"] = _r(1e6 * check.d_delay[k], 5)
+        if check.d_intr is not None:
+            e["intrinsics"] = {key: _r(x, 4) for key, x in zip(("fx", "fy", "cx", "cy"), check.d_intr[k])}
+        cams[names[k]] = e
+    return {"method": "halves", "split_s": _r(check.split_s, 3), "seconds": _r(check.seconds, 2),
+            "halves_difference": cams}
+
+
+def _declared_sigma(declared: Rig, name: str, res: ImuCalibration) -> dict | None:
+    """The declared camera calibration's sigma.intrinsics when its intrinsics were held."""
+    if res.intrinsics_source != "declared" or name not in declared.names:
+        return None
+    sig = ((declared.camera(name).calibration or {}).get("sigma") or {}).get("intrinsics")
+    return dict(sig) if isinstance(sig, dict) else None
 
 
 def console_tables(rig: Rig, res: ImuCalibration) -> list:
@@ -162,7 +198,7 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
         parts.append(scale_table(res.imu.name, b))
     c = Table(title=f"cameras relative to {res.imu.name} (clocks: t_imu = t_cam + offset)")
     cols = ["camera", "time offset ms", "1-sigma ms", "line delay us/row", "1-sigma us", "sigma pos mm (F L U)",
-            "sigma rot deg (F L U)"]
+            "sigma rot deg (F L U)", "sigmas from"]
     for col in cols:
         c.add_column(col, justify="left" if col == "camera" else "right")
     for cam in rig.cameras:
@@ -170,7 +206,8 @@ def console_tables(rig: Rig, res: ImuCalibration) -> list:
         c.add_row(cam.name, f"{1000 * cam.time_offset_s:+.3f}", f"{s['time_offset_ms']:.4f}",
                   f"{1e6 * cam.line_delay_s:.3f}" if cam.line_delay_s is not None else "-",
                   f"{s['line_delay_us']:.3f}" if "line_delay_us" in s else "-",
-                  " ".join(f"{x:.3f}" for x in s["position_mm"]), " ".join(f"{x:.4f}" for x in s["rotation_deg"]))
+                  " ".join(f"{x:.3f}" for x in s["position_mm"]), " ".join(f"{x:.4f}" for x in s["rotation_deg"]),
+                  cam.calibration.get("sigma_source", "formal"))
     return parts + [c]
 
 
