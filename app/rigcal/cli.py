@@ -217,52 +217,69 @@ def simulate(
                 focal_error=focal_error, target_path=target, force=force, jobs=jobs))
 
 
+# `rigcal calibrate --help` groups its options (typer's help panels)
+IO_PANEL, MODEL_PANEL, RUN_PANEL, IMU_PANEL = ("Inputs and outputs", "Camera model", "Detection and execution",
+                                               "Camera-IMU (a dataset with imu/)")
+
+
 @app.command()
 @guarded
 def calibrate(
     dataset: Path = typer.Argument(..., help="dataset folder (dataset.md)"),
-    out_yaml: Path = typer.Option(..., "--out", help="calibrated rig YAML to write"),
-    rig: Optional[Path] = typer.Option(None, help="declared rig (default DATASET/rig.yaml)"),
-    target: Optional[Path] = typer.Option(None, help="target YAML (default DATASET/target.yaml)"),
-    report: Optional[Path] = typer.Option(None, help="write a self-contained HTML report here"),
-    jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
+    out_yaml: Path = typer.Option(..., "--out", help="calibrated rig YAML to write", rich_help_panel=IO_PANEL),
+    rig: Optional[Path] = typer.Option(None, help="declared rig (default DATASET/rig.yaml)", rich_help_panel=IO_PANEL),
+    target: Optional[Path] = typer.Option(None, help="target YAML (default DATASET/target.yaml)",
+                                          rich_help_panel=IO_PANEL),
+    report: Optional[Path] = typer.Option(None, help="write a self-contained HTML report here",
+                                          rich_help_panel=IO_PANEL),
     reference: Optional[str] = typer.Option(
         None, help="body frame: 'aligned' (fit to the declared rig), 'camera:NAME', or 'imu:NAME' (that IMU keeps "
-                   "its declared pose; the default when the rig declares an IMU and the dataset has imu/)"),
+                   "its declared pose; the default when the rig declares an IMU and the dataset has imu/)",
+                   rich_help_panel=MODEL_PANEL),
     distortion: Distortion = typer.Option(
         Distortion.auto, help="pinhole distortion model; auto: radtan4, plus k3 or the rational terms when the data "
-                              "show them"),
+                              "show them", rich_help_panel=MODEL_PANEL),
     intrinsics: IntrinsicsChoice = typer.Option(
         IntrinsicsChoice.auto, help="which of fx, fy, cx, cy to estimate; auto: fx = fy and the principal point at "
                                     "its declared value (default the image centre) unless the data show otherwise; "
                                     "free: all four; square: fx = fy; centred: cx, cy held at the declared value; "
-                                    "square-centred: both"),
-    fix_intrinsics: bool = typer.Option(False, help="keep the declared intrinsics and distortion"),
-    allow_resize: bool = typer.Option(False, help="accept images whose size differs from the rig's resolution (intrinsics are scaled)"),
+                                    "square-centred: both", rich_help_panel=MODEL_PANEL),
+    fix_intrinsics: bool = typer.Option(False, help="keep the declared intrinsics and distortion",
+                                        rich_help_panel=MODEL_PANEL),
+    allow_resize: bool = typer.Option(False, help="accept images whose size differs from the rig's resolution (intrinsics are scaled)",
+                                      rich_help_panel=MODEL_PANEL),
     guided: Guided = typer.Option(
         Guided.auto, help="re-measure the corners with the calibrated camera models, then solve again: auto = "
-                          "fisheye cameras, on = every camera, off = the detector's corners are final"),
+                          "fisheye cameras, on = every camera, off = the detector's corners are final",
+                          rich_help_panel=RUN_PANEL),
+    jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)",
+                                       rich_help_panel=RUN_PANEL),
     scheduler: Optional[str] = typer.Option(
         None, envvar="RIGCAL_SCHEDULER", help="a Dask scheduler's address (tcp://host:8786): its workers detect "
                                              "and re-measure the corners, reading the images at their absolute "
-                                             "paths (needs rigcal[dask])"),
-    gravity: Optional[float] = typer.Option(None, help="with imu/: local gravity, m/s^2 (default 9.80665; EuRoC's "
-                                                       "site 9.81007); its direction is estimated"),
-    offset_window: Optional[float] = typer.Option(None, help="with imu/: clock offsets are searched within +-this "
-                                                             "many seconds of the declared time_offset_s (default 0.2)"),
-    rolling_shutter: bool = typer.Option(False, help="with imu/: estimate every camera's line_delay_s (default: "
-                                                     "only where the rig declares one non-zero)"),
+                                             "paths (needs rigcal[dask])", rich_help_panel=RUN_PANEL),
     camera_only: bool = typer.Option(False, help="with imu/: calibrate the cameras only (the IMU blocks are "
-                                                 "carried through unchanged, the reference is 'aligned')"),
+                                                 "carried through unchanged, the reference is 'aligned')",
+                                                 rich_help_panel=IMU_PANEL),
+    gravity: Optional[float] = typer.Option(None, help="with imu/: local gravity, m/s^2 (default 9.80665; EuRoC's "
+                                                       "site 9.81007); its direction is estimated",
+                                                       rich_help_panel=IMU_PANEL),
+    offset_window: Optional[float] = typer.Option(None, help="with imu/: clock offsets are searched within +-this "
+                                                             "many seconds of the declared time_offset_s (default 0.2)",
+                                                             rich_help_panel=IMU_PANEL),
+    rolling_shutter: bool = typer.Option(False, help="with imu/: estimate every camera's line_delay_s (default: "
+                                                     "only where the rig declares one non-zero)",
+                                                     rich_help_panel=IMU_PANEL),
     knot_spacing: Optional[float] = typer.Option(None, help="with imu/: the trajectory spline's knot spacing, s "
                                                             "(default: the coarsest of 0.05 .. 0.005 s at which a "
                                                             "spline follows the IMU's signal within 1.5x its "
-                                                            "declared noise; printed and written)"),
+                                                            "declared noise; printed and written)",
+                                                            rich_help_panel=IMU_PANEL),
     imu_model: ImuModel = typer.Option(
         ImuModel.auto, help="with imu/: calibrated (gyro = omega + bias, accel = f + bias) or scale-misalignment "
                             "(each sensor reads M @ ideal + bias, M = I + lower-triangular: 3 scales and 3 "
                             "misalignments per sensor); auto: calibrated unless a likelihood-ratio test at the "
-                            "lens models' level (p = 1e-4) finds scale and misalignment"),
+                            "lens models' level (p = 1e-4) finds scale and misalignment", rich_help_panel=IMU_PANEL),
     imu_intrinsics: ImuIntrinsics = typer.Option(
         ImuIntrinsics.auto, help="with imu/: auto = held when --rig (or DATASET/rig.yaml) is the output of an "
                                  "earlier `rigcal calibrate` (a camera calibration: its cameras carry calibration "
@@ -270,19 +287,17 @@ def calibrate(
                                  "the trajectory, poses and clocks (their 1-sigma then includes it); held = kept at "
                                  "the camera-only step's, as Kalibr does (--fix-intrinsics implies held); prior = "
                                  "estimated with the rest, weighted by the declared camera calibration's values "
-                                 "and sigmas"),
+                                 "and sigmas", rich_help_panel=IMU_PANEL),
 ):
     """Detect the boards and calibrate every camera's intrinsics and T_body_cam."""
     from rigcal.commands import calibrate as cal
 
-    out(cal.run(dataset=dataset, out_path=out_yaml, rig_path=rig, target_path=target, report_path=report, jobs=jobs,
-                reference=reference, distortion=distortion.value, fix_intrinsics=fix_intrinsics,
-                allow_resize=allow_resize, guided=guided.value, intrinsics=intrinsics.value,
-                scheduler=scheduler, imu_options={"gravity": gravity, "window_s": offset_window,
-                                                  "rolling_shutter": True if rolling_shutter else None,
-                                                  "knot_dt": knot_spacing, "imu_model": imu_model.value,
-                                                  "intrinsics": imu_intrinsics.value},
-                camera_only=camera_only))
+    out(cal.run(dataset, out_yaml, cal.CalibrateOptions(
+        rig=rig, target=target, report=report, reference=reference, distortion=distortion.value,
+        intrinsics=intrinsics.value, fix_intrinsics=fix_intrinsics, allow_resize=allow_resize, guided=guided.value,
+        jobs=jobs, scheduler=scheduler, camera_only=camera_only, gravity=gravity, offset_window=offset_window,
+        rolling_shutter=rolling_shutter, knot_spacing=knot_spacing, imu_model=imu_model.value,
+        imu_intrinsics=imu_intrinsics.value)))
 
 
 @app.command()

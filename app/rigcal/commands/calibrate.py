@@ -20,6 +20,7 @@ from rigcal.core.io import atomic_write_texts, output_target
 from rigcal.core.observations import BoardView
 from rigcal.results.outputs import calibrated_rig, console_summary, warnings_for
 from rigcal.core.rig import Rig, dump_rig, load_rig
+from rigcal.imucal.step import Options
 
 if TYPE_CHECKING:  # annotations only: detection and the dataset readers load when run() needs them
     from rigcal.data.dataset import DatasetImages
@@ -82,34 +83,64 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
-def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path: Path | None = None,
-        report_path: Path | None = None, jobs: int | None = None, reference: str | None = None,
-        distortion: str = "auto", fix_intrinsics: bool = False, allow_resize: bool = False, guided: str = "auto",
-        intrinsics: str = "auto", scheduler: str | None = None, imu_options: dict | None = None,
-        camera_only: bool = False):
+@dataclass(frozen=True)
+class CalibrateOptions:
+    """Every option of `rigcal calibrate`, each named as its command-line flag
+    (--fix-intrinsics -> fix_intrinsics); the defaults are the command's."""
+
+    # inputs and outputs
+    rig: Path | None = None  # the declared rig (default DATASET/rig.yaml)
+    target: Path | None = None  # the target (default DATASET/target.yaml)
+    report: Path | None = None  # the HTML report to write
+    # the camera model
+    reference: str | None = None  # aligned | camera:NAME | imu:NAME (None: imucal.step.plan's default)
+    distortion: str = "auto"
+    intrinsics: str = "auto"
+    fix_intrinsics: bool = False
+    allow_resize: bool = False
+    # detection and execution
+    guided: str = "auto"
+    jobs: int | None = None
+    scheduler: str | None = None
+    # the camera-IMU step
+    camera_only: bool = False
+    gravity: float | None = None
+    offset_window: float | None = None
+    rolling_shutter: bool = False
+    knot_spacing: float | None = None
+    imu_model: str = "auto"
+    imu_intrinsics: str = "auto"
+
+    def imu_step(self, imu: str, intrinsics_from_rig: bool = False) -> Options:
+        """The camera-IMU step's options against `imu` (--fix-intrinsics holds the declared
+        intrinsics there too)."""
+        return Options(imu, gravity=self.gravity, offset_window=self.offset_window,
+                       rolling_shutter=True if self.rolling_shutter else None, knot_spacing=self.knot_spacing,
+                       imu_model=self.imu_model, imu_intrinsics="held" if self.fix_intrinsics else self.imu_intrinsics,
+                       intrinsics_from_rig=intrinsics_from_rig)
+
+
+def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOptions()):
     """`rigcal calibrate`: check the arguments, read and detect the dataset, calibrate
-    (pipeline.calibrate_views, then calibrate_imu on a motion dataset with an IMU unless
-    camera_only), write the rig (and report) atomically, print warnings and notes; returns
-    the console summary."""
+    (pipeline.calibrate_views, then the camera-IMU step on a motion dataset with an IMU
+    unless camera_only), write the rig (and report) atomically, print warnings and notes;
+    returns the console summary."""
     t0 = time.perf_counter()
-    dataset = Path(dataset)
+    dataset, o = Path(dataset), options
     from rigcal.commands import calibrate_mag
 
     if calibrate_mag.mag_only_dataset(dataset):  # imu/ + mag/, no images: magnetometers only
-        _check_arguments(dataset, out_path, report_path, jobs)
-        return calibrate_mag.run_mag_only(dataset, out_path, rig_path, report_path, _err(), check_output_path)
-    from rigcal.imucal.step import Options
-
-    if fix_intrinsics:  # the declared intrinsics stay in the camera-IMU estimate too
-        imu_options = {**(imu_options or {}), "intrinsics": "held"}
-    Options.chosen("", imu_options or {})  # the IMU options' values, before any work
-    inp = _read_inputs(dataset, out_path, report_path, rig_path, target_path, jobs)
-    imu_name, reference, plan_notes = _imu_plan(inp, reference, camera_only)
+        _check_arguments(dataset, out_path, o.report, o.jobs)
+        return calibrate_mag.run_mag_only(dataset, out_path, o.rig, o.report, _err(), check_output_path)
+    imu_options = o.imu_step("")  # the IMU options' values checked before any work
+    inp = _read_inputs(dataset, out_path, o.report, o.rig, o.target, o.jobs)
+    imu_name, reference, plan_notes = _imu_plan(inp, o.reference, o.camera_only)
+    fix_intrinsics = o.fix_intrinsics
     if imu_name is not None:  # --imu-intrinsics auto: a declared camera calibration's intrinsics are held
         from rigcal.imucal.step import resolve_intrinsics
 
-        choice, from_rig = resolve_intrinsics((imu_options or {}).get("intrinsics") or "auto", inp.rig)
-        imu_options = {**(imu_options or {}), "intrinsics": choice, "intrinsics_from_rig": from_rig}
+        choice, from_rig = resolve_intrinsics(imu_options.imu_intrinsics, inp.rig)
+        imu_options = replace(imu_options, imu=imu_name, imu_intrinsics=choice, intrinsics_from_rig=from_rig)
         if from_rig:
             fix_intrinsics = True  # the camera-only step keeps the declared calibration's intrinsics
             plan_notes.append("the declared rig is a camera calibration (its cameras carry calibration sigmas): its "
@@ -118,40 +149,39 @@ def run(dataset: Path, out_path: Path, rig_path: Path | None = None, target_path
                                   if choice == "held" else "held in the camera-only step and the camera-IMU step's "
                                                            "prior"))
     console = _err()
-    found = _detect_views(inp, jobs, scheduler, allow_resize, fix_intrinsics, console)
+    found = _detect_views(inp, o.jobs, o.scheduler, o.allow_resize, fix_intrinsics, console)
     console.print(f"calibrating {len(found.rig.names)} cameras from {len(found.views)} board views ...")
     from rigcal.detect.guided import guided_cameras, rerefiner
 
-    rerefine = rerefiner(found.images, found.rig, inp.target, jobs=jobs or os.cpu_count() or 1, mode=guided,
-                         scheduler=scheduler)
-    for cam in guided_cameras(found.rig, guided):
+    rerefine = rerefiner(found.images, found.rig, inp.target, jobs=o.jobs or os.cpu_count() or 1, mode=o.guided,
+                         scheduler=o.scheduler)
+    for cam in guided_cameras(found.rig, o.guided):
         if cam in found.images.corners:
             console.print(f"note: {cam}: the guided pass needs images; its corners from "
                           f"{found.images.corners[cam]} stand")
     cal = calibrate_views(found.views, found.rig, {b.name: b.corners for b in inp.target.boards},
-                          distortion=distortion, fix_intrinsics=fix_intrinsics,
+                          distortion=o.distortion, fix_intrinsics=fix_intrinsics,
                           reference="aligned" if reference.startswith("imu:") else reference, rerefine=rerefine,
-                          intrinsics=intrinsics, faces={b.name: b.print_face for b in inp.target.boards})
+                          intrinsics=o.intrinsics, faces={b.name: b.print_face for b in inp.target.boards})
     from rigcal.camcal.stereo_checks import stereo_checks
 
     pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
     out_rig = calibrated_rig(cal, pairs, dataset=str(dataset))
     imu_res = None
     if imu_name is not None:
-        from rigcal.results.imu_outputs import calibrate_with_imu
+        from rigcal.commands.calibrate_imu import calibrate_with_imu
 
-        imu_res, out_rig = calibrate_with_imu(cal, out_rig, inp.motion, imu_name, reference, inp.target,
-                                              imu_options or {})
+        imu_res, out_rig = calibrate_with_imu(cal, out_rig, inp.motion, reference, inp.target, imu_options)
     out_rig, mag_tables = calibrate_mag.with_magnetometers(out_rig, dataset, inp.motion.imus, console)
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
-    _write_outputs(out_path, report_path, out_rig, cal, found.det, pairs, timings,
+    _write_outputs(out_path, o.report, out_rig, cal, found.det, pairs, timings,
                    imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]))
     imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
     for w in found.warnings + warnings_for(cal) + imu_warnings:
         console.print(f"warning: {w}")
     for n in list(cal.notes) + list(inp.motion_notes) + plan_notes + imu_notes:
         console.print(f"note: {n}")
-    summary = console_summary(cal, out_rig, found.det, timings, out_path, report_path)
+    summary = console_summary(cal, out_rig, found.det, timings, out_path, o.report)
     if imu_res is None:
         return Group(summary, *mag_tables) if mag_tables else summary
     from rigcal.results.imu_outputs import console_tables

@@ -65,42 +65,43 @@ SCALE_PARAMETERS = 12  # L of M_gyro and of M_accel, 6 each
 
 @dataclass(frozen=True)
 class Options:
-    """What the user chose: the IMU (name), gravity's magnitude, the clock-offset search
-    half-width, whether every camera's line delay is estimated (None: where declared
-    non-zero), the spline's knot spacing (None: imu_calib.Settings' default), the IMU model
-    (IMU_MODELS; auto: chosen by imu_model_test), the intrinsics (INTRINSICS: estimated with
-    the rest, or held at the camera-only step's; auto: resolve_intrinsics), whether the
-    sigmas are checked on the recording's halves (subset_sigmas)."""
+    """The camera-IMU step's options, named as `rigcal calibrate`'s (--offset-window ->
+    offset_window): the IMU (name), gravity's magnitude, the clock-offset search half-width,
+    whether every camera's line delay is estimated (None: where declared non-zero), the
+    spline's knot spacing (None: chosen from the IMU's readings, start.choose_knot_spacing),
+    the IMU model (IMU_MODELS; auto: chosen by imu_model_test), the intrinsics (INTRINSICS:
+    estimated with the rest, held at the camera-only step's, or a prior; auto:
+    resolve_intrinsics), whether the sigmas are checked on the recording's halves
+    (subset_sigmas). None for gravity and offset_window means the default."""
 
     imu: str
-    gravity: float = ir.GRAVITY
-    window_s: float = 0.2
+    gravity: float | None = None
+    offset_window: float | None = None
     rolling_shutter: bool | None = None
-    knot_dt: float | None = None
+    knot_spacing: float | None = None
     imu_model: str = "auto"
-    intrinsics: str = "auto"
+    imu_intrinsics: str = "auto"
     subsets: bool = True
     intrinsics_from_rig: bool = False  # held intrinsics are the declared rig's own calibration
 
     def __post_init__(self):
+        if self.gravity is None:
+            object.__setattr__(self, "gravity", ir.GRAVITY)
+        if self.offset_window is None:
+            object.__setattr__(self, "offset_window", 0.2)
         # calibrate.run builds these before detection: a typo (--gravity 981) is then one
         # line at once, not an error after the camera-only calibration
         for option, value, lo, hi, what in (
                 ("--gravity", self.gravity, 9.7, 9.9, "m/s^2 (on Earth 9.76-9.84)"),
-                ("--offset-window", self.window_s, 0.0, 10.0, "seconds"),
-                ("--knot-spacing", self.knot_dt, 0.0, 1.0, "seconds")):
+                ("--offset-window", self.offset_window, 0.0, 10.0, "seconds"),
+                ("--knot-spacing", self.knot_spacing, 0.0, 1.0, "seconds")):
             if value is not None and not lo < value <= hi:
                 raise InputError(f"{option}: expected {what} in ({lo:g}, {hi:g}], got {value:g}")
         if self.imu_model not in IMU_MODELS:
             raise InputError(f"--imu-model: expected one of {', '.join(IMU_MODELS)}, got {self.imu_model!r}")
-        if self.intrinsics not in INTRINSICS:
-            raise InputError(f"--imu-intrinsics: expected one of {', '.join(INTRINSICS)}, got {self.intrinsics!r}")
-
-    @classmethod
-    def chosen(cls, imu: str, opts: dict) -> "Options":
-        """From calibrate's option dict (gravity, window_s, rolling_shutter, knot_dt, imu_model,
-        intrinsics; None: the default)."""
-        return cls(imu, **{k: v for k, v in opts.items() if v is not None})
+        if self.imu_intrinsics not in INTRINSICS:
+            raise InputError(f"--imu-intrinsics: expected one of {', '.join(INTRINSICS)}, "
+                             f"got {self.imu_intrinsics!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -473,8 +474,8 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     inp = build_inputs(cal, samples, imu, faces, time_offsets, line_delays)
     base = settings or ic.Settings()
     knot = None
-    if options.knot_dt is not None:
-        base = replace(base, knot_dt=options.knot_dt)
+    if options.knot_spacing is not None:
+        base = replace(base, knot_dt=options.knot_spacing)
     elif settings is None:
         knot = choose_knots(inp.imu)
         base = replace(base, knot_dt=knot.knot_dt)
@@ -483,12 +484,12 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     # coordinate. Started at the norm's, a single-board recording needed a second full pass
     # to correct the weights (EuRoC: 2 x 60 s)
     settings = replace(base, sigma_px=max(float(cal.rms_px) / math.sqrt(2.0), 0.01), gravity=options.gravity,
-                       window_s=options.window_s, line_delay=estimate_delay,
+                       window_s=options.offset_window, line_delay=estimate_delay,
                        scale_misalignment=options.imu_model == "scale-misalignment",
                        # auto unresolved (a caller other than calibrate.run, which resolves it against the
                        # declared rig first): estimated with the rest, as before there was a choice
-                       intrinsics=options.intrinsics in ("auto", "joint", "prior"))
-    if options.intrinsics == "prior":
+                       intrinsics=options.imu_intrinsics in ("auto", "joint", "prior"))
+    if options.imu_intrinsics == "prior":
         inp, prior = with_prior(inp, cal.declared if cal.declared is not None else cal.rig, list(cal.cam_names))
         settings = replace(settings, intrinsics_prior=prior)
     try:
@@ -511,7 +512,7 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
                 res, settings = sm, sm_settings
     except CalibrationError as e:
         if "search window" in str(e):
-            raise CalibrationError(f"{e} (calibrate --offset-window SECONDS; now {options.window_s:g} s)") from None
+            raise CalibrationError(f"{e} (calibrate --offset-window SECONDS; now {options.offset_window:g} s)") from None
         raise
     # sigmas with the corners weighted by their measured noise (the variance factor)
     J, lay = jacobian(res, inp, _settings_with(settings, res))

@@ -16,12 +16,12 @@ from rich.table import Table
 
 from rigcal.core import geometry as geo
 from rigcal.imucal import residuals as ir
-from rigcal.imucal.step import SCALE_PARAMETERS, ImuCalibration, Options, calibrate_imu
+from rigcal.imucal.step import SCALE_PARAMETERS, ImuCalibration
 from rigcal.errors import InputError
 from rigcal.core.rig import Rig
 
 
-def _r(x: float, nd: int) -> float:
+def rounded(x: float, nd: int) -> float:
     return float(np.round(float(x), nd))
 
 
@@ -43,13 +43,13 @@ def _camera_block(old: dict | None, k: int, res: ImuCalibration, held_sigma: dic
     block = dict(old or {})
     sig = dict(block.get("sigma", {}))
     pose = res.sigma["pose"][k]
-    sig["position_mm"] = [_r(1000 * x, 4) for x in pose[3:]]
-    sig["rotation_deg"] = [_r(np.degrees(x), 5) for x in pose[:3]]
-    sig["time_offset_ms"] = _r(1000 * res.sigma["offset"][k], 5)
+    sig["position_mm"] = [rounded(1000 * x, 4) for x in pose[3:]]
+    sig["rotation_deg"] = [rounded(np.degrees(x), 5) for x in pose[:3]]
+    sig["time_offset_ms"] = rounded(1000 * res.sigma["offset"][k], 5)
     if res.sigma["line_delay"] is not None:
-        sig["line_delay_us"] = _r(1e6 * res.sigma["line_delay"][k], 5)
+        sig["line_delay_us"] = rounded(1e6 * res.sigma["line_delay"][k], 5)
     if res.sigma.get("intrinsics") is not None:  # estimated with the rest: their sigma replaces the camera-only one
-        sig["intrinsics"] = {key: _r(res.sigma["intrinsics"][k][key], 4) for key in ("fx", "fy", "cx", "cy")}
+        sig["intrinsics"] = {key: rounded(res.sigma["intrinsics"][k][key], 4) for key in ("fx", "fy", "cx", "cy")}
     elif held_sigma:  # held at the declared camera calibration: its uncertainty is still theirs
         sig["intrinsics"] = dict(held_sigma)
     block["sigma"] = sig
@@ -62,7 +62,7 @@ SCALE_KEYS = ("gyroscope_scale_misalignment", "accelerometer_scale_misalignment"
 
 
 def _rows(M: np.ndarray, nd: int) -> list:
-    return [[_r(x, nd) for x in row] for row in M]
+    return [[rounded(x, nd) for x in row] for row in M]
 
 
 def model_selection_entry(res: ImuCalibration) -> dict:
@@ -71,8 +71,8 @@ def model_selection_entry(res: ImuCalibration) -> dict:
     t = res.model_test
     if t is None:
         return {"test": f"none (--imu-model {res.imu_model})"}
-    return {"test": "likelihood ratio", "statistic": _r(t.statistic, 2), "imu_statistic": _r(t.imu_statistic, 2),
-            "threshold": _r(t.threshold, 2), "parameters": SCALE_PARAMETERS, "level": float(t.level)}
+    return {"test": "likelihood ratio", "statistic": rounded(t.statistic, 2), "imu_statistic": rounded(t.imu_statistic, 2),
+            "threshold": rounded(t.threshold, 2), "parameters": SCALE_PARAMETERS, "level": float(t.level)}
 
 
 def _model_entries(res: ImuCalibration, block: dict) -> None:
@@ -94,22 +94,22 @@ def imu_block(res: ImuCalibration, placed: bool) -> dict:
     its pose comes from the cameras (it is not the reference), so its sigma is given."""
     n = int(len(res.result.state.gyro_bias))
     block = {
-        "gyroscope_bias": [_r(x, 9) for x in res.gyro_bias],
-        "accelerometer_bias": [_r(x, 7) for x in res.accel_bias],
-        "gyroscope_residual_rms": _r(res.gyro_rms, 9),
-        "gyroscope_residual_rms_declared": _r(res.gyro_predicted, 9),
-        "accelerometer_residual_rms": _r(res.accel_rms, 7),
-        "accelerometer_residual_rms_declared": _r(res.accel_predicted, 7),
+        "gyroscope_bias": [rounded(x, 9) for x in res.gyro_bias],
+        "accelerometer_bias": [rounded(x, 7) for x in res.accel_bias],
+        "gyroscope_residual_rms": rounded(res.gyro_rms, 9),
+        "gyroscope_residual_rms_declared": rounded(res.gyro_predicted, 9),
+        "accelerometer_residual_rms": rounded(res.accel_rms, 7),
+        "accelerometer_residual_rms_declared": rounded(res.accel_predicted, 7),
         "bias_knots": n,
-        "sigma": {"gyroscope_bias": [_r(x, 9) for x in res.sigma["gyro_bias"]],
-                  "accelerometer_bias": [_r(x, 7) for x in res.sigma["accel_bias"]]},
+        "sigma": {"gyroscope_bias": [rounded(x, 9) for x in res.sigma["gyro_bias"]],
+                  "accelerometer_bias": [rounded(x, 7) for x in res.sigma["accel_bias"]]},
     }
     if placed:
         # the IMU moves with the chosen body frame: its pose is known as well as the cameras'
         # relative to it, taken here from the reference (or best) camera
         pose = res.sigma["pose"].min(axis=0)
-        block["sigma"]["position_mm"] = [_r(1000 * x, 4) for x in pose[3:]]
-        block["sigma"]["rotation_deg"] = [_r(np.degrees(x), 5) for x in pose[:3]]
+        block["sigma"]["position_mm"] = [rounded(1000 * x, 4) for x in pose[3:]]
+        block["sigma"]["rotation_deg"] = [rounded(np.degrees(x), 5) for x in pose[:3]]
     _model_entries(res, block)
     return block
 
@@ -133,15 +133,15 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
                  if i.name == res.imu.name
                  else i for i in out_rig.imus)
     by_name = {c.name: c for c in cams}
-    pairs = tuple(replace(p, baseline_m=_r(np.linalg.norm(by_name[p.left].T_body_cam[:3, 3]
+    pairs = tuple(replace(p, baseline_m=rounded(np.linalg.norm(by_name[p.left].T_body_cam[:3, 3]
                                                           - by_name[p.right].T_body_cam[:3, 3]), 7))
                   if p.baseline_m is not None else p for p in out_rig.stereo_pairs)
     top = dict(out_rig.calibration or {})
     top["reference"] = reference
-    top["camera_imu"] = {"imu": res.imu.name, "corner_rms_px": _r(res.corner_rms_px, 4),
-                         "gravity_m_s2": _r(est.state.gravity, 5), "passes": res.passes,
-                         "iterations": int(est.iterations), "seconds": _r(res.seconds, 2),
-                         "knot_spacing_s": _r(res.knot_dt, 6),
+    top["camera_imu"] = {"imu": res.imu.name, "corner_rms_px": rounded(res.corner_rms_px, 4),
+                         "gravity_m_s2": rounded(est.state.gravity, 5), "passes": res.passes,
+                         "iterations": int(est.iterations), "seconds": rounded(res.seconds, 2),
+                         "knot_spacing_s": rounded(res.knot_dt, 6),
                          "knot_spacing_from": "imu" if res.knot is not None else "--knot-spacing",
                          "intrinsics": res.intrinsics_source}
     if res.subsets is not None:
@@ -155,15 +155,15 @@ def halves_entry(check, names: list[str]) -> dict:
     (deg), position (mm), time offset (ms), line delay (us), intrinsics (px)."""
     cams = {}
     for k in np.flatnonzero(check.compared):
-        e = {"rotation_deg": [_r(np.degrees(x), 5) for x in check.d_rot[k]],
-             "position_mm": [_r(1000 * x, 4) for x in check.d_pos[k]],
-             "time_offset_ms": _r(1000 * check.d_offset[k], 5)}
+        e = {"rotation_deg": [rounded(np.degrees(x), 5) for x in check.d_rot[k]],
+             "position_mm": [rounded(1000 * x, 4) for x in check.d_pos[k]],
+             "time_offset_ms": rounded(1000 * check.d_offset[k], 5)}
         if check.d_delay is not None:
-            e["line_delay_us"] = _r(1e6 * check.d_delay[k], 5)
+            e["line_delay_us"] = rounded(1e6 * check.d_delay[k], 5)
         if check.d_intr is not None:
-            e["intrinsics"] = {key: _r(x, 4) for key, x in zip(("fx", "fy", "cx", "cy"), check.d_intr[k])}
+            e["intrinsics"] = {key: rounded(x, 4) for key, x in zip(("fx", "fy", "cx", "cy"), check.d_intr[k])}
         cams[names[k]] = e
-    return {"method": "halves", "split_s": _r(check.split_s, 3), "seconds": _r(check.seconds, 2),
+    return {"method": "halves", "split_s": rounded(check.split_s, 3), "seconds": rounded(check.seconds, 2),
             "halves_difference": cams}
 
 
@@ -223,51 +223,6 @@ def scale_table(name: str, b: dict) -> Table:
                   " ".join(f"{1e6 * x:.0f}" for x in np.diag(S)), " ".join(f"{1e3 * x:+.3f}" for x in M[low]),
                   " ".join(f"{1e3 * x:.3f}" for x in S[low]))
     return t
-
-
-def calibrate_with_imu(cal, out_rig: Rig, motion, imu_name: str, reference: str, target, opts: dict
-                       ) -> tuple[ImuCalibration, Rig]:
-    """calibrate.run's camera-IMU step after the camera-only calibration `cal` and its rig
-    `out_rig`: (the estimate against `imu_name`, the calibrated rig of docs/formats.md#motion-datasets). Every other
-    declared IMU with data is calibrated against the cameras as well and placed by them
-    (placed_imu). `opts`: Options' gravity, window_s, rolling_shutter, knot_dt, imu_model
-    (None = default)."""
-    declared = cal.declared if cal.declared is not None else cal.rig
-    faces = {b.name: float(b.print_face) for b in target.boards}
-
-    def against(name: str) -> ImuCalibration:
-        return calibrate_imu(cal, motion.imus[name], declared.imu(name), Options.chosen(name, opts),
-                             [faces[b] for b in cal.boards], {c.name: c.line_delay_s or 0.0 for c in declared.cameras},
-                             {c.name: c.time_offset_s or 0.0 for c in declared.cameras})
-
-    res = against(imu_name)
-    rig = calibrated_imu_rig(out_rig, declared, res, reference)
-    warnings, notes = list(res.warnings), list(res.notes)
-    for other in [i.name for i in declared.imus if i.name != imu_name and i.name in motion.imus]:
-        o = against(other)
-        rig = placed_imu(rig, o, res)
-        warnings += [f"{other}: {w}" for w in o.warnings]
-        notes.append(f"{other}: calibrated against the cameras as {imu_name} was, and placed by them (its "
-                     f"T_body_imu the best rigid fit of its T_imu_cam onto the calibrated T_body_cam); clock offset "
-                     f"{1000 * rig.imu(other).calibration['clock_offset_s']:+.3f} ms from {imu_name}")
-    return replace(res, warnings=tuple(warnings), notes=tuple(notes)), rig
-
-
-def placed_imu(rig: Rig, other: ImuCalibration, ref: ImuCalibration) -> Rig:
-    """`rig` (calibrated against `ref`'s IMU) with `other`'s IMU placed by the cameras: its
-    T_body_imu is the rigid fit of its own T_imu_cam onto the calibrated T_body_cam, its
-    calibration block as any IMU's (pose sigma from its best camera) plus `clock_offset_s`
-    (t_other = t_reference_imu + clock_offset_s: the mean over cameras of the two
-    estimates' time offsets' difference) with its 1-sigma (spec addition)."""
-    T_body_cam = np.stack([c.T_body_cam for c in rig.cameras])
-    T_body_imu = geo.fit_rigid_to(other.result.T_imu_cam, T_body_cam)
-    block = imu_block(other, placed=True)
-    d = other.result.time_offset_s - ref.result.time_offset_s
-    block["clock_offset_s"] = _r(float(np.mean(d)), 9)
-    block["sigma"]["clock_offset_ms"] = _r(1000 * float(np.min(np.hypot(other.sigma["offset"], ref.sigma["offset"]))), 5)
-    imus = tuple(replace(i, T_body_imu=T_body_imu, calibration=block) if i.name == other.imu.name else i
-                 for i in rig.imus)
-    return replace(rig, imus=imus)
 
 
 # ----------------------------------------------------------------------------- compare
