@@ -1,4 +1,4 @@
-"""The `rigcal` command line (../shared/spec/cli.md). Thin: parse, call the library, print.
+"""The `rigcal` command line (docs/cli.md). Thin: parse, call the library, print.
 
 Results go to stdout, progress and warnings to stderr. A RigcalError becomes one
 line on stderr and its exit code (2 bad input, 1 the work failed); nothing else
@@ -154,8 +154,8 @@ class ImportFormat(str, Enum):
 @guarded
 def simulate(
     rig: Path = typer.Argument(..., help="rig YAML (every camera needs a pose)"),
-    out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md)"),
-    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams (imu.md); static: the rig's IMUs at rest (imu-noise); mag: the rig turned through every orientation, IMU and magnetometer streams, no images (magnetometer.md). Default: room when some camera shares no view with the others"),
+    out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (the docs' File formats page)"),
+    scene: Optional[Scene] = typer.Option(None, help="room: boards around a moving rig; board: one board moved in front; imu: the rig moved by hand in front of static boards, with IMU streams; static: the rig's IMUs at rest (imu-noise); mag: the rig turned through every orientation, IMU and magnetometer streams, no images. Default: room when some camera shares no view with the others"),
     frames: Optional[int] = typer.Option(None, help="number of frames (default 60 room, 40 board)"),
     seed: int = typer.Option(0, help="random seed; the same seed writes byte-identical images"),
     noise: float = typer.Option(2.0, help="Gaussian image noise, grey levels (sigma)"),
@@ -172,7 +172,7 @@ def simulate(
     time_offset_ms: Optional[float] = typer.Option(None, help="--scene imu: true camera clock offsets are uniform in +-this (default 10)"),
 ):
     """Render a synthetic ChArUco dataset with ground truth (truth.yaml); --scene imu: a moving
-    recording with IMU streams (imu.md)."""
+    recording with IMU streams."""
     motion_flags = {"--duration": duration, "--camera-rate": camera_rate, "--exposure": exposure,
                     "--time-offset-ms": time_offset_ms}
     if scene is Scene.static:
@@ -185,7 +185,7 @@ def simulate(
         out(static_imu.simulate_static(rig, out_dir, static_imu.DEFAULT_DURATION_S if duration is None else duration,
                                        seed=seed, force=force))
         return
-    if scene is Scene.mag:  # the compass dance: IMU and magnetometer streams, no images (magnetometer.md)
+    if scene is Scene.mag:  # the compass dance: IMU and magnetometer streams, no images (docs/magnetometer.md)
         from rigcal.sim import mag_scene
 
         unused = {"--frames": frames is not None, "--blur": blur != 0.0, "--target": target is not None,
@@ -225,7 +225,7 @@ IO_PANEL, MODEL_PANEL, RUN_PANEL, IMU_PANEL = ("Inputs and outputs", "Camera mod
 @app.command()
 @guarded
 def calibrate(
-    dataset: Path = typer.Argument(..., help="dataset folder (dataset.md)"),
+    dataset: Path = typer.Argument(..., help="dataset folder (the docs' File formats page)"),
     out_yaml: Path = typer.Option(..., "--out", help="calibrated rig YAML to write", rich_help_panel=IO_PANEL),
     rig: Optional[Path] = typer.Option(None, help="declared rig (default DATASET/rig.yaml)", rich_help_panel=IO_PANEL),
     target: Optional[Path] = typer.Option(None, help="target YAML (default DATASET/target.yaml)",
@@ -390,7 +390,7 @@ def view(
 def ingest(
     source: Path = typer.Argument(..., help="EuRoC folder (mav0/), ROS 1 .bag, ROS 2 bag (folder, .db3, .mcap), "
                                             "or a video file / folder of videos"),
-    out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (dataset.md, imu.md)"),
+    out_dir: Path = typer.Option(..., "--out", help="dataset folder to write (the docs' File formats page: dataset, motion datasets)"),
     rig: Optional[Path] = typer.Option(None, help="rig YAML to copy in as DATASET/rig.yaml (EuRoC: default "
                                                   "written from the sensor.yaml files)"),
     target: Optional[Path] = typer.Option(None, help="target YAML to copy in as DATASET/target.yaml"),
@@ -484,7 +484,7 @@ def main() -> None:
     except click_error as e:
         if no_args is not None and isinstance(e, no_args):
             sys.exit(e.exit_code)  # `rigcal` alone: typer has printed its help page
-        # a bad option or argument is bad input like any other: one line, exit 2 (cli.md)
+        # a bad option or argument is bad input like any other: one line, exit 2 (docs/cli.md)
         ctx = getattr(e, "ctx", None)
         where = ctx.command_path if ctx is not None else "rigcal"
         msg = " ".join(e.format_message().split())

@@ -1,4 +1,4 @@
-"""The rig model and its YAML schema (../shared/spec/rig-yaml.md).
+"""The rig model and its YAML schema (docs/formats.md#rig-yaml).
 
 File keys equal the code's names, so the spec, the loader and the writer cannot
 drift apart. Validation happens here, once; the rest of rigcal trusts the types.
@@ -25,12 +25,12 @@ NAME_RE = re.compile(r"^[a-z0-9_]+$")
 TOP_KEYS = ("rig", "body_frame", "imus", "magnetometers", "cameras", "stereo_pairs", "calibration")
 CAMERA_KEYS = ("model", "resolution", "intrinsics", "distortion", "position", "look", "axes", "rotation",
                "quaternion", "time_offset_s", "line_delay_s", "calibration")
-# imu.md: Kalibr's imu.yaml names and units; every one is required and positive
+# docs/formats.md#imus: Kalibr's imu.yaml names and units; every one is required and positive
 IMU_NOISE_KEYS = ("gyroscope_noise_density", "gyroscope_random_walk", "accelerometer_noise_density",
                   "accelerometer_random_walk")
 IMU_KEYS = ("position", "axes", "rotation", "quaternion", "update_rate") + IMU_NOISE_KEYS + ("calibration",)
 MIN_IMU_RATE_HZ = 1.0
-# magnetometer.md: the pose keys (position optional), the noise figure, its IMU, clock and site field
+# docs/magnetometer.md: the pose keys (position optional), the noise figure, its IMU, clock and site field
 MAG_KEYS = ("position", "axes", "rotation", "quaternion", "update_rate", "noise_density", "imu", "time_offset_s",
             "earth_field_uT", "calibration")
 MAX_EARTH_FIELD_UT = 100.0  # the Earth's field is 22-67 uT everywhere; more is a unit error (gauss, nT)
@@ -50,7 +50,7 @@ class Camera:
     intrinsics: CameraModel
     T_body_cam: np.ndarray | None = None
     calibration: Mapping[str, Any] | None = None
-    time_offset_s: float | None = None  # imu.md: t_imu = t_cam + time_offset_s; None when not declared
+    time_offset_s: float | None = None  # t_imu = t_cam + time_offset_s; None when not declared
     line_delay_s: float | None = None  # rolling shutter: row r exposed at t + r * line_delay_s; None: global
 
     def __eq__(self, other: object) -> bool:
@@ -79,7 +79,7 @@ def _same_pose(a: np.ndarray | None, b: np.ndarray | None) -> bool:
 
 @dataclass(frozen=True, eq=False)
 class Imu:
-    """One IMU (imu.md): its pose T_body_imu (4x4; its axes are the measurement axes), its
+    """One IMU (docs/formats.md#imus): its pose T_body_imu (4x4; its axes are the measurement axes), its
     nominal sample rate (Hz) and Kalibr's four noise figures (continuous-time densities)."""
 
     name: str
@@ -107,7 +107,7 @@ class Imu:
 
 @dataclass(frozen=True, eq=False)
 class Magnetometer:
-    """One magnetometer (magnetometer.md): its pose T_body_mag (4x4; its axes are the
+    """One magnetometer (docs/magnetometer.md): its pose T_body_mag (4x4; its axes are the
     measurement axes; the position is not estimated), nominal rate (Hz), noise density
     (uT/sqrt(Hz)), the IMU it is calibrated against (None: the rig's first), its clock
     offset (t_imu = t_mag + time_offset_s; None when not declared) and the site's field
@@ -169,7 +169,7 @@ class StereoPair:
 @dataclass(frozen=True, eq=False)
 class Rig:
     """The rig: its cameras (T_body_cam, intrinsics), IMUs, stereo pairs, body frame and the
-    calibration block of a calibrated file (rig-yaml.md). load_rig / dump_rig read and write it."""
+    calibration block of a calibrated file (docs/formats.md#rig-yaml). load_rig / dump_rig read and write it."""
 
     name: str
     cameras: tuple[Camera, ...]
@@ -394,7 +394,7 @@ def _one_line(message: str) -> str:
 
 
 def rig_from_dict(doc: Any, label: str = "<rig>") -> Rig:
-    """Validate a parsed rig document (rig-yaml.md) into a Rig, or raise RigFileError."""
+    """Validate a parsed rig document (docs/formats.md#rig-yaml) into a Rig, or raise RigFileError."""
     def err(key: str, msg: str) -> RigFileError:
         return RigFileError(_one_line(f"{label}: {key}: {msg}" if key else f"{label}: {msg}"))
 
@@ -605,7 +605,7 @@ def _pose(d: dict, key: str, err) -> np.ndarray | None:
     if not has_pos:
         raise err(f"{key}.position", "missing (an orientation without a position)")
     t = number_vector(d["position"], 3, f"{key}.position", err)
-    # A calibrated file writes rotation + quaternion together (rig-yaml.md); they must agree.
+    # A calibrated file writes rotation + quaternion together (docs/formats.md#rig-yaml); they must agree.
     if sorted(present) == ["quaternion", "rotation"]:
         R = _rotation(d, "rotation", key, err)
         Rq = _rotation(d, "quaternion", key, err)

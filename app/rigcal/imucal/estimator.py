@@ -1,4 +1,4 @@
-"""The camera-IMU estimator (issue 18): the body trajectory as a spline, every camera's
+"""The camera-IMU estimator: the body trajectory as a spline, every camera's
 T_body_cam and clock offset, gyroscope and accelerometer biases and gravity's direction,
 and, when the state carries them, the boards' poses and the cameras' intrinsics, jointly,
 by Levenberg-Marquardt on the sparse residual blocks of rigcal.imucal.residuals.
@@ -6,7 +6,7 @@ by Levenberg-Marquardt on the sparse residual blocks of rigcal.imucal.residuals.
 `rigcal calibrate` calls it through rigcal.imucal.step. What it assumes: a start for the
 intrinsics (a camera-only calibration; held unless Settings.intrinsics), static boards
 with board 0 the world frame (held), the reference IMU's T_body_imu held (it defines the
-body frame, imu.md), no outlier rejection, one IMU.
+body frame, docs/formats.md#motion-datasets), no outlier rejection, one IMU.
 
 The cost is linear in recording length: each residual touches 4 consecutive control
 points, so J^T J is banded apart from the few camera, offset, board, intrinsic and gravity

@@ -1,4 +1,4 @@
-"""Residual blocks of the camera-IMU calibration (issue 18, ../shared/spec/imu.md).
+"""Residual blocks of the camera-IMU calibration (docs/formats.md#motion-datasets).
 
 Each block is a pure vectorised function of the estimation state returning a `Block`:
 weighted residuals r (M, D), their Jacobian J (M, D, K) with respect to the K local

@@ -1,4 +1,4 @@
-"""The start of the camera-IMU calibration (issue 18): clock offset and camera-IMU rotation
+"""The start of the camera-IMU calibration: clock offset and camera-IMU rotation
 from rotation rates, and a refusal of recordings that cannot determine them.
 
 Inputs are a camera's poses at its frame times (from PnP on the board views, or any other

@@ -1,4 +1,4 @@
-"""`rigcal calibrate` on a motion dataset with an IMU (../shared/spec/imu.md, issue 18):
+"""`rigcal calibrate` on a motion dataset with an IMU (docs/formats.md#motion-datasets):
 the camera-only calibration's corners, intrinsics and board poses in, every camera's
 T_imu_cam, clock offset (and line delay), the IMU's biases and gravity out, through the
 public API of rigcal.imucal.estimator.
@@ -25,7 +25,7 @@ solution (imu_calib.refine), and keeps it only when the likelihood ratio of the 
 parameters passes model_selection's test (select_imu_model).
 
 Times are seconds since the IMU's first sample, on each sensor's own clock, so the
-estimator's offsets are imu.md's `time_offset_s` (t_imu = t_cam + time_offset_s).
+estimator's offsets are the motion-dataset format's `time_offset_s` (t_imu = t_cam + time_offset_s).
 """
 
 from __future__ import annotations
@@ -817,7 +817,7 @@ def intrinsics_warnings(check: SubsetCheck, names: list[str], prior: bool = Fals
 
 def plan(rig, imus_read: dict, reference: str | None, camera_only: bool = False) -> tuple[str | None, str]:
     """(the IMU to calibrate against or None, the reference for the camera-only step and
-    the output). imu.md: with imu/ and an IMU declared the default reference is
+    the output). docs/formats.md#motion-datasets: with imu/ and an IMU declared the default reference is
     `imu:<first>`; `imu:NAME` needs a declared IMU with data; `aligned` and `camera:NAME`
     still calibrate against the first IMU and place it by those cameras. camera_only
     (`--camera-only`): the IMU data are checked but not used, as for a dataset without imu/."""
