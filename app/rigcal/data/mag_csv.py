@@ -1,4 +1,4 @@
-"""Magnetometer files (../shared/spec/magnetometer.md): reading and checking `mag/<mag>.csv`.
+"""Magnetometer files (docs/magnetometer.md): reading and checking `mag/<mag>.csv`.
 
 One row per sample, in the magnetometer's own clock (integer nanoseconds) and axes, raw
 (no calibration applied), microtesla:
@@ -122,7 +122,7 @@ def has_mag(root: str | Path) -> bool:
 
 
 def check_mag_dataset(root: str | Path, rig: Rig, imus: Mapping[str, ImuSamples]) -> dict[str, MagSamples]:
-    """magnetometer.md's checks of mag/: every declared magnetometer has a file and every file
+    """The magnetometer format's checks of mag/: every declared magnetometer has a file and every file
     a declared magnetometer, each file is well formed and overlaps its IMU's samples in time
     (its stamps shifted by the declared time_offset_s). {} when there is no mag/ folder."""
     folder = Path(root) / "mag"

@@ -1,2 +1,2 @@
-"""Magnetometer calibration (../shared/spec/magnetometer.md): hard iron, soft iron and the
+"""Magnetometer calibration (docs/magnetometer.md): hard iron, soft iron and the
 chip's orientation against an IMU, from a recording turned through many orientations."""

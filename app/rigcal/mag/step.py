@@ -1,6 +1,6 @@
 """The magnetometer step of `rigcal calibrate`: every magnetometer of the rig calibrated
 against its IMU from the dataset's mag/ and imu/ files, the calibrated rig blocks
-(magnetometer.md's `calibration`) and the console table.
+(the magnetometer format's `calibration`) and the console table.
 
 A magnetic disturbance is refused before the fit: the field magnitude the start calibration
 gives, averaged over each second, must stay within what noise explains plus
@@ -111,7 +111,7 @@ def _spans(bins: np.ndarray) -> str:
 
 
 def calibration_block(r: MagResult, mag: Magnetometer) -> dict[str, Any]:
-    """magnetometer.md's `calibration` mapping of a result (time_offset_s when estimated: the
+    """The magnetometer format's `calibration` mapping of a result (time_offset_s when estimated: the
     rig declares one)."""
     fl = lambda v: [float(x) + 0.0 for x in v]  # noqa: E731
     offset = r.sigma_time_offset_s is not None

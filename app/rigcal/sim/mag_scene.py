@@ -1,4 +1,4 @@
-"""`rigcal simulate --scene mag`: the compass "dance" (../shared/spec/magnetometer.md).
+"""`rigcal simulate --scene mag`: the compass "dance" (docs/magnetometer.md).
 
 The rig is turned by hand through every orientation (yaw, pitch and roll each a sum of two
 slow sines of large amplitude: upside down, nose down, on each side), moving a few
