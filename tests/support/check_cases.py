@@ -19,7 +19,6 @@ from rigcal.core import geometry as geo
 from rigcal.core.io import atomic_dir
 from rigcal.core.rig import Rig, dump_rig, load_rig
 from rigcal.core.target import dump_target
-from rigcal.data.truth import load_truth
 from rigcal.sim import simulate as sim
 
 RIG = Path(__file__).resolve().parents[2] / "rigs" / "drone-stereo-back.yaml"
@@ -58,12 +57,18 @@ def record(true_rig: Rig, out: Path, frames: int, seed: int, jobs: int = 1, nois
     return out
 
 
-def calibrated_rig(work: Path, frames: int = 30, truth_seed: int = 1, jobs: int = 1) -> tuple[Path, Rig]:
-    """(the calibrated rig YAML from a `frames`-frame recording of the true rig, the true rig)."""
+def true_rig(truth_seed: int = 1) -> Rig:
+    """The golden rig with simulate's mount and lens errors drawn for this seed."""
+    return sim.perturb_rig(load_rig(RIG), np.random.default_rng([truth_seed, 1]))
+
+
+def calibrated_rig(truth: Rig, work: Path, frames: int = 30, seed: int = 1000, jobs: int = 1) -> Path:
+    """The rig YAML `rigcal calibrate` writes from a `frames`-frame recording of `truth`
+    (declared as the golden rig's nominal file)."""
     from rigcal.commands.calibrate import run
 
-    base = work / "base"
-    sim.simulate_dataset(load_rig(RIG), base, scene="room", frames=frames, seed=truth_seed, jobs=jobs, force=True)
+    base = record(truth, work / "base", frames, seed, jobs)
+    (base / "rig.yaml").write_text(RIG.read_text(encoding="utf-8"), encoding="utf-8")
     out = work / "calibrated.yaml"
     run(base, out, jobs=jobs)
-    return out, load_truth(base / "truth.yaml").rig
+    return out

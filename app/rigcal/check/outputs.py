@@ -12,7 +12,7 @@ from rich.table import Table
 from rigcal import __version__
 from rigcal.check import decide
 from rigcal.check.estimate import NewEstimate
-from rigcal.check.verdict import INTRINSICS, MOVED, OK, CameraVerdict, IntrinsicsCheck, PoseCheck, Test, \
+from rigcal.check.verdict import INTRINSICS, MOVED, OK, CameraVerdict, IntrinsicsCheck, PoseCheck, ChiSquare, \
     pose_variances
 from rigcal.core import geometry as geo
 from rigcal.core.rig import Rig
@@ -52,7 +52,7 @@ def _v(a, nd: int = 6) -> list:
     return [_f(x, nd) for x in a]
 
 
-def _test(t: Test) -> dict:
+def _test(t: ChiSquare) -> dict:
     return {"statistic": _f(t.statistic, 4), "dof": t.dof, "p_value": float(f"{t.p_value:.4g}"),
             "threshold": _f(t.threshold, 4), "changed": t.failed}
 

@@ -26,7 +26,7 @@ OK, MOVED, INTRINSICS, UNDETERMINED = "ok", "moved", "intrinsics changed", "unde
 
 
 @dataclass(frozen=True)
-class Test:
+class ChiSquare:
     """One chi-square test: statistic, degrees of freedom, p-value, the threshold at the
     per-test level, and whether the statistic passed it."""
 
@@ -51,7 +51,7 @@ class PoseCheck:
     translation_mm: np.ndarray
     translation_sigma_mm: np.ndarray
     relative_to: tuple[str, ...]
-    test: Test
+    test: ChiSquare
     detectable_rotation_deg: np.ndarray
     detectable_translation_mm: np.ndarray
 
@@ -64,7 +64,7 @@ class IntrinsicsCheck:
 
     change: dict[str, float]
     sigma: dict[str, float]
-    test: Test
+    test: ChiSquare
     detectable: dict[str, float]
     displacement_px: float
 
@@ -91,7 +91,7 @@ def pose_variances(rig: Rig, names: list[str]) -> np.ndarray:
     return np.array(out, float)
 
 
-def tested_intrinsics(tie_focal: bool, hold_centre: bool, held: bool) -> list[int]:
+def intrinsics_to_test(tie_focal: bool, hold_centre: bool, held: bool) -> list[int]:
     """Indices into [fx, fy, cx, cy] of the parameters both calibrations estimate."""
     if held:
         return []
@@ -111,7 +111,7 @@ def displacement(old: CameraModel, new: CameraModel, n: int = 17) -> float:
 
 def check_intrinsics(old: CameraModel, sigma_old: dict, new_values: np.ndarray, cov_new: np.ndarray,
                      idx: list[int], level_each: float, level_detect: float) -> IntrinsicsCheck | None:
-    """The intrinsics test of one camera over the parameters idx (tested_intrinsics); None when none."""
+    """The intrinsics test of one camera over the parameters idx (intrinsics_to_test); None when none."""
     if not idx:
         return None
     v_old = np.array([old.fx, old.fy, old.cx, old.cy])
@@ -129,8 +129,8 @@ def check_intrinsics(old: CameraModel, sigma_old: dict, new_values: np.ndarray, 
                            detectable=dict(zip(names, map(float, det))), displacement_px=displacement(old, new_model))
 
 
-def decide_test(stat: float, dof: int, p: float, level_each: float) -> Test:
-    return Test(statistic=float(stat), dof=int(dof), p_value=float(p),
+def decide_test(stat: float, dof: int, p: float, level_each: float) -> ChiSquare:
+    return ChiSquare(statistic=float(stat), dof=int(dof), p_value=float(p),
                 threshold=decide.chi2_threshold(dof, level_each))
 
 
@@ -181,7 +181,7 @@ def verdicts(rig: Rig, est: NewEstimate | None, structures: dict[str, tuple], mi
     (estimate.structure); missing: name -> what its views lack (not estimated).
     Returns (verdicts, number of tests, per-test level, the aligning set's indices in est)."""
     names = list(est.names) if est is not None else []
-    idx = {n: tested_intrinsics(*structures[n]) for n in names}
+    idx = {n: intrinsics_to_test(*structures[n]) for n in names}
     n_tests = count_tests(len(names), list(idx.values()))
     level_each = decide.sidak_level(level, n_tests)
     poses, keep = {}, []

@@ -1,0 +1,125 @@
+"""`rigcal check` on simulated recordings: false alarms on an unchanged rig, and detection of
+one camera turned, shifted, its focal length or its principal point changed.
+
+Per seed: the true rig (drone-stereo-back with simulate's mount and lens errors, drawn once)
+is calibrated from its own 30-frame room recording (seed-dependent, so the rig's own error
+varies across seeds as it does across real calibrations); then new `frames`-frame
+recordings of the true rig (unchanged) and of changed copies (CASES, camera CHANGED) are
+checked against that calibration at level 0.01. Per case: the share of seeds in which the
+changed camera is flagged with the right status, in which another camera is flagged, and
+in which the reported size is within 2 sigma of the true change; the check's time over
+its detection time.
+
+    python -m bench.check [--seeds N] [--frames F]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rigcal.check.run import run as run_check
+from tests.support.check_cases import calibrated_rig, changed_rig, record, true_rig
+
+from .common import say, write_json
+
+CHANGED = "front_right"
+LEVEL = 0.01
+# name -> (changed_rig keyword arguments, expected status, how to read the size and its sigma, true size)
+CASES = {
+    "unchanged": ({}, "ok", None, 0.0),
+    "turned 0.2 deg about U": ({"rotate_deg": 0.2, "axis": "U"}, "moved", ("pose", "rotation_deg", 2), 0.2),
+    "moved 2 mm along L": ({"shift_mm": 2.0, "shift_axis": "L"}, "moved", ("pose", "translation_mm", 1), 2.0),
+    "focal +0.3 %": ({"focal_rel": 0.003}, "intrinsics changed", ("intrinsics", "fx", None), None),
+    "principal point +2 px in x": ({"pp_px": (2.0, 0.0)}, "intrinsics changed", ("intrinsics", "cx", None), 2.0),
+}
+
+
+def size_and_sigma(cam: dict, how: tuple) -> tuple[float, float]:
+    part, key, axis = how
+    if part == "pose":
+        p = cam["pose"]
+        sig_key = key.replace("_deg", "_sigma_deg").replace("_mm", "_sigma_mm")
+        return p[key][axis], p[sig_key][axis]
+    i = cam["intrinsics"]
+    return i["change_px"][key], i["sigma_px"][key]
+
+
+def one_seed(seed: int, frames: int, work: Path, truth) -> dict:
+    """Every case for one seed: the rig calibrated from its own recording, then each case checked."""
+    cal = calibrated_rig(truth, work, 30, 1000 + seed)
+    out = {}
+    for name, (kw, expected, how, size) in CASES.items():
+        true_rig = changed_rig(truth, CHANGED, **kw)
+        if name.startswith("focal"):
+            size = true_rig.camera(CHANGED).intrinsics.fx - truth.camera(CHANGED).intrinsics.fx
+        rec = record(true_rig, work / "new", frames, 2000 + seed)
+        t0 = time.perf_counter()
+        text, code = run_check(cal, rec, as_json=True, jobs=1)
+        wall = time.perf_counter() - t0
+        d = json.loads(text)
+        cams = d["cameras"]
+        others = [n for n, c in cams.items() if n != CHANGED and c["status"] != "ok"]
+        row = {"exit": code, "status": cams[CHANGED]["status"], "others_flagged": others,
+               "right": cams[CHANGED]["status"] == expected, "seconds": wall,
+               "detection_s": d["seconds"]["detection_s"]}
+        if how is not None and cams[CHANGED]["status"] != "undetermined":
+            got, sig = size_and_sigma(cams[CHANGED], how)
+            row.update(size=got, sigma=sig, true=size, within_2_sigma=bool(abs(got - size) <= 2 * sig))
+        out[name] = row
+    return out
+
+
+def run(seeds: int = 10, frames: int = 20) -> dict:
+    truth = true_rig(1)
+    per_seed = []
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="rigcal-bench-check-") as tmp:
+        for s in range(seeds):
+            per_seed.append(one_seed(s, frames, Path(tmp), truth))
+            say(f"check: seed {s + 1}/{seeds} done ({time.perf_counter() - t0:.0f} s)")
+    summary = {}
+    for name in CASES:
+        rows = [p[name] for p in per_seed]
+        n = len(rows)
+        summary[name] = {
+            "seeds": n,
+            "flagged_right": sum(r["right"] for r in rows) / n,
+            "changed_camera_flagged": sum(r["status"] != "ok" for r in rows) / n,
+            "other_camera_flagged": sum(bool(r["others_flagged"]) for r in rows) / n,
+            "within_2_sigma": (sum(r.get("within_2_sigma", False) for r in rows) / n) if "size" in rows[0] else None,
+            "time_over_detection": float(np.median([r["seconds"] / r["detection_s"] for r in rows])),
+        }
+    return {"seeds": seeds, "frames": frames, "level": LEVEL, "changed_camera": CHANGED, "summary": summary,
+            "per_seed": per_seed, "seconds": time.perf_counter() - t0}
+
+
+def tables(r: dict) -> str:
+    lines = [f"### rigcal check: {r['seeds']} seeds x {r['frames']} frames, drone-stereo-back, level {r['level']}, "
+             f"changed camera {r['changed_camera']}", "",
+             "| case | right status | changed camera flagged | another camera flagged | size within 2 sigma | "
+             "check time / detection time (median) |", "|---|---|---|---|---|---|"]
+    for name, s in r["summary"].items():
+        w = "-" if s["within_2_sigma"] is None else f"{100 * s['within_2_sigma']:.0f} %"
+        lines.append(f"| {name} | {100 * s['flagged_right']:.0f} % | {100 * s['changed_camera_flagged']:.0f} % | "
+                     f"{100 * s['other_camera_flagged']:.0f} % | {w} | {s['time_over_detection']:.2f} |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--frames", type=int, default=20)
+    a = ap.parse_args(argv)
+    r = run(a.seeds, a.frames)
+    write_json("check", r)
+    say(tables(r))
+
+
+if __name__ == "__main__":
+    main()
