@@ -110,6 +110,9 @@ class Setup:
     fix_intrinsics: bool = False
     intrinsics: str = "auto"
     faces: dict[str, float] | None = None
+    # with fix_intrinsics: note cameras whose own views fit the declared intrinsics badly
+    # (a calibrateCamera per camera; `rigcal check` tests the intrinsics itself)
+    misfit_notes: bool = True
 
     @property
     def cam_names(self) -> list[str]:
@@ -239,7 +242,7 @@ def start_cameras(by_cam: dict[str, list[BoardView]], setup: Setup) -> CameraSta
         mi = init_camera(by_cam[n], setup.corners, declared, setup.distortion, setup.fix_intrinsics, setup.faces)
         inits.append(mi)
         selection[n] = list(mi.log)
-        if setup.fix_intrinsics:
+        if setup.fix_intrinsics and setup.misfit_notes:
             misfit = fixed_intrinsics_misfit(by_cam[n], setup.corners, declared, mi, setup.faces)
             if misfit is not None:
                 notes.append(f"{n}: {misfit}")

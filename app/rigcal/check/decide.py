@@ -10,6 +10,7 @@ numpy arrays; no files, no solver.
 
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import numpy as np
@@ -45,6 +46,7 @@ def chi2_test(delta: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
     return stat, float(stats.chi2.sf(stat, dof))
 
 
+@functools.lru_cache(maxsize=64)
 def noncentrality(dof: int, level: float, power: float = DETECT_POWER) -> float:
     """lambda with P(chi2(dof, lambda) > threshold(dof, level)) = power."""
     crit = chi2_threshold(dof, level)

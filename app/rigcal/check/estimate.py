@@ -1,7 +1,8 @@
 """The new recording's own estimate of the rig, started from the rig under test.
 
-estimate_rig: the camera pipeline (camcal.pipeline.calibrate_views) with the rig's
-intrinsics held, which places every frame and board from the new views alone; then one
+estimate_rig: the camera pipeline's first stages (camcal.pipeline: usable_views,
+start_cameras, resolve_flips, start_rig, first_solve) with the rig's intrinsics held, which
+place every frame and board from the new views alone; then one
 bundle adjustment that frees each camera's intrinsics as the rig's calibration estimated
 them (its `intrinsics_model`: fx = fy tied or not, principal point free or held) and its
 pose, with the covariance of all of them (frames marginalised, solve.camera_covariance).
@@ -9,11 +10,13 @@ pose, with the covariance of all of them (frames marginalised, solve.camera_cova
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rigcal.camcal.pipeline import MIN_FRAMES, calibrate_views
+from rigcal.camcal.initialise import resolve_flips
+from rigcal.camcal.pipeline import MIN_FRAMES, Setup, first_solve, start_cameras, start_rig, usable_views
 from rigcal.camcal.solve import Intrinsics, Observations, State, bundle_adjust, camera_covariance, \
     intrinsics_covariance
 from rigcal.core import geometry as geo
@@ -80,17 +83,26 @@ def estimate_rig(views: list[BoardView], rig: Rig, corners: dict[str, np.ndarray
                  faces: dict[str, float] | None = None) -> NewEstimate:
     """The rig (its cameras with enough views: `determined`) estimated from these views alone.
     CalibrationError when the views cannot place the cameras (pipeline's messages)."""
+    t0 = time.perf_counter()
     names = tuple(rig.names)
     used = [v for v in views if v.camera in names]
-    cal = calibrate_views(used, rig, corners, fix_intrinsics=True, reference="aligned", faces=faces)
-    state = cal.state.copy()
+    # the pipeline's first stages with the rig's intrinsics held: every frame and board placed
+    setup = Setup(rig, corners, sorted({v.frame for v in used}), fix_intrinsics=True, faces=faces,
+                  misfit_notes=False)
+    starts = start_cameras(usable_views(used, list(names), True).by_cam, setup)
+    flipped = resolve_flips(starts.posed, len(names), [corners[b] for b in setup.board_names])
+    first = first_solve(flipped.posed, start_rig(flipped.posed, setup), starts.inits, setup)
+    state = first.res.state.copy()
     fix = np.zeros(len(names), bool)
     for c, n in enumerate(names):
         tie, hold, held = structure(rig.camera(n).calibration)
         it = state.intrinsics[c]
         state.intrinsics[c] = Intrinsics(it.model, it.values.copy(), tie_focal=tie, hold_centre=hold)
         fix[c] = held
-    res = bundle_adjust(cal.obs, state, cal.problem.gauge_cam, cal.problem.gauge_board, fix, inliers=cal.inliers)
+    res = bundle_adjust(first.obs, state, first.gauge_cam, first.gauge_board, fix, inliers=first.res.inliers)
+    lost = [n for c, n in enumerate(names) if not np.any(first.obs.cam[res.inliers] == c)]
+    if lost:
+        raise CalibrationError(f"{', '.join(lost)}: every corner of the new recording was rejected as an outlier")
     try:
         cov, intr_sl, cam_sl = camera_covariance(res)
     except np.linalg.LinAlgError:
@@ -104,8 +116,8 @@ def estimate_rig(views: list[BoardView], rig: Rig, corners: dict[str, np.ndarray
         cov_poses[np.ix_(dst, dst)] = cov[np.ix_(src, src)]
     cov_intr = [np.zeros((len(it.values),) * 2) if C_ is None else C_
                 for C_, it in zip(intrinsics_covariance(cov, intr_sl, res.state.intrinsics), res.state.intrinsics)]
-    return NewEstimate(names=names, state=res.state, obs=cal.obs.subset(res.inliers), cov_intrinsics=cov_intr,
-                       cov_poses=cov_poses, sigma_px=res.sigma_px, seconds=cal.timings["total_core_s"] + res.seconds)
+    return NewEstimate(names=names, state=res.state, obs=first.obs.subset(res.inliers), cov_intrinsics=cov_intr,
+                       cov_poses=cov_poses, sigma_px=res.sigma_px, seconds=time.perf_counter() - t0)
 
 
 def residuals_under(est: NewEstimate, T_old_new: np.ndarray, T_body_cam_old: np.ndarray,

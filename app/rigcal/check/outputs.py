@@ -90,33 +90,45 @@ def to_json(res: CheckResult) -> dict:
             "seconds": {k: _f(x, 3) for k, x in res.timings.items()}}
 
 
-def _axes(x, s, nd) -> str:
-    return " ".join(f"{a:+.{nd}f}" for a in x) + " (" + " ".join(f"{b:.{nd}f}" for b in s) + ")"
+def _axes(x, nd) -> str:
+    return " ".join(f"{a:+.{nd}f}" for a in x)
+
+
+def _sig(x, nd) -> str:
+    return " ".join(f"{a:.{nd}f}" for a in x)
+
+
+def _table(title: str, cols: tuple[str, ...]) -> Table:
+    t = Table(title=title, show_lines=False)
+    for k, col in enumerate(cols):
+        t.add_column(col, justify="left" if k == 0 or col == "status" else "right")
+    return t
 
 
 def console_table(res: CheckResult) -> Group:
-    """The table on stdout and the lines under it: the level, the tests, the notes."""
-    t = Table(title="check", show_lines=False)
-    for col in ("camera", "status", "rotation deg F L U (1-sigma)", "position mm F L U (1-sigma)", "pose chi2 / thr",
-                "intrinsics change px (1-sigma)", "shift px", "intr chi2 / thr", "detectable deg / mm / px"):
-        t.add_column(col, justify="left" if col in ("camera", "status") else "right")
+    """The tables on stdout (verdicts, pose changes, intrinsics changes) and the lines under
+    them: the level, the tests, the notes."""
+    t = _table("check", ("camera", "status", "pose chi2 / threshold", "intrinsics chi2 / threshold",
+                         "detectable rotation deg", "detectable position mm", "detectable intrinsics px"))
+    tp = _table("pose change in the rig's body frame", ("camera", "rotation deg F L U", "1-sigma",
+                                                        "position mm F L U", "1-sigma", "relative to"))
+    ti = _table("intrinsics change (new - rig)", ("camera", "change px", "1-sigma px", "image shift px"))
     for v in res.verdicts:
         p, i = v.pose, v.intrinsics
-        rot = _axes(p.rotation_deg, p.rotation_sigma_deg, 3) if p else "-"
-        pos = _axes(p.translation_mm, p.translation_sigma_mm, 2) if p else "-"
-        pt = f"{p.test.statistic:.1f} / {p.test.threshold:.1f}" if p else "-"
-        ic = ", ".join(f"{k} {x:+.2f} ({i.sigma[k]:.2f})" for k, x in i.change.items()) if i else "-"
-        sh = f"{i.displacement_px:.2f}" if i else "-"
-        it = f"{i.test.statistic:.1f} / {i.test.threshold:.1f}" if i else "-"
-        det = []
+        t.add_row(v.name, v.status, f"{p.test.statistic:.1f} / {p.test.threshold:.1f}" if p else "-",
+                  f"{i.test.statistic:.1f} / {i.test.threshold:.1f}" if i else "-",
+                  f"{np.max(p.detectable_rotation_deg):.4f}" if p else "-",
+                  f"{np.max(p.detectable_translation_mm):.3f}" if p else "-",
+                  f"{max(i.detectable.values()):.3f}" if i else "-")
         if p:
-            det += [f"{np.max(p.detectable_rotation_deg):.3f}", f"{np.max(p.detectable_translation_mm):.2f}"]
+            tp.add_row(v.name, _axes(p.rotation_deg, 4), _sig(p.rotation_sigma_deg, 4), _axes(p.translation_mm, 3),
+                       _sig(p.translation_sigma_mm, 3), ", ".join(p.relative_to))
         if i:
-            det.append(f"{max(i.detectable.values()):.2f}")
-        t.add_row(v.name, v.status, rot, pos, pt, ic, sh, it, " / ".join(det) or "-")
-    lines = [t, f"level {res.level:g} for the whole check: {res.n_tests} tests at {res.level_each:.3g} each (Sidak); "
+            ti.add_row(v.name, " ".join(f"{k} {x:+.3f}" for k, x in i.change.items()),
+                       " ".join(f"{k} {i.sigma[k]:.3f}" for k in i.change), f"{i.displacement_px:.3f}")
+    lines = [t, tp, ti, f"level {res.level:g} for the whole check: {res.n_tests} tests at {res.level_each:.3g} each (Sidak); "
                 f"rig aligned by {', '.join(res.aligned_by) or '-'}; detectable: the smallest change flagged in "
-                f"{100 * decide.DETECT_POWER:.0f} % of recordings like this one (worst axis)"]
+                f"{100 * decide.DETECT_POWER:.0f} % of recordings like this one (worst axis or parameter)"]
     lines += [f"note: {n}" for v in res.verdicts for n in v.notes]
     if res.changed:
         lines.append("changed: " + ", ".join(f"{v.name} ({v.status})" for v in res.verdicts
