@@ -24,6 +24,8 @@ Sections (each also runs alone: python -m bench.<name>):
   imu_coverage `rigcal calibrate` end to end on 20 rendered 4 s IMU recordings: every reported camera-IMU
                and intrinsic parameter's error / its 1-sigma (issue 18: 90-98 % within 2 sigma)
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
+  check        `rigcal check`: false alarms on an unchanged drone-stereo-back and detection of one camera
+               turned 0.2 deg, moved 2 mm, focal +0.3 %, principal point +2 px (20-frame recordings, level 0.01)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
 
@@ -54,9 +56,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_coverage, imu_euroc, imu_speed, indie, indie_noise,
-               ingest, intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real, scale,
-               simulate_imu, solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, check, dome, imu_calib, imu_coverage, imu_euroc, imu_speed, indie,
+               indie_noise, ingest, intrinsics_holdout, long_recording, montecarlo, noise_limit, peer_opencv, real,
+               scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -104,6 +106,7 @@ TABLE = (
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),
+    Section("check", "check", lambda q, d: check.run(seeds=3 if q else 40, frames=20), _only(check)),
     Section("aprilgrid", "aprilgrid_excess", lambda q, d: aprilgrid_excess.run(frames=1 if q else 3),
             _only(aprilgrid_excess)),
 )
