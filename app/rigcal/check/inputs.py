@@ -19,7 +19,8 @@ def load_calibrated_rig(path: Path) -> Rig:
     for c in rig.cameras:
         sig = (c.calibration or {}).get("sigma")
         if c.T_body_cam is None:
-            raise InputError(f"{path}: cameras.{c.name}: no pose; rigcal check needs a calibrated rig ({HOW_TO_CALIBRATE})")
+            raise InputError(f"{path}: cameras.{c.name}: no pose; rigcal check needs a calibrated rig "
+                             f"({HOW_TO_CALIBRATE})")
         if not sig or "rotation_deg" not in sig or "position_mm" not in sig:
             raise InputError(f"{path}: cameras.{c.name}: no calibration.sigma (position_mm, rotation_deg); rigcal "
                              f"check needs a calibrated rig with its uncertainties ({HOW_TO_CALIBRATE})")

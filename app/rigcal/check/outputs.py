@@ -126,9 +126,10 @@ def console_table(res: CheckResult) -> Group:
         if i:
             ti.add_row(v.name, " ".join(f"{k} {x:+.3f}" for k, x in i.change.items()),
                        " ".join(f"{k} {i.sigma[k]:.3f}" for k in i.change), f"{i.displacement_px:.3f}")
-    lines = [t, tp, ti, f"level {res.level:g} for the whole check: {res.n_tests} tests at {res.level_each:.3g} each (Sidak); "
-                f"rig aligned by {', '.join(res.aligned_by) or '-'}; detectable: the smallest change flagged in "
-                f"{100 * decide.DETECT_POWER:.0f} % of recordings like this one (worst axis or parameter)"]
+    head = (f"level {res.level:g} for the whole check: {res.n_tests} tests at {res.level_each:.3g} each (Sidak); "
+            f"rig aligned by {', '.join(res.aligned_by) or '-'}; detectable: the smallest change flagged in "
+            f"{100 * decide.DETECT_POWER:.0f} % of recordings like this one (worst axis or parameter)")
+    lines = [t, tp, ti, head]
     lines += [f"note: {n}" for v in res.verdicts for n in v.notes]
     if res.changed:
         lines.append("changed: " + ", ".join(f"{v.name} ({v.status})" for v in res.verdicts
