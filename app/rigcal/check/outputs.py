@@ -34,6 +34,7 @@ class CheckResult:
     level_each: float
     aligned_by: tuple[str, ...]
     timings: dict
+    notes: tuple[str, ...] = ()
 
     @property
     def changed(self) -> list[str]:
@@ -86,7 +87,7 @@ def to_json(res: CheckResult) -> dict:
         cams[v.name] = d
     return {"rig": res.rig_path, "dataset": res.dataset, "status": "changed" if res.changed else "ok",
             "changed": res.changed, "level": res.level, "tests": res.n_tests, "level_per_test": _f(res.level_each, 8),
-            "correction": "sidak", "aligned_by": list(res.aligned_by), "cameras": cams,
+            "correction": "sidak", "aligned_by": list(res.aligned_by), "cameras": cams, "notes": list(res.notes),
             "seconds": {k: _f(x, 3) for k, x in res.timings.items()}}
 
 
@@ -130,7 +131,7 @@ def console_table(res: CheckResult) -> Group:
             f"rig aligned by {', '.join(res.aligned_by) or '-'}; detectable: the smallest change flagged in "
             f"{100 * decide.DETECT_POWER:.0f} % of recordings like this one (worst axis or parameter)")
     lines = [t, tp, ti, head]
-    lines += [f"note: {n}" for v in res.verdicts for n in v.notes]
+    lines += [f"note: {n}" for v in res.verdicts for n in v.notes] + [f"note: {n}" for n in res.notes]
     if res.changed:
         lines.append("changed: " + ", ".join(f"{v.name} ({v.status})" for v in res.verdicts
                                              if v.status in (MOVED, INTRINSICS)))

@@ -48,7 +48,7 @@ def run(rig_path: Path, dataset: Path, report_path: Path | None = None, level: f
     timings = {"detection_s": rec.detection_s, "estimate_s": t_est - t_det, "total_s": time.perf_counter() - t0}
     res = CheckResult(rig_path=str(rig_path), dataset=str(dataset), verdicts=vs, level=level, n_tests=n_tests,
                       level_each=level_each, aligned_by=tuple(names[i] for i in keep) if est else (),
-                      timings=timings)
+                      timings=timings, notes=tuple(_imu_note(rig, dataset)))
     writes = []
     if update_path is not None and est is not None:
         writes.append((update_path, dump_rig(updated_rig(rig, est, res, str(dataset)))))
@@ -73,3 +73,10 @@ def old_residuals(rig, est, keep: list[int]) -> np.ndarray | None:
     use = keep or list(range(len(names)))
     T_old_new = geo.fit_rigid_to(est.T_body_cam[use], T_old[use])
     return residuals_under(est, T_old_new, T_old, [rig.camera(n).intrinsics for n in names])
+
+
+def _imu_note(rig, dataset: Path) -> list[str]:
+    """What the check leaves out on a camera-IMU rig."""
+    if rig.imus and (dataset / "imu").is_dir():
+        return ["the recording has imu/: the cameras are checked, the camera-IMU transform and clock offsets are not"]
+    return []
