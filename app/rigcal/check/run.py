@@ -20,7 +20,7 @@ from rigcal.check.verdict import verdicts
 from rigcal.core import geometry as geo
 from rigcal.core.io import atomic_write_texts
 from rigcal.core.rig import dump_rig
-from rigcal.errors import InputError
+from rigcal.errors import InputError, OutputError
 
 
 def run(rig_path: Path, dataset: Path, report_path: Path | None = None, level: float = 0.01, as_json: bool = False,
@@ -34,6 +34,8 @@ def run(rig_path: Path, dataset: Path, report_path: Path | None = None, level: f
         raise InputError(f"--jobs: expected a positive number of processes, got {jobs}")
     inputs.check_output(report_path, "--report")
     inputs.check_output(update_path, "--update")
+    if report_path and update_path and Path(report_path).resolve() == Path(update_path).resolve():
+        raise OutputError(f"{report_path}: --report and --update name the same file; give each its own path")
     rig = inputs.load_calibrated_rig(rig_path)
     rec = inputs.read_recording(dataset, rig, rig_path, jobs)
     t_det = time.perf_counter()
