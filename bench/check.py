@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -24,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from rigcal.check.run import run as run_check
+from rigcal.commands.calibrate import run as calibrate
 from tests.support.check_cases import calibrated_rig, changed_rig, record, true_rig
 
 from .common import say, write_json
@@ -77,6 +79,40 @@ def one_seed(seed: int, frames: int, work: Path, truth) -> dict:
     return out
 
 
+def indie_seed(seed: int, frames: int, work: Path) -> dict:
+    """The independent renderer (tests/support/indie_render.py: a pinhole pair and a fisheye
+    looking back, in a room of ChArUco boards): a rig calibrated from its own 30 frames,
+    then checked unchanged and with front_right turned 0.2 deg about body U."""
+    from dataclasses import replace
+
+    from rigcal.core import geometry as geo
+    from tests.support import indie_render as ir
+
+    png = ((".png", False),)
+    base = ir.room_scene(n_frames=30, seed=100 + seed)
+    ir.write_dataset(base, work / "ibase", seed=seed, drop=0, corrupt=False, formats=png)
+    cal = work / "icalibrated.yaml"
+    calibrate(work / "ibase", cal, jobs=1)
+    out = {}
+    for name, turn in (("unchanged", 0.0), ("turned 0.2 deg about U", 0.2)):
+        cams = []
+        for c in base.cameras:
+            if c.name == CHANGED and turn:
+                T = c.T_body_cam.copy()
+                T[:3, :3] = geo.R_from_rotvec([0.0, 0.0, np.radians(turn)]) @ T[:3, :3]
+                c = replace(c, T_body_cam=T)
+            cams.append(c)
+        scene = replace(ir.room_scene(n_frames=frames, seed=200 + seed), cameras=tuple(cams))
+        shutil.rmtree(work / "inew", ignore_errors=True)
+        ir.write_dataset(scene, work / "inew", seed=seed, drop=0, corrupt=False, formats=png)
+        text, code = run_check(cal, work / "inew", as_json=True, jobs=1)
+        d = json.loads(text)
+        out[name] = {"exit": code, "statuses": {n: c["status"] for n, c in d["cameras"].items()},
+                     "rotation_deg": d["cameras"][CHANGED].get("pose", {}).get("rotation_deg"),
+                     "rotation_sigma_deg": d["cameras"][CHANGED].get("pose", {}).get("rotation_sigma_deg")}
+    return out
+
+
 def run(seeds: int = 10, frames: int = 20) -> dict:
     truth = true_rig(1)
     per_seed = []
@@ -125,7 +161,14 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--indie", type=int, default=0, help="also this many seeds of the independent renderer")
     a = ap.parse_args(argv)
+    if a.indie:
+        with tempfile.TemporaryDirectory(prefix="rigcal-bench-check-indie-") as tmp:
+            rows = [indie_seed(s, a.frames, Path(tmp)) for s in range(a.indie)]
+        write_json("check_indie", {"seeds": a.indie, "frames": a.frames, "per_seed": rows})
+        say(json.dumps(rows, indent=1))
+        return
     r = run(a.seeds, a.frames)
     write_json("check", r)
     say(tables(r))
