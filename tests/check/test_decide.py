@@ -75,7 +75,7 @@ def test_delta_covariance_matches_monte_carlo():
     pred = decide.delta_covariance(Tcb, cov_new, T_old, var_old, i, others)
     L = np.linalg.cholesky(cov_new[6:, 6:])
     samples = []
-    for _ in range(4000):
+    for _ in range(2000):
         x = np.concatenate([np.zeros(6), L @ rng.normal(size=6 * (C - 1))])
         Tn = Tcb.copy()
         To = T_old.copy()
@@ -88,8 +88,8 @@ def test_delta_covariance_matches_monte_carlo():
         samples.append(decide.aligned_delta(decide.inverse_poses(Tn), To, i, others))
     emp = np.cov(np.array(samples).T)
     sd = np.sqrt(np.diag(pred))
-    np.testing.assert_allclose(np.sqrt(np.diag(emp)), sd, rtol=0.06)
-    np.testing.assert_allclose(emp / np.outer(sd, sd), pred / np.outer(sd, sd), atol=0.06)
+    np.testing.assert_allclose(np.sqrt(np.diag(emp)), sd, rtol=0.08)  # 2000 draws: 1.6 % sampling error
+    np.testing.assert_allclose(emp / np.outer(sd, sd), pred / np.outer(sd, sd), atol=0.08)
 
 
 def test_locate_moved_drops_the_moved_camera_first():
