@@ -90,6 +90,7 @@ def indie_seed(seed: int, frames: int, work: Path) -> dict:
 
     png = ((".png", False),)
     base = ir.room_scene(n_frames=30, seed=100 + seed)
+    shutil.rmtree(work / "ibase", ignore_errors=True)
     ir.write_dataset(base, work / "ibase", seed=seed, drop=0, corrupt=False, formats=png)
     cal = work / "icalibrated.yaml"
     calibrate(work / "ibase", cal, jobs=1)
@@ -165,7 +166,10 @@ def main(argv=None) -> None:
     a = ap.parse_args(argv)
     if a.indie:
         with tempfile.TemporaryDirectory(prefix="rigcal-bench-check-indie-") as tmp:
-            rows = [indie_seed(s, a.frames, Path(tmp)) for s in range(a.indie)]
+            rows = []
+            for s in range(a.indie):
+                rows.append(indie_seed(s, a.frames, Path(tmp)))
+                say(f"check --indie: seed {s}: {json.dumps(rows[-1])}")
         write_json("check_indie", {"seeds": a.indie, "frames": a.frames, "per_seed": rows})
         say(json.dumps(rows, indent=1))
         return
