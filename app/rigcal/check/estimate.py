@@ -1,11 +1,11 @@
 """The new recording's own estimate of the rig, started from the rig under test.
 
 estimate_rig: the camera pipeline's first stages (camcal.pipeline: usable_views,
-start_cameras, resolve_flips, start_rig, first_solve) with the rig's intrinsics held, which
-place every frame and board from the new views alone; then one
-bundle adjustment that frees each camera's intrinsics as the rig's calibration estimated
-them (its `intrinsics_model`: fx = fy tied or not, principal point free or held) and its
-pose, with the covariance of all of them (frames marginalised, solve.camera_covariance).
+start_cameras, resolve_flips and start_rig with the rig's intrinsics, which place every
+frame and board from the new views alone), then its first_solve started from the rig's
+intrinsics and estimating them as the rig's calibration did (its `intrinsics_model`: fx = fy
+tied or not, principal point free or held) with every pose, and the covariance of all of
+them (frames marginalised, solve.camera_covariance).
 """
 
 from __future__ import annotations
@@ -91,15 +91,15 @@ def estimate_rig(views: list[BoardView], rig: Rig, corners: dict[str, np.ndarray
                   misfit_notes=False)
     starts = start_cameras(usable_views(used, list(names), True).by_cam, setup)
     flipped = resolve_flips(starts.posed, len(names), [corners[b] for b in setup.board_names])
-    first = first_solve(flipped.posed, start_rig(flipped.posed, setup), starts.inits, setup)
-    state = first.res.state.copy()
-    fix = np.zeros(len(names), bool)
+    start, fix = [], np.zeros(len(names), bool)
     for c, n in enumerate(names):
         tie, hold, held = structure(rig.camera(n).calibration)
-        it = state.intrinsics[c]
-        state.intrinsics[c] = Intrinsics(it.model, it.values.copy(), tie_focal=tie, hold_centre=hold)
+        m = rig.camera(n).intrinsics
+        start.append(Intrinsics(m.model, np.array([m.fx, m.fy, m.cx, m.cy, *m.dist], float), tie_focal=tie,
+                                hold_centre=hold))
         fix[c] = held
-    res = bundle_adjust(first.obs, state, first.gauge_cam, first.gauge_board, fix, inliers=first.res.inliers)
+    first = first_solve(flipped.posed, start_rig(flipped.posed, setup), starts.inits, setup, start=start, fix=fix)
+    res = first.res
     lost = [n for c, n in enumerate(names) if not np.any(first.obs.cam[res.inliers] == c)]
     if lost:
         raise CalibrationError(f"{', '.join(lost)}: every corner of the new recording was rejected as an outlier")
