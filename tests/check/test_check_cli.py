@@ -134,3 +134,15 @@ def test_bad_level_is_refused(work):
     r = invoke(work["rig"], work["dir"], "--level", "0.7")
     assert r.exit_code == 2
     assert "--level" in r.stderr
+
+
+def test_camera_the_new_views_cannot_place_is_undetermined(work):
+    """Seed 5's 8 frames never show the back camera a board the front pair sees, nor turn
+    the rig enough to place it by its motion: back is undetermined, the pair still checked."""
+    rec = record(work["truth"], work["dir"] / "unlinked", FRAMES, 5)
+    code, d = check_json(work, rec)
+    assert code == 0
+    assert d["cameras"]["back"]["status"] == "undetermined"
+    assert "cannot place it" in d["cameras"]["back"]["notes"][0]
+    assert d["cameras"]["front_left"]["status"] == "ok" and d["cameras"]["front_right"]["status"] == "ok"
+    assert d["cameras"]["front_left"]["pose"]["relative_to"] == ["front_right"]

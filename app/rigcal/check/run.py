@@ -20,7 +20,7 @@ from rigcal.check.verdict import verdicts
 from rigcal.core import geometry as geo
 from rigcal.core.io import atomic_write_texts
 from rigcal.core.rig import dump_rig
-from rigcal.errors import InputError, OutputError
+from rigcal.errors import CalibrationError, InputError, OutputError
 
 
 def run(rig_path: Path, dataset: Path, report_path: Path | None = None, level: float = 0.01, as_json: bool = False,
@@ -43,7 +43,7 @@ def run(rig_path: Path, dataset: Path, report_path: Path | None = None, level: f
     for n in rig.names:
         if n not in rec.cameras:
             missing[n] = "not in this recording (no images/ folder or corners/ file)"
-    est = estimate_rig(rec.views, with_subset(rig, names), rec.corners, rec.faces) if names else None
+    est, names = _estimate(rec, rig, names, missing)
     t_est = time.perf_counter()
     vs, n_tests, level_each, keep = verdicts(rig, est, {n: structure(rig.camera(n).calibration) for n in names},
                                              missing, level)
@@ -82,3 +82,22 @@ def _imu_note(rig, dataset: Path) -> list[str]:
     if rig.imus and (dataset / "imu").is_dir():
         return ["the recording has imu/: the cameras are checked, the camera-IMU transform and clock offsets are not"]
     return []
+
+
+def _estimate(rec, rig, names: list[str], missing: dict[str, str]):
+    """(estimate_rig of these cameras or None, the cameras estimated). A camera the new
+    views cannot connect to the others (the pipeline names it in its CalibrationError) is
+    left out and undetermined (`missing` says why), and the rest estimated without it."""
+    if not names:
+        return None, names
+    try:
+        return estimate_rig(rec.views, with_subset(rig, names), rec.corners, rec.faces), names
+    except CalibrationError as e:
+        text = str(e)
+        named = [n for n in names if text.startswith(f"{n}:") or f" {n}:" in text or f", {n}" in text]
+        if not named or len(named) == len(names):
+            raise
+        for n in named:
+            missing[n] = f"the new views cannot place it in the rig ({text})"
+        rest = [n for n in names if n not in named]
+        return estimate_rig(rec.views, with_subset(rig, rest), rec.corners, rec.faces), rest
