@@ -17,8 +17,7 @@ import numpy as np
 
 from rigcal.camcal.initialise import resolve_flips
 from rigcal.camcal.pipeline import MIN_FRAMES, Setup, first_solve, start_cameras, start_rig, usable_views
-from rigcal.camcal.solve import Intrinsics, Observations, State, bundle_adjust, camera_covariance, \
-    intrinsics_covariance
+from rigcal.camcal.solve import Intrinsics, Observations, State, camera_covariance, intrinsics_covariance
 from rigcal.core import geometry as geo
 from rigcal.core.camera import CameraModel
 from rigcal.core.observations import BoardView
