@@ -10,7 +10,7 @@ changed camera is flagged with the right status, in which another camera is flag
 in which the reported size is within 2 sigma of the true change; the check's time over
 its detection time.
 
-    python -m bench.check [--seeds N] [--frames F]
+    python -m bench.check [--seeds N] [--frames F] [--first SEED] [--indie N]
 """
 
 from __future__ import annotations
@@ -114,14 +114,20 @@ def indie_seed(seed: int, frames: int, work: Path) -> dict:
     return out
 
 
-def run(seeds: int = 10, frames: int = 20) -> dict:
+def run(seeds: int = 10, frames: int = 20, first: int = 0) -> dict:
     truth = true_rig(1)
     per_seed = []
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="rigcal-bench-check-") as tmp:
-        for s in range(seeds):
+        for s in range(first, first + seeds):
             per_seed.append(one_seed(s, frames, Path(tmp), truth))
-            say(f"check: seed {s + 1}/{seeds} done ({time.perf_counter() - t0:.0f} s)")
+            say(f"check: seed {s} ({len(per_seed)}/{seeds}) done ({time.perf_counter() - t0:.0f} s)")
+    return summarise(per_seed, frames, time.perf_counter() - t0, first)
+
+
+def summarise(per_seed: list[dict], frames: int, seconds: float, first: int = 0) -> dict:
+    """The rates over seeds (per_seed: one_seed's answers), as run() returns them."""
+    seeds = len(per_seed)
     summary = {}
     for name in CASES:
         rows = [p[name] for p in per_seed]
@@ -137,8 +143,8 @@ def run(seeds: int = 10, frames: int = 20) -> dict:
         }
     p = np.concatenate([r["unchanged"]["p_values"] for r in per_seed])
     summary["unchanged"]["p_below"] = {str(a): float(np.mean(p < a)) for a in (0.01, 0.05, 0.2, 0.5)}
-    return {"seeds": seeds, "frames": frames, "level": LEVEL, "changed_camera": CHANGED, "summary": summary,
-            "per_seed": per_seed, "seconds": time.perf_counter() - t0}
+    return {"seeds": seeds, "first_seed": first, "frames": frames, "level": LEVEL, "changed_camera": CHANGED,
+            "summary": summary, "per_seed": per_seed, "seconds": seconds}
 
 
 def tables(r: dict) -> str:
@@ -162,6 +168,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--first", type=int, default=0, help="the first seed (runs first .. first + seeds - 1)")
     ap.add_argument("--indie", type=int, default=0, help="also this many seeds of the independent renderer")
     a = ap.parse_args(argv)
     if a.indie:
@@ -173,8 +180,8 @@ def main(argv=None) -> None:
         write_json("check_indie", {"seeds": a.indie, "frames": a.frames, "per_seed": rows})
         say(json.dumps(rows, indent=1))
         return
-    r = run(a.seeds, a.frames)
-    write_json("check", r)
+    r = run(a.seeds, a.frames, a.first)
+    write_json("check" if a.first == 0 else f"check_from_{a.first}", r)
     say(tables(r))
 
 
