@@ -9,7 +9,9 @@ checked against 8-frame recordings of it, unchanged or changed.
 from __future__ import annotations
 
 import json
+import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -21,6 +23,7 @@ from rigcal.core.rig import load_rig
 from tests.support.check_cases import RIG, calibrated_rig, changed_rig, record, true_rig
 
 FRAMES = 8
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -50,6 +53,28 @@ def test_unchanged_rig_passes(work, seed):
     for c in d["cameras"].values():
         assert c["pose"]["statistic"] < c["pose"]["threshold"]
         assert max(c["pose"]["detectable_rotation_deg"]) < 0.1  # 8 frames still see a tenth of a degree
+    assert documented_keys() <= json_keys(d)
+
+
+def documented_keys() -> set[str]:
+    """The JSON keys docs/check.md's two tables list (first cell of each row, backticked)."""
+    text = (ROOT / "docs" / "check.md").read_text(encoding="utf-8").split("## `--json`")[1].split("## ")[0]
+    keys = set()
+    for line in text.splitlines():
+        if line.startswith("| `"):
+            first = line.split("|")[1]
+            found = re.findall(r"`([a-z_.]+)`", first)
+            prefix = found[0].split(".")[0] + "." if "." in found[0] else ""
+            keys |= {k if "." in k or not prefix else prefix + k for k in found}
+    return keys
+
+
+def json_keys(d: dict) -> set[str]:
+    """Top-level keys, and per camera its keys and its pose./intrinsics. keys, of one check's JSON."""
+    keys = set(d)
+    for c in d["cameras"].values():
+        keys |= set(c) | {f"{part}.{k}" for part in ("pose", "intrinsics") if part in c for k in c[part]}
+    return keys
 
 
 def test_turned_camera_is_flagged_as_moved_with_its_size(work):
