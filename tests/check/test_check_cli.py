@@ -169,5 +169,9 @@ def test_camera_the_new_views_cannot_place_is_undetermined(work):
     assert code == 0
     assert d["cameras"]["back"]["status"] == "undetermined"
     assert "cannot place it" in d["cameras"]["back"]["notes"][0]
+    # its intrinsics are still tested, on its own views
+    assert d["cameras"]["back"]["intrinsics"]["statistic"] < d["cameras"]["back"]["intrinsics"]["threshold"]
+    assert "pose" not in d["cameras"]["back"]
+    assert d["tests"] == 2 + 3  # the pair's two pose tests, three intrinsics tests
     assert d["cameras"]["front_left"]["status"] == "ok" and d["cameras"]["front_right"]["status"] == "ok"
     assert d["cameras"]["front_left"]["pose"]["relative_to"] == ["front_right"]

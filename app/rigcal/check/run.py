@@ -43,10 +43,10 @@ def run(rig_path: Path, dataset: Path, report_path: Path | None = None, level: f
     for n in rig.names:
         if n not in rec.cameras:
             missing[n] = "not in this recording (no images/ folder or corners/ file)"
-    est, names = _estimate(rec, rig, names, missing)
+    est, names, solo = _estimate(rec, rig, names, missing)
     t_est = time.perf_counter()
-    vs, n_tests, level_each, keep = verdicts(rig, est, {n: structure(rig.camera(n).calibration) for n in names},
-                                             missing, level)
+    vs, n_tests, level_each, keep = verdicts(rig, est, {n: structure(rig.camera(n).calibration) for n in rig.names},
+                                             missing, level, solo)
     timings = {"detection_s": rec.detection_s, "estimate_s": t_est - t_det, "total_s": time.perf_counter() - t0}
     res = CheckResult(rig_path=str(rig_path), dataset=str(dataset), verdicts=vs, level=level, n_tests=n_tests,
                       level_each=level_each, aligned_by=tuple(names[i] for i in keep) if est else (),
@@ -85,13 +85,14 @@ def _imu_note(rig, dataset: Path) -> list[str]:
 
 
 def _estimate(rec, rig, names: list[str], missing: dict[str, str]):
-    """(estimate_rig of these cameras or None, the cameras estimated). A camera the new
-    views cannot connect to the others (the pipeline names it in its CalibrationError) is
-    left out and undetermined (`missing` says why), and the rest estimated without it."""
+    """(estimate_rig of these cameras or None, the cameras estimated together, per camera
+    left out its estimate alone). A camera the new views cannot connect to the others (the
+    pipeline names it in its CalibrationError) is left out (`missing` says why), the rest
+    estimated without it, and it alone (its intrinsics can still be tested)."""
     if not names:
-        return None, names
+        return None, names, {}
     try:
-        return estimate_rig(rec.views, with_subset(rig, names), rec.corners, rec.faces), names
+        return estimate_rig(rec.views, with_subset(rig, names), rec.corners, rec.faces), names, {}
     except CalibrationError as e:
         text = str(e)
         named = [n for n in names if text.startswith(f"{n}:") or f" {n}:" in text or f", {n}" in text]
@@ -100,4 +101,10 @@ def _estimate(rec, rig, names: list[str], missing: dict[str, str]):
         for n in named:
             missing[n] = f"the new views cannot place it in the rig ({text})"
         rest = [n for n in names if n not in named]
-        return estimate_rig(rec.views, with_subset(rig, rest), rec.corners, rec.faces), rest
+        solo = {}
+        for n in named:
+            try:
+                solo[n] = estimate_rig(rec.views, with_subset(rig, [n]), rec.corners, rec.faces)
+            except CalibrationError:
+                pass
+        return estimate_rig(rec.views, with_subset(rig, rest), rec.corners, rec.faces), rest, solo

@@ -176,12 +176,16 @@ def count_tests(n_pose: int, intrinsics_idx: list[list[int]]) -> int:
 
 
 def verdicts(rig: Rig, est: NewEstimate | None, structures: dict[str, tuple], missing: dict[str, str],
-             level: float) -> tuple[list[CameraVerdict], int, float, list[int]]:
+             level: float, solo: dict[str, NewEstimate] | None = None
+             ) -> tuple[list[CameraVerdict], int, float, list[int]]:
     """Every camera of the rig judged (rig order). structures: name -> (tie, hold, held)
-    (estimate.structure); missing: name -> what its views lack (not estimated).
+    (estimate.structure); missing: name -> what its views lack (not estimated with the
+    rest); solo: name -> the estimate of a camera from its own views alone (its views
+    could not be connected to the others'): its intrinsics are tested, its pose not.
     Returns (verdicts, number of tests, per-test level, the aligning set's indices in est)."""
+    solo = solo or {}
     names = list(est.names) if est is not None else []
-    idx = {n: intrinsics_to_test(*structures[n]) for n in names}
+    idx = {n: intrinsics_to_test(*structures[n]) for n in [*names, *solo]}
     n_tests = count_tests(len(names), list(idx.values()))
     level_each = decide.sidak_level(level, n_tests)
     poses, keep = {}, []
@@ -190,8 +194,18 @@ def verdicts(rig: Rig, est: NewEstimate | None, structures: dict[str, tuple], mi
         poses, keep = check_poses(est, T_old, pose_variances(rig, names), level_each)
     out = []
     for n in rig.names:
+        why = f"{n}: {missing.get(n, 'not estimated')}"
+        if n in solo:
+            cam = rig.camera(n)
+            intr = check_intrinsics(cam.intrinsics, cam.calibration["sigma"].get("intrinsics", {}),
+                                    solo[n].state.intrinsics[0].values, solo[n].cov_intrinsics[0], idx[n],
+                                    level_each, level_each)
+            changed = intr is not None and intr.test.failed
+            out.append(CameraVerdict(n, INTRINSICS if changed else UNDETERMINED, None, intr,
+                                     (why + "; its intrinsics were tested on its own views, its pose not",)))
+            continue
         if n not in names:
-            out.append(CameraVerdict(n, UNDETERMINED, notes=(f"{n}: {missing.get(n, 'not estimated')}",)))
+            out.append(CameraVerdict(n, UNDETERMINED, notes=(why,)))
             continue
         c = names.index(n)
         cam = rig.camera(n)
