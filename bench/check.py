@@ -164,13 +164,56 @@ def tables(r: dict) -> str:
     return "\n".join(lines + ["", lines_p])
 
 
+def residual_png(rig_path: Path, dataset: Path, out: Path, scale: float = 20.0) -> None:
+    """docs/check_residuals.png: per camera (side by side) the new views' corners and, drawn
+    `scale` times longer, where the rig's calibration misses them (report.residual_figure's
+    content, drawn with OpenCV)."""
+    import cv2
+
+    from rigcal.check import inputs
+    from rigcal.check.estimate import determined, estimate_rig, with_subset
+    from rigcal.check.run import old_residuals
+    from rigcal.check.verdict import verdicts
+    from rigcal.check.estimate import structure
+
+    rig = inputs.load_calibrated_rig(rig_path)
+    rec = inputs.read_recording(dataset, rig, rig_path, 1)
+    names, missing = determined(rec.views, rig)
+    est = estimate_rig(rec.views, with_subset(rig, names), rec.corners, rec.faces)
+    vs, _, _, keep = verdicts(rig, est, {n: structure(rig.camera(n).calibration) for n in names}, missing, LEVEL)
+    r = old_residuals(rig, est, keep)
+    panels = []
+    for c, name in enumerate(est.names):
+        m = rig.camera(name).intrinsics
+        img = np.full((m.height + 40, m.width, 3), 255, np.uint8)
+        sel = est.obs.cam == c
+        uv, e = est.obs.uv[sel], r[sel]
+        for (u, v), (du, dv) in zip(uv, e):
+            p0 = (int(round(u - scale * du)), int(round(v - scale * dv + 40)))
+            cv2.arrowedLine(img, p0, (int(round(u)), int(round(v + 40))), (60, 60, 200), 1, cv2.LINE_AA,
+                            tipLength=0.25)
+            cv2.circle(img, (int(round(u)), int(round(v + 40))), 1, (0, 0, 0), -1)
+        cv2.rectangle(img, (0, 40), (m.width - 1, m.height + 39), (0, 0, 0), 1)
+        rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+        status = next(v.status for v in vs if v.name == name)
+        cv2.putText(img, f"{name}: {status}, RMS {rms:.3f} px (arrows x{scale:g})", (8, 26),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+        panels.append(img)
+    cv2.imwrite(str(out), np.hstack(panels))
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--frames", type=int, default=20)
     ap.add_argument("--first", type=int, default=0, help="the first seed (runs first .. first + seeds - 1)")
     ap.add_argument("--indie", type=int, default=0, help="also this many seeds of the independent renderer")
+    ap.add_argument("--figure", nargs=3, metavar=("RIG", "DATASET", "PNG"),
+                    help="draw the residual maps of one check (docs/check_residuals.png) and stop")
     a = ap.parse_args(argv)
+    if a.figure:
+        residual_png(Path(a.figure[0]), Path(a.figure[1]), Path(a.figure[2]))
+        return
     if a.indie:
         with tempfile.TemporaryDirectory(prefix="rigcal-bench-check-indie-") as tmp:
             rows = []
