@@ -28,6 +28,8 @@ Sections (each also runs alone: python -m bench.<name>):
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   mag          magnetometer vs truth on 20 simulated 60 s compass dances (hard/soft iron, R_body_mag,
                inclination, share within 2 sigma) and the heading error beside an ellipsoid fit alone
+  check        `rigcal check`: false alarms on an unchanged drone-stereo-back and detection of one camera
+               turned 0.2 deg, moved 2 mm, focal +0.3 %, principal point +2 px (20-frame recordings, level 0.01)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
                tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
   imu_noise    `rigcal imu-noise` on simulated static recordings (seeds x 3 h at 200 Hz) vs truth, interval
@@ -60,9 +62,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, dome, imu_calib, imu_coverage, imu_euroc, imu_noise, imu_speed, indie,
-               indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo, noise_limit, peer_opencv, real,
-               scale, simulate_imu, solver_libraries, speed)
+from . import (accuracy, aprilgrid_excess, check, dome, imu_calib, imu_coverage, imu_euroc, imu_noise, imu_speed,
+               indie, indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo, noise_limit,
+               peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -113,6 +115,7 @@ TABLE = (
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),
     Section("mag", "mag", lambda q, d: mag.run(seeds=3 if q else 20, duration=30.0 if q else 60.0), _only(mag)),
+    Section("check", "check", lambda q, d: check.run(seeds=3 if q else 40, frames=20), _only(check)),
     Section("aprilgrid", "aprilgrid_excess", lambda q, d: aprilgrid_excess.run(frames=1 if q else 3),
             _only(aprilgrid_excess)),
     Section("imu_noise", "imu_noise", lambda q, d: imu_noise.run(seeds=3 if q else 10, hours=1.0 if q else 3.0,

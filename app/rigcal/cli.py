@@ -302,6 +302,31 @@ def calibrate(
 
 @app.command()
 @guarded
+def check(
+    rig: Path = typer.Argument(..., help="calibrated rig YAML (what `rigcal calibrate` writes, with sigmas)"),
+    dataset: Path = typer.Argument(..., help="a short new recording of the rig (dataset.md: images/ or corners/, "
+                                             "target.yaml)"),
+    report: Optional[Path] = typer.Option(None, help="write an HTML report here (residual maps, tests)"),
+    level: float = typer.Option(0.01, help="false-alarm rate of the whole check (an unchanged rig fails this "
+                                           "share of recordings)"),
+    json_out: bool = typer.Option(False, "--json", help="print one JSON object instead of the table"),
+    update: Optional[Path] = typer.Option(None, help="write the rig with what changed re-estimated from this "
+                                                     "recording (the rest held)"),
+    jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
+):
+    """Is the rig's calibration still good? Per camera ok, moved, intrinsics changed or undetermined.
+    Exit 0: all ok; 1: something changed; 2: bad input."""
+    from rigcal.check.run import run as run_check
+
+    text, code = run_check(rig, dataset, report_path=report, level=level, as_json=json_out, update_path=update,
+                           jobs=jobs)
+    out(text)
+    if code:
+        raise typer.Exit(code)
+
+
+@app.command()
+@guarded
 def compare(
     calibrated: Path = typer.Argument(..., help="calibrated rig YAML"),
     truth: Path = typer.Argument(..., help="truth.yaml of a simulated dataset, or another rig file"),

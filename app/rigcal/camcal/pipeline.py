@@ -110,6 +110,9 @@ class Setup:
     fix_intrinsics: bool = False
     intrinsics: str = "auto"
     faces: dict[str, float] | None = None
+    # with fix_intrinsics: note cameras whose own views fit the declared intrinsics badly
+    # (a calibrateCamera per camera; `rigcal check` tests the intrinsics itself)
+    misfit_notes: bool = True
 
     @property
     def cam_names(self) -> list[str]:
@@ -239,7 +242,7 @@ def start_cameras(by_cam: dict[str, list[BoardView]], setup: Setup) -> CameraSta
         mi = init_camera(by_cam[n], setup.corners, declared, setup.distortion, setup.fix_intrinsics, setup.faces)
         inits.append(mi)
         selection[n] = list(mi.log)
-        if setup.fix_intrinsics:
+        if setup.fix_intrinsics and setup.misfit_notes:
             misfit = fixed_intrinsics_misfit(by_cam[n], setup.corners, declared, mi, setup.faces)
             if misfit is not None:
                 notes.append(f"{n}: {misfit}")
@@ -296,19 +299,24 @@ class JointSolve:
     seconds: float
 
 
-def first_solve(posed: PosedViews, rig_start: RigStart, inits: list[MonoInit], setup: Setup) -> JointSolve:
+def first_solve(posed: PosedViews, rig_start: RigStart, inits: list[MonoInit], setup: Setup,
+                start: list[Intrinsics] | None = None, fix: np.ndarray | None = None) -> JointSolve:
     """Bundle adjustment over every corner of every view the pose graph could place, from
-    its start poses and each camera's start intrinsics (structure imposed by --intrinsics)."""
+    its start poses and each camera's start intrinsics (structure imposed by --intrinsics).
+    start, fix: per camera the intrinsics (values and structure) to start from and which
+    are held, instead of the inits' and setup's (`rigcal check`: the rig's own structure)."""
     graph = rig_start.graph
     use = [k for k in range(len(posed.views)) if graph.frame_posed[posed.frame[k]]
            and posed.board[k] not in graph.missing_boards]
     obs = _observations(posed, use, setup.corners, setup.board_names)
-    start = [Intrinsics(setup.rig.camera(n).intrinsics.model, mi.values.copy())
-             for n, mi in zip(setup.cam_names, inits)]
-    if not setup.fix_intrinsics:
-        start = [forced_structure(it, setup.intrinsics, setup.centres[c]) for c, it in enumerate(start)]
+    if start is None:
+        start = [Intrinsics(setup.rig.camera(n).intrinsics.model, mi.values.copy())
+                 for n, mi in zip(setup.cam_names, inits)]
+        if not setup.fix_intrinsics:
+            start = [forced_structure(it, setup.intrinsics, setup.centres[c]) for c, it in enumerate(start)]
     state = State(start, graph.T_cam_body, graph.T_body_world, graph.T_world_board)
-    fix = np.full(len(setup.cam_names), setup.fix_intrinsics)
+    if fix is None:
+        fix = np.full(len(setup.cam_names), setup.fix_intrinsics)
     res = bundle_adjust(obs, state, rig_start.gauge_cam, graph.gauge_board, fix)
     return JointSolve(res=res, obs=obs, sigma_det=_detected_sigma(posed, use), fix=fix, gauge_cam=rig_start.gauge_cam,
                       gauge_board=graph.gauge_board, covariance=None, seconds=res.seconds)

@@ -1,0 +1,232 @@
+"""`rigcal check` on simulated recordings: false alarms on an unchanged rig, and detection of
+one camera turned, shifted, its focal length or its principal point changed.
+
+Per seed: the true rig (drone-stereo-back with simulate's mount and lens errors, drawn once)
+is calibrated from its own 30-frame room recording (seed-dependent, so the rig's own error
+varies across seeds as it does across real calibrations); then new `frames`-frame
+recordings of the true rig (unchanged) and of changed copies (CASES, camera CHANGED) are
+checked against that calibration at level 0.01. Per case: the share of seeds in which the
+changed camera is flagged with the right status, in which another camera is flagged, and
+in which the reported size is within 2 sigma of the true change; the check's time over
+its detection time.
+
+    python -m bench.check [--seeds N] [--frames F] [--first SEED] [--indie N]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from rigcal.check.run import run as run_check
+from rigcal.commands.calibrate import run as calibrate
+from tests.support.check_cases import calibrated_rig, changed_rig, record, true_rig
+
+from .common import say, write_json
+
+CHANGED = "front_right"
+LEVEL = 0.01
+# name -> (changed_rig keyword arguments, expected status, how to read the size and its sigma, true size)
+CASES = {
+    "unchanged": ({}, "ok", None, 0.0),
+    "turned 0.2 deg about U": ({"rotate_deg": 0.2, "axis": "U"}, "moved", ("pose", "rotation_deg", 2), 0.2),
+    "moved 2 mm along L": ({"shift_mm": 2.0, "shift_axis": "L"}, "moved", ("pose", "translation_mm", 1), 2.0),
+    "focal +0.3 %": ({"focal_rel": 0.003}, "intrinsics changed", ("intrinsics", "fx", None), None),
+    "principal point +2 px in x": ({"pp_px": (2.0, 0.0)}, "intrinsics changed", ("intrinsics", "cx", None), 2.0),
+}
+
+
+def size_and_sigma(cam: dict, how: tuple) -> tuple[float, float]:
+    part, key, axis = how
+    if part == "pose":
+        p = cam["pose"]
+        sig_key = key.replace("_deg", "_sigma_deg").replace("_mm", "_sigma_mm")
+        return p[key][axis], p[sig_key][axis]
+    i = cam["intrinsics"]
+    return i["change_px"][key], i["sigma_px"][key]
+
+
+def one_seed(seed: int, frames: int, work: Path, truth) -> dict:
+    """Every case for one seed: the rig calibrated from its own recording, then each case checked."""
+    cal = calibrated_rig(truth, work, 30, 1000 + seed)
+    out = {}
+    for name, (kw, expected, how, size) in CASES.items():
+        true_rig = changed_rig(truth, CHANGED, **kw)
+        if name.startswith("focal"):
+            size = true_rig.camera(CHANGED).intrinsics.fx - truth.camera(CHANGED).intrinsics.fx
+        rec = record(true_rig, work / "new", frames, 2000 + seed)
+        t0 = time.perf_counter()
+        text, code = run_check(cal, rec, as_json=True, jobs=1)
+        wall = time.perf_counter() - t0
+        d = json.loads(text)
+        cams = d["cameras"]
+        others = [n for n, c in cams.items() if n != CHANGED and c["status"] != "ok"]
+        row = {"exit": code, "status": cams[CHANGED]["status"], "others_flagged": others,
+               "right": cams[CHANGED]["status"] == expected, "seconds": wall,
+               "detection_s": d["seconds"]["detection_s"]}
+        if name == "unchanged":  # every test's p-value: uniform on [0, 1] when the sigmas are honest
+            row["p_values"] = [c[k]["p_value"] for c in cams.values() for k in ("pose", "intrinsics") if k in c]
+        if how is not None and cams[CHANGED]["status"] != "undetermined":
+            got, sig = size_and_sigma(cams[CHANGED], how)
+            row.update(size=got, sigma=sig, true=size, within_2_sigma=bool(abs(got - size) <= 2 * sig))
+        out[name] = row
+    return out
+
+
+def indie_seed(seed: int, frames: int, work: Path) -> dict:
+    """The independent renderer (tests/support/indie_render.py: a pinhole pair and a fisheye
+    looking back, in a room of ChArUco boards): a rig calibrated from its own 30 frames,
+    then checked unchanged and with front_right turned 0.2 deg about body U."""
+    from dataclasses import replace
+
+    from rigcal.core import geometry as geo
+    from tests.support import indie_render as ir
+
+    png = ((".png", False),)
+    base = ir.room_scene(n_frames=30, seed=100 + seed)
+    shutil.rmtree(work / "ibase", ignore_errors=True)
+    ir.write_dataset(base, work / "ibase", seed=seed, drop=0, corrupt=False, formats=png)
+    cal = work / "icalibrated.yaml"
+    calibrate(work / "ibase", cal, jobs=1)
+    out = {}
+    for name, turn in (("unchanged", 0.0), ("turned 0.2 deg about U", 0.2)):
+        cams = []
+        for c in base.cameras:
+            if c.name == CHANGED and turn:
+                T = c.T_body_cam.copy()
+                T[:3, :3] = geo.R_from_rotvec([0.0, 0.0, np.radians(turn)]) @ T[:3, :3]
+                c = replace(c, T_body_cam=T)
+            cams.append(c)
+        scene = replace(ir.room_scene(n_frames=frames, seed=200 + seed), cameras=tuple(cams))
+        shutil.rmtree(work / "inew", ignore_errors=True)
+        ir.write_dataset(scene, work / "inew", seed=seed, drop=0, corrupt=False, formats=png)
+        text, code = run_check(cal, work / "inew", as_json=True, jobs=1)
+        d = json.loads(text)
+        out[name] = {"exit": code, "statuses": {n: c["status"] for n, c in d["cameras"].items()},
+                     "rotation_deg": d["cameras"][CHANGED].get("pose", {}).get("rotation_deg"),
+                     "rotation_sigma_deg": d["cameras"][CHANGED].get("pose", {}).get("rotation_sigma_deg")}
+    return out
+
+
+def run(seeds: int = 10, frames: int = 20, first: int = 0) -> dict:
+    truth = true_rig(1)
+    per_seed = []
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="rigcal-bench-check-") as tmp:
+        for s in range(first, first + seeds):
+            per_seed.append(one_seed(s, frames, Path(tmp), truth))
+            say(f"check: seed {s} ({len(per_seed)}/{seeds}) done ({time.perf_counter() - t0:.0f} s)")
+    return summarise(per_seed, frames, time.perf_counter() - t0, first)
+
+
+def summarise(per_seed: list[dict], frames: int, seconds: float, first: int = 0) -> dict:
+    """The rates over seeds (per_seed: one_seed's answers), as run() returns them."""
+    seeds = len(per_seed)
+    summary = {}
+    for name in CASES:
+        rows = [p[name] for p in per_seed]
+        n = len(rows)
+        summary[name] = {
+            "seeds": n,
+            "flagged_right": sum(r["right"] for r in rows) / n,
+            "any_flagged": sum(r["exit"] == 1 for r in rows) / n,
+            "changed_camera_flagged": sum(r["status"] != "ok" for r in rows) / n,
+            "other_camera_flagged": sum(bool(r["others_flagged"]) for r in rows) / n,
+            "within_2_sigma": (sum(r.get("within_2_sigma", False) for r in rows) / n) if "size" in rows[0] else None,
+            "time_over_detection": float(np.median([r["seconds"] / r["detection_s"] for r in rows])),
+        }
+    p = np.concatenate([r["unchanged"]["p_values"] for r in per_seed])
+    summary["unchanged"]["p_below"] = {str(a): float(np.mean(p < a)) for a in (0.01, 0.05, 0.2, 0.5)}
+    return {"seeds": seeds, "first_seed": first, "frames": frames, "level": LEVEL, "changed_camera": CHANGED,
+            "summary": summary, "per_seed": per_seed, "seconds": seconds}
+
+
+def tables(r: dict) -> str:
+    lines = [f"### rigcal check: {r['seeds']} seeds x {r['frames']} frames, drone-stereo-back, level {r['level']}, "
+             f"changed camera {r['changed_camera']}", "",
+             "| case | right status | exit 1 (any camera flagged) | changed camera flagged | another camera flagged | "
+             "size within 2 sigma | check time / detection time (median) |", "|---|---|---|---|---|---|---|"]
+    for name, s in r["summary"].items():
+        if name == "unchanged":
+            pb = s["p_below"]
+            tail = ", ".join(f"{100 * v:.0f} % below {k}" for k, v in pb.items())
+            lines_p = f"Unchanged rig, every single test's p-value (uniform when the sigmas are honest): {tail}"
+        w = "-" if s["within_2_sigma"] is None else f"{100 * s['within_2_sigma']:.0f} %"
+        lines.append(f"| {name} | {100 * s['flagged_right']:.0f} % | {100 * s['any_flagged']:.0f} % | "
+                     f"{100 * s['changed_camera_flagged']:.0f} % | "
+                     f"{100 * s['other_camera_flagged']:.0f} % | {w} | {s['time_over_detection']:.2f} |")
+    return "\n".join(lines + ["", lines_p])
+
+
+def residual_png(rig_path: Path, dataset: Path, out: Path, scale: float = 20.0) -> None:
+    """docs/check_residuals.png: per camera (side by side) the new views' corners and, drawn
+    `scale` times longer, where the rig's calibration misses them (report.residual_figure's
+    content, drawn with OpenCV)."""
+    import cv2
+
+    from rigcal.check import inputs
+    from rigcal.check.estimate import determined, estimate_rig, with_subset
+    from rigcal.check.run import old_residuals
+    from rigcal.check.verdict import verdicts
+    from rigcal.check.estimate import structure
+
+    rig = inputs.load_calibrated_rig(rig_path)
+    rec = inputs.read_recording(dataset, rig, rig_path, 1)
+    names, missing = determined(rec.views, rig)
+    est = estimate_rig(rec.views, with_subset(rig, names), rec.corners, rec.faces)
+    vs, _, _, keep = verdicts(rig, est, {n: structure(rig.camera(n).calibration) for n in names}, missing, LEVEL)
+    r = old_residuals(rig, est, keep)
+    panels = []
+    for c, name in enumerate(est.names):
+        m = rig.camera(name).intrinsics
+        img = np.full((m.height + 40, m.width, 3), 255, np.uint8)
+        sel = est.obs.cam == c
+        uv, e = est.obs.uv[sel], r[sel]
+        for (u, v), (du, dv) in zip(uv, e):
+            p0 = (int(round(u - scale * du)), int(round(v - scale * dv + 40)))
+            cv2.arrowedLine(img, p0, (int(round(u)), int(round(v + 40))), (60, 60, 200), 1, cv2.LINE_AA,
+                            tipLength=0.25)
+            cv2.circle(img, (int(round(u)), int(round(v + 40))), 1, (0, 0, 0), -1)
+        cv2.rectangle(img, (0, 40), (m.width - 1, m.height + 39), (0, 0, 0), 1)
+        rms = float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+        status = next(v.status for v in vs if v.name == name)
+        cv2.putText(img, f"{name}: {status}, RMS {rms:.3f} px (arrows x{scale:g})", (8, 26),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 1, cv2.LINE_AA)
+        panels.append(img)
+    cv2.imwrite(str(out), np.hstack(panels))
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--frames", type=int, default=20)
+    ap.add_argument("--first", type=int, default=0, help="the first seed (runs first .. first + seeds - 1)")
+    ap.add_argument("--indie", type=int, default=0, help="also this many seeds of the independent renderer")
+    ap.add_argument("--figure", nargs=3, metavar=("RIG", "DATASET", "PNG"),
+                    help="draw the residual maps of one check (docs/check_residuals.png) and stop")
+    a = ap.parse_args(argv)
+    if a.figure:
+        residual_png(Path(a.figure[0]), Path(a.figure[1]), Path(a.figure[2]))
+        return
+    if a.indie:
+        with tempfile.TemporaryDirectory(prefix="rigcal-bench-check-indie-") as tmp:
+            rows = []
+            for s in range(a.indie):
+                rows.append(indie_seed(s, a.frames, Path(tmp)))
+                say(f"check --indie: seed {s}: {json.dumps(rows[-1])}")
+        write_json("check_indie", {"seeds": a.indie, "frames": a.frames, "per_seed": rows})
+        say(json.dumps(rows, indent=1))
+        return
+    r = run(a.seeds, a.frames, a.first)
+    write_json("check" if a.first == 0 else f"check_from_{a.first}", r)
+    say(tables(r))
+
+
+if __name__ == "__main__":
+    main()
