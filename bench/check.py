@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from rigcal.check.run import run as run_check
-from rigcal.commands.calibrate import run as calibrate
+from rigcal.commands.calibrate import CalibrateOptions, run as calibrate
 from tests.support.check_cases import calibrated_rig, changed_rig, record, true_rig
 
 from .common import say, write_json
@@ -93,7 +93,7 @@ def indie_seed(seed: int, frames: int, work: Path) -> dict:
     shutil.rmtree(work / "ibase", ignore_errors=True)
     ir.write_dataset(base, work / "ibase", seed=seed, drop=0, corrupt=False, formats=png)
     cal = work / "icalibrated.yaml"
-    calibrate(work / "ibase", cal, jobs=1)
+    calibrate(work / "ibase", cal, CalibrateOptions(jobs=1))
     out = {}
     for name, turn in (("unchanged", 0.0), ("turned 0.2 deg about U", 0.2)):
         cams = []

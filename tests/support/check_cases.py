@@ -65,10 +65,10 @@ def true_rig(truth_seed: int = 1) -> Rig:
 def calibrated_rig(truth: Rig, work: Path, frames: int = 30, seed: int = 1000, jobs: int = 1) -> Path:
     """The rig YAML `rigcal calibrate` writes from a `frames`-frame recording of `truth`
     (declared as the golden rig's nominal file)."""
-    from rigcal.commands.calibrate import run
+    from rigcal.commands.calibrate import CalibrateOptions, run
 
     base = record(truth, work / "base", frames, seed, jobs)
     (base / "rig.yaml").write_text(RIG.read_text(encoding="utf-8"), encoding="utf-8")
     out = work / "calibrated.yaml"
-    run(base, out, jobs=jobs)
+    run(base, out, CalibrateOptions(jobs=jobs))
     return out
