@@ -16,12 +16,13 @@ Cases (the same seed gives the same motion, boards and true rig in every case):
   rolling        free-running with a rolling shutter on every camera (line_delay_s 30 us/row
                  declared, 14 ms readout), line delays estimated
 
-    python -m bench.imu_freerun [--seeds N] [--duration S] [--cases NAME ...]
+    python -m bench.imu_freerun [--seeds N] [--duration S] [--cases NAME ...] [--reuse]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import subprocess
 import sys
@@ -58,13 +59,19 @@ def _rig(case: str):
         return RIG
     p = OUT / "imu_freerun" / "rig-rolling.yaml"
     p.parent.mkdir(parents=True, exist_ok=True)
-    text = RIG.read_text().replace("    axes: [-L, -U, F]\n", f"    axes: [-L, -U, F]\n    line_delay_s: {LINE_DELAY_S}\n")
-    p.write_text(text.replace("    axes: [L, -U, -F]\n", f"    axes: [L, -U, -F]\n    line_delay_s: {LINE_DELAY_S}\n"))
+    delay = f"    line_delay_s: {LINE_DELAY_S:.1e}\n"  # 3.0e-05: YAML reads 3e-05 as text
+    text = RIG.read_text().replace("    axes: [-L, -U, F]\n", "    axes: [-L, -U, F]\n" + delay)
+    p.write_text(text.replace("    axes: [L, -U, -F]\n", "    axes: [L, -U, -F]\n" + delay))
     return p
 
 
-def one(case: str, seed: int, duration: float, log=say) -> dict:
+def one(case: str, seed: int, duration: float, log=say, reuse: bool = False) -> dict:
+    """One case and seed: simulate (kept), calibrate, score. reuse: take the scores of an
+    earlier run of this case, seed and duration when bench/out/imu_freerun holds them."""
     d = OUT / "imu_freerun" / f"{case}_{duration:g}s_seed{seed}"
+    kept = OUT / "imu_freerun" / f"scores_{case}_{duration:g}s_seed{seed}.json"
+    if reuse and kept.is_file():
+        return json.loads(kept.read_text())
     if not (d / "truth.yaml").is_file():
         with Timer() as t:
             r = _rigcal("simulate", str(_rig(case)), "--out", str(d), "--scene", "imu", "--duration", f"{duration:g}",
@@ -86,14 +93,15 @@ def one(case: str, seed: int, duration: float, log=say) -> dict:
            "cameras": {n: {k: float(v) for k, v in e.items()} for n, e in errs.items()},
            "z": {k: v.tolist() for k, v in z.items()}}
     worst = max(e["imu0_rot_deg"] for e in errs.values()), max(e["imu0_pos_mm"] for e in errs.values())
+    kept.write_text(json.dumps(res))
     log(f"  {case} seed {seed}: calibrate {t.wall:.0f} s; worst {worst[0]:.4f} deg, {worst[1]:.3f} mm, "
         f"offsets {', '.join('%+.4f' % e['offset_ms'] for e in errs.values())} ms")
     return res
 
 
-def run(seeds: int = 3, duration: float = 30.0, cases=tuple(CASES), log=say) -> dict:
+def run(seeds: int = 3, duration: float = 30.0, cases=tuple(CASES), log=say, reuse: bool = False) -> dict:
     return {"duration_s": duration, "seeds": seeds,
-            "runs": [one(c, s, duration, log) for s in range(seeds) for c in cases]}
+            "runs": [one(c, s, duration, log, reuse) for s in range(seeds) for c in cases]}
 
 
 def summary(res: dict) -> dict[str, dict]:
@@ -130,8 +138,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=3)
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--cases", nargs="+", choices=tuple(CASES), default=tuple(CASES))
+    ap.add_argument("--reuse", action="store_true", help="reuse the scores of earlier runs (same case, seed, duration)")
     a = ap.parse_args(argv)
-    res = run(a.seeds, a.duration, a.cases)
+    res = run(a.seeds, a.duration, a.cases, reuse=a.reuse)
     write_json("imu_freerun", res)
     print(tables(res))
     return 0
