@@ -129,7 +129,8 @@ def tables(res: dict) -> str:
              f"{100 * s['within_2_sigma']:.0f} % of {s['components']}"] for case, s in summary(res).items()]
     return md_table(["case", "seeds", "T_imu_cam rot deg (RMS / max)", "T_imu_cam pos mm (RMS / max)",
                      "|offset| ms max", "|line delay| us max", "within 2 sigma"], rows,
-                    title=f"`rigcal calibrate` on {res['duration_s']:g} s rendered recordings of drone-stereo-back-imu: "
+                    title=f"`rigcal calibrate` on {res['duration_s']:g} s rendered recordings of "
+                          f"drone-stereo-back-imu: "
                           f"free-running and mixed-rate cameras vs synchronised (errors against truth.yaml)")
 
 

@@ -123,7 +123,8 @@ def test_a_free_running_image_shows_the_truth_at_its_own_time(free):
             bi = [b.name for b in free.target.boards].index(board)
             p_board = free.target.boards[bi].corners[ids]
             for t, sink in ((t_img, errs), (t_img + 0.03, wrong)):  # its own time; 30 ms off
-                T = geo.inv_T(free.trajectory.at(np.array([t])).T_world_body[0] @ cam.T_body_cam) @ free.T_world_board[bi]
+                T_world_cam = free.trajectory.at(np.array([t])).T_world_body[0] @ cam.T_body_cam
+                T = geo.inv_T(T_world_cam) @ free.T_world_board[bi]
                 sink.append(cam.intrinsics.project(geo.transform(T, p_board))[0] - uv)
     assert errs, "no board detected"
     rms = lambda e: float(np.sqrt(np.mean(np.square(np.concatenate(e)))))  # noqa: E731
