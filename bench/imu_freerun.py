@@ -131,7 +131,23 @@ def tables(res: dict) -> str:
                      "|offset| ms max", "|line delay| us max", "within 2 sigma"], rows,
                     title=f"`rigcal calibrate` on {res['duration_s']:g} s rendered recordings of "
                           f"drone-stereo-back-imu: "
-                          f"free-running and mixed-rate cameras vs synchronised (errors against truth.yaml)")
+                          f"free-running and mixed-rate cameras vs synchronised (errors against truth.yaml)") + \
+        "\n\n" + _coverage_table(res)
+
+
+def _coverage_table(res: dict) -> str:
+    """Per case and parameter kind the share of components within 2 reported sigmas."""
+    cases = list(dict.fromkeys(r["case"] for r in res["runs"]))
+    kinds = list(dict.fromkeys(k for r in res["runs"] for k in r["z"]))
+    rows = []
+    for k in kinds:
+        row = [k]
+        for case in cases:
+            z = [np.abs(np.ravel(r["z"][k])) for r in res["runs"] if r["case"] == case and k in r["z"]]
+            z = np.concatenate(z) if z else np.zeros(0)
+            row.append(f"{100 * np.mean(z <= 2):.0f} % of {z.size}" if z.size else "-")
+        rows.append(row)
+    return md_table(["parameter", *cases], rows, title="components within 2 reported sigma (target 90-98 %)")
 
 
 def main(argv: list[str] | None = None) -> int:
