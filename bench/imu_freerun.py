@@ -15,6 +15,7 @@ Cases (the same seed gives the same motion, boards and true rig in every case):
   mixed-rate     --free-running --camera-rate front_left=20 front_right=30 back=15
   rolling        free-running with a rolling shutter on every camera (line_delay_s 30 us/row
                  declared, 14 ms readout), line delays estimated
+  rolling-synchronised  the same rolling-shutter rig synchronised (rolling's reference)
 
     python -m bench.imu_freerun [--seeds N] [--duration S] [--cases NAME ...] [--reuse]
 """
@@ -45,6 +46,7 @@ CASES = {
     "mixed-rate": ("--free-running", "--camera-rate", "front_left=20", "--camera-rate", "front_right=30",
                    "--camera-rate", "back=15"),
     "rolling": ("--free-running",),
+    "rolling-synchronised": (),
 }
 
 
@@ -55,7 +57,7 @@ def _rigcal(*args: str) -> subprocess.CompletedProcess:
 
 def _rig(case: str):
     """The rig file of a case: the shipped one, or with a rolling shutter on every camera."""
-    if case != "rolling":
+    if not case.startswith("rolling"):
         return RIG
     p = OUT / "imu_freerun" / "rig-rolling.yaml"
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -116,7 +118,7 @@ def summary(res: dict) -> dict[str, dict]:
                "pos_mm_rms": float(np.sqrt(np.mean([x["imu0_pos_mm"] ** 2 for x in e]))),
                "offset_ms_max": max(abs(x["offset_ms"]) for x in e), "within_2_sigma": float(np.mean(z <= 2)),
                "components": int(z.size)}
-        if all("line_delay_us" in x for x in e) and case == "rolling":
+        if all("line_delay_us" in x for x in e) and case.startswith("rolling"):
             row["line_delay_us_max"] = max(abs(x["line_delay_us"]) for x in e)
         out[case] = row
     return out
