@@ -25,6 +25,8 @@ Sections (each also runs alone: python -m bench.<name>):
                (issue 18: <= 1.5), errors via compare
   imu_coverage `rigcal calibrate` end to end on 20 rendered 4 s IMU recordings: every reported camera-IMU
                and intrinsic parameter's error / its 1-sigma (issue 18: 90-98 % within 2 sigma)
+  imu_freerun  `rigcal calibrate` on free-running, mixed-rate and rolling-shutter free-running 30 s recordings
+               vs a synchronised one: T_imu_cam, clock offset and line delay errors, share within 2 sigma
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   mag          magnetometer vs truth on 20 simulated 60 s compass dances (hard/soft iron, R_body_mag,
                inclination, share within 2 sigma) and the heading error beside an ellipsoid fit alone
@@ -62,8 +64,8 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Callable
 
-from . import (accuracy, aprilgrid_excess, check, dome, imu_calib, imu_coverage, imu_euroc, imu_noise, imu_speed,
-               indie, indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo, noise_limit,
+from . import (accuracy, aprilgrid_excess, check, dome, imu_calib, imu_coverage, imu_euroc, imu_freerun, imu_noise,
+               imu_speed, indie, indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo, noise_limit,
                peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
 from .common import OUT, machine, say, write_json
 
@@ -111,6 +113,8 @@ TABLE = (
             lambda r, d: imu_euroc.defaults_tables(r)),
     Section("imu_speed", "imu_speed", lambda q, d: imu_speed.run(duration=8.0 if q else 30.0), _only(imu_speed)),
     Section("imu_coverage", "imu_coverage", lambda q, d: imu_coverage.run(seeds=3 if q else 20), _only(imu_coverage)),
+    Section("imu_freerun", "imu_freerun",
+            lambda q, d: imu_freerun.run(seeds=1 if q else 3, duration=8.0 if q else 30.0), _only(imu_freerun)),
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),

@@ -20,8 +20,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 # checks run by hand, not benchmark sections (bench/__main__.py's docstring lists them)
 CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
-           "indie_noise", "simulate_imu", "imu_calib", "imu_coverage", "imu_euroc", "imu_speed", "solver_libraries",
-           "ingest", "aprilgrid_excess", "imu_noise", "mag", "check", "dome", "long_recording",
+           "indie_noise", "simulate_imu", "imu_calib", "imu_coverage", "imu_euroc", "imu_freerun", "imu_speed",
+           "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "mag", "check", "dome", "long_recording",
            "intrinsics_holdout", "__main__") + CHECKS
 
 
@@ -358,3 +358,17 @@ def test_imu_coverage_scores_each_component_in_its_own_sigma():
     np.testing.assert_allclose(z["rotation"], expect_rot, atol=1e-6)
     np.testing.assert_allclose(z["time offset"].ravel(), [0.0, 1.5, 0.0], atol=1e-6)
     np.testing.assert_allclose(z["translation"], 0.0, atol=1e-9)
+
+
+def test_imu_freerun_tables_summarise_each_case():
+    from bench import imu_freerun
+
+    cams = lambda rot, off: {c: {"imu0_rot_deg": rot, "imu0_pos_mm": 0.5, "offset_ms": off}  # noqa: E731
+                             for c in ("a", "b")}
+    res = {"duration_s": 8.0, "seeds": 1, "runs": [
+        {"case": "synchronised", "cameras": cams(0.002, 0.01), "z": {"rotation": [[0.5, 3.0]]}},
+        {"case": "free-running", "cameras": cams(0.004, -0.03), "z": {"rotation": [[1.0, 1.5]]}}]}
+    s = imu_freerun.summary(res)
+    assert s["synchronised"]["within_2_sigma"] == 0.5 and s["free-running"]["within_2_sigma"] == 1.0
+    assert s["free-running"]["offset_ms_max"] == 0.03 and s["synchronised"]["rot_deg_max"] == 0.002
+    assert "free-running" in imu_freerun.tables(res)

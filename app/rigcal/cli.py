@@ -167,14 +167,17 @@ def simulate(
     force: bool = typer.Option(False, help="replace a non-empty output folder"),
     jobs: Optional[int] = typer.Option(None, help="worker processes (default: all cores)"),
     duration: Optional[float] = typer.Option(None, help="--scene imu / mag: seconds of motion (default 30 / 60); --scene static: seconds at rest (default 10800)"),
-    camera_rate: Optional[float] = typer.Option(None, help="--scene imu: images per second per camera (default 20)"),
+    camera_rate: Optional[list[str]] = typer.Option(None, help="--scene imu: images per second per camera (default 20); HZ for all, or NAME=HZ once per camera (mixed rates)"),
     exposure: Optional[float] = typer.Option(None, help="--scene imu: exposure in seconds, gives motion blur (default 0.005)"),
     time_offset_ms: Optional[float] = typer.Option(None, help="--scene imu: true camera clock offsets are uniform in +-this (default 10)"),
+    free_running: bool = typer.Option(False, help="--scene imu: every camera takes frames on its own schedule (own phase, rate error, jitter, start and stop): the stems differ"),
+    drop_frames: Optional[float] = typer.Option(None, help="--scene imu: this fraction of every camera's frames is dropped at random (default 0)"),
 ):
     """Render a synthetic ChArUco dataset with ground truth (truth.yaml); --scene imu: a moving
     recording with IMU streams."""
-    motion_flags = {"--duration": duration, "--camera-rate": camera_rate, "--exposure": exposure,
-                    "--time-offset-ms": time_offset_ms}
+    motion_flags = {"--duration": duration, "--camera-rate": camera_rate or None, "--exposure": exposure,
+                    "--time-offset-ms": time_offset_ms, "--free-running": free_running or None,
+                    "--drop-frames": drop_frames}
     if scene is Scene.static:
         from rigcal.sim import static_imu
 
@@ -205,7 +208,8 @@ def simulate(
         out(simulate_imu.run(rig_path=rig, out_dir=out_dir, duration=duration, camera_rate=camera_rate,
                              exposure=exposure, time_offset_ms=time_offset_ms, seed=seed, noise=noise,
                              mount_error_mm=mount_error_mm, mount_error_deg=mount_error_deg, focal_error=focal_error,
-                             target_path=target, force=force, jobs=jobs))
+                             target_path=target, force=force, jobs=jobs, free_running=free_running,
+                             drop=drop_frames or 0.0))
         return
     for flag, v in motion_flags.items():
         if v is not None:

@@ -133,8 +133,14 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
         _check_arguments(dataset, out_path, o.report, o.jobs)
         return calibrate_mag.run_mag_only(dataset, out_path, o.rig, o.report, _err(), check_output_path)
     imu_options = o.imu_step("")  # the IMU options' values checked before any work
-    inp = _read_inputs(dataset, out_path, o.report, o.rig, o.target, o.jobs)
+    # --camera-only does not use the IMU: its overlap with the images is not checked
+    inp = _read_inputs(dataset, out_path, o.report, o.rig, o.target, o.jobs, None if o.camera_only else imu_options)
     imu_name, reference, plan_notes = _imu_plan(inp, o.reference, o.camera_only)
+    if imu_name is None and inp.motion.frame_t_ns is not None:
+        # the camera-only answer would carry the motion between the cameras' instants
+        raise DatasetError(f"{dataset / 'images'}: the cameras do not share stems (free-running or mixed rates); "
+                           f"their relative poses need the camera-IMU calibration (drop --camera-only) or "
+                           f"synchronised stems")
     fix_intrinsics = o.fix_intrinsics
     if imu_name is not None:  # --imu-intrinsics auto: a declared camera calibration's intrinsics are held
         from rigcal.imucal.step import resolve_intrinsics
@@ -204,10 +210,14 @@ class _Inputs:
 
 
 def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_path: Path | None,
-                 target_path: Path | None, jobs: int | None) -> _Inputs:
+                 target_path: Path | None, jobs: int | None, imu_options: Options | None = None) -> _Inputs:
     """The arguments checked, then the rig, target, images and IMU files read and checked
-    (one clear error on bad input, before any detection)."""
-    from rigcal.data.dataset import check_shared_stems, dataset_rig_path, dataset_target_path, list_dataset
+    (one clear error on bad input, before any detection). A motion dataset's cameras that
+    do not share stems (free-running, mixed rates) get their images grouped by time into
+    shared frames for the camera-only start (dataset.associate_by_time); the motion check
+    then carries every image's own time (MotionCheck.frame_t_ns) to the camera-IMU step."""
+    from rigcal.data.dataset import (associate_by_time, check_shared_stems, dataset_rig_path, dataset_target_path,
+                                     list_dataset)
     from rigcal.core.target import load_target
 
     _check_arguments(dataset, out_path, report_path, jobs)
@@ -219,9 +229,33 @@ def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_pa
     target = load_target(target_file)
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
-    check_shared_stems(images)
-    motion_notes, motion = _motion_notes(dataset, rig, images)
+    motion_notes, motion = _motion_notes(dataset, rig, images, _min_overlap_s(imu_options))
+    if not motion.imus:
+        check_shared_stems(images)
+        return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
+    assoc = associate_by_time(images)
+    check_shared_stems(assoc.images, assoc.tolerance_ns)
+    if assoc.renamed:
+        n = sum(len(f) for f in assoc.images.frames.values())
+        motion_notes.append(f"the cameras do not share stems (free-running or mixed rates): for the camera-only start "
+                            f"their {n} images are grouped into {assoc.shared_frames} frames shared by two cameras or "
+                            f"more (taken within {assoc.tolerance_ns * 1e-6:.1f} ms); the camera-IMU step places every "
+                            f"image at its own time")
+        motion = replace(motion, frame_t_ns=assoc.image_t_ns)
+        images = assoc.images
     return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
+
+
+def _min_overlap_s(imu_options: Options | None) -> float:
+    """How long every camera's images must overlap the IMU samples: the camera-IMU step's
+    MIN_KNOTS knot spacings (--knot-spacing, else the coarsest spacing it may choose, the
+    estimator's default); 0 when the IMU is not used (None)."""
+    if imu_options is None:
+        return 0.0
+    from rigcal.imucal.estimator import Settings
+    from rigcal.imucal.step import MIN_KNOTS
+
+    return MIN_KNOTS * (imu_options.knot_spacing or Settings().knot_dt)
 
 
 def _imu_plan(inp: _Inputs, reference: str | None, camera_only: bool) -> tuple[str | None, str, list[str]]:
@@ -328,12 +362,12 @@ def _check_detections(rig: Rig, det, views: list[BoardView], images, target, tar
             for b in target.boards if len(target.boards) > 1 and b.name not in found]
 
 
-def _motion_notes(dataset: Path, rig: Rig, images):
+def _motion_notes(dataset: Path, rig: Rig, images, min_overlap_s: float = 0.0):
     """imu.md's checks of a motion dataset (DatasetError on bad input): (notes for the
     user, the MotionCheck with the IMU samples read)."""
     from rigcal.data.imu_csv import check_motion_dataset
 
-    motion = check_motion_dataset(dataset, rig, images)
+    motion = check_motion_dataset(dataset, rig, images, min_overlap_s)
     notes = list(motion.notes)
     if motion.imus:
         n = ", ".join(f"{k} ({len(s.t_ns)} samples)" for k, s in motion.imus.items())

@@ -27,7 +27,8 @@ def calibrate_with_imu(cal, out_rig: Rig, motion, reference: str, target, option
     def against(name: str) -> ImuCalibration:
         return calibrate_imu(cal, motion.imus[name], declared.imu(name), replace(options, imu=name),
                              [faces[b] for b in cal.boards], {c.name: c.line_delay_s or 0.0 for c in declared.cameras},
-                             {c.name: c.time_offset_s or 0.0 for c in declared.cameras})
+                             {c.name: c.time_offset_s or 0.0 for c in declared.cameras},
+                             image_t_ns=getattr(motion, "frame_t_ns", None))
 
     res = against(imu_name)
     rig = calibrated_imu_rig(out_rig, declared, res, reference)

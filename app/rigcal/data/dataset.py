@@ -97,11 +97,14 @@ def _corner_files(folder: Path, cameras: tuple[str, ...]) -> dict[str, Path]:
     return {c: found[c] for c in cameras if c in found}
 
 
-def check_shared_stems(dataset: DatasetImages) -> None:
+def check_shared_stems(dataset: DatasetImages, tolerance_ns: int | None = None) -> None:
     """DatasetError when a camera shares no file stem with any other camera. Such a camera can
     never be placed in the rig (not even through the rig's motion, which needs its frames
     posed by the others): almost always files named per camera (left01.jpg, right01.jpg)
-    where the stem must name the instant. A layout check for calibrate, not for listing."""
+    where the stem must name the instant, or, with integer stems that interleave in time,
+    free-running cameras, whose clocks only an IMU can relate. A layout check for
+    calibrate, not for listing. tolerance_ns: `dataset` is associate_by_time's (a motion
+    dataset) and the refusal says no image lies within that of another camera's."""
     images = dataset.root / "images"
     # cameras given as corners/ files are matched on their csv frames, not here
     frames = {c: f for c, f in dataset.frames.items() if c not in dataset.corners}
@@ -111,15 +114,119 @@ def check_shared_stems(dataset: DatasetImages) -> None:
     lone = [c for c in frames if not any(stems[c] & stems[o] for o in frames if o != c)]
     if not lone:
         return
-    other = next(c for c in frames if c != lone[0])
+    cam = lone[0]
+    other = next(c for c in frames if c != cam)
 
-    def show(cam: str) -> str:
-        return ", ".join(list(frames[cam])[:3]) + (", ..." if len(frames[cam]) > 3 else "")
+    def show(c: str) -> str:
+        return ", ".join(list(frames[c])[:3]) + (", ..." if len(frames[c]) > 3 else "")
 
+    def span(c: str) -> str:
+        t = [int(f) for f in frames[c]]
+        return f"{min(t) * 1e-9:.3f}-{max(t) * 1e-9:.3f} s"
+
+    if tolerance_ns is not None:
+        raise DatasetError(
+            f"{images / cam}: camera {cam}: none of its images was taken within {tolerance_ns * 1e-6:.1f} ms of "
+            f"another camera's (its images {span(cam)}, {other}'s {span(other)}); the camera-only start needs images "
+            f"of two cameras taken together (within half a frame period) to link them")
+    if all(f.isdigit() for c in (cam, other) for f in frames[c]) and _interleave(frames[cam], frames[other]):
+        raise DatasetError(
+            f"{images / cam}: camera {cam} shares no stem with the other cameras and its images interleave in time "
+            f"with {other}'s ({show(cam)}; {show(other)}): free-running cameras, whose clocks rigcal can relate only "
+            f"through an IMU; add the IMU's samples (imu/<imu>.csv, the IMU declared in rig.yaml) or record with "
+            f"synchronised stems (equal stems for images taken together)")
     raise DatasetError(
-        f"{images}: camera {lone[0]} shares no frame with the other cameras (its file stems: {show(lone[0])}; "
+        f"{images}: camera {cam} shares no frame with the other cameras (its file stems: {show(cam)}; "
         f"{other}'s: {show(other)}); images taken at the same instant must have the same stem in every camera "
-        f"folder, e.g. images/{lone[0]}/0001.png and images/{other}/0001.png")
+        f"folder, e.g. images/{cam}/0001.png and images/{other}/0001.png")
+
+
+def _interleave(a: Iterable[str], b: Iterable[str]) -> bool:
+    """Whether two cameras' integer stems overlap in time (each has images within the other's span)."""
+    ta, tb = [int(x) for x in a], [int(x) for x in b]
+    return bool(ta and tb) and min(ta) < max(tb) and min(tb) < max(ta)
+
+
+# Free-running cameras (a motion dataset whose cameras do not share stems): for the
+# camera-only start, images of different cameras taken within this fraction of the
+# shortest frame period of each other are treated as one frame. The camera-IMU step then
+# places every image at its own time, so the start's error from the motion in between is
+# not in the answer. A quarter period at 20 Hz is 12.5 ms: the start already copes with
+# clock offsets of that size between cameras with equal stems. Where a camera then shares
+# no frame (two cameras at one rate with phases a third of a period apart), half a period.
+ASSOCIATE_FRACTIONS = (0.25, 0.5)
+
+
+@dataclass(frozen=True)
+class Association:
+    """associate_by_time's outcome: `images` with each camera's frames renamed so that images
+    taken together share a name (a group's name is its earliest stem), `image_t_ns`: camera
+    -> frame (as renamed) -> the image's own stem in ns, the tolerance used (ns), the
+    number of frames shared by two cameras or more, and whether anything was renamed."""
+
+    images: DatasetImages
+    image_t_ns: Mapping[str, Mapping[str, int]]
+    tolerance_ns: int
+    shared_frames: int
+    renamed: bool
+
+
+def frame_period_ns(t_ns) -> float:
+    """A camera's frame period: the median interval of its sorted stems (ns), inf with one image."""
+    t = sorted(int(x) for x in t_ns)
+    if len(t) < 2:
+        return float("inf")
+    d = sorted(b - a for a, b in zip(t, t[1:]))
+    return float(d[len(d) // 2])
+
+
+def time_groups(times: Mapping[str, Iterable[int]], tolerance_ns: int) -> list[dict[str, int]]:
+    """Images of different cameras grouped by time: going through all stems in order, an
+    image joins the open group when its camera is not in it yet and it lies within
+    tolerance_ns of the group's earliest stem, else it opens a new group. Equal stems
+    always group (tolerance 0 gives exactly the groups of equal stems). Returns the groups
+    in time order, each camera -> stem."""
+    events = sorted((int(t), cam) for cam, ts in times.items() for t in ts)
+    groups: list[dict[str, int]] = []
+    for t, cam in events:
+        g = groups[-1] if groups else None
+        if g is not None and cam not in g and t - min(g.values()) <= tolerance_ns:
+            g[cam] = t
+        else:
+            groups.append({cam: t})
+    return groups
+
+
+def associate_by_time(dataset: DatasetImages, fractions: tuple[float, ...] = ASSOCIATE_FRACTIONS) -> Association:
+    """A motion dataset's images (integer-ns stems, checked before) grouped into shared frames
+    by time (time_groups, within a fraction of the shortest camera's frame period: the first
+    of `fractions` at which every camera shares a frame with another), for the camera-only
+    start of free-running or mixed-rate cameras. Cameras given as corners/ files keep their
+    frames. Where every camera shares its stems the frames are the dataset's own."""
+    cams = [c for c in dataset.cameras if c not in dataset.corners and dataset.frames[c]]
+    stems = {c: {int(f): f for f in dataset.frames[c]} for c in cams}
+    periods = [frame_period_ns(stems[c]) for c in cams]
+    finite = [p for p in periods if p != float("inf")]
+    for fraction in fractions:
+        tol = int(fraction * min(finite)) if finite else 0
+        groups = time_groups({c: stems[c].keys() for c in cams}, tol)
+        linked = {c for g in groups if len(g) > 1 for c in g}
+        if len(cams) < 2 or linked == set(cams):
+            break
+    frames: dict[str, dict[str, Path]] = {c: {} for c in cams}
+    own: dict[str, dict[str, int]] = {c: {} for c in cams}
+    renamed = False
+    for g in groups:
+        name = stems[min(g, key=lambda c: (g[c], cams.index(c)))][min(g.values())]
+        for cam, t in g.items():
+            frames[cam][name] = dataset.frames[cam][stems[cam][t]]
+            own[cam][name] = t
+            renamed |= stems[cam][t] != name
+    out = {c: (MappingProxyType({k: frames[c][k] for k in sorted(frames[c], key=frame_sort_key)}) if c in frames
+               else dataset.frames[c]) for c in dataset.cameras}
+    shared = sum(len(g) > 1 for g in groups)
+    return Association(DatasetImages(dataset.root, dataset.cameras, MappingProxyType(out), dataset.corners),
+                       MappingProxyType({c: MappingProxyType(v) for c, v in own.items()}), tol, shared, renamed)
 
 
 def _listdir(folder: Path) -> list[Path]:

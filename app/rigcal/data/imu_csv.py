@@ -137,19 +137,24 @@ def gaps(t_ns: np.ndarray, rate_hz: float) -> tuple[int, float]:
 @dataclass(frozen=True)
 class MotionCheck:
     """What check_motion_dataset found: the IMU files read (name -> samples), each camera's
-    image times (ns, camera clock), and notes for the console."""
+    image times (ns, camera clock), and notes for the console; frame_t_ns (camera -> frame
+    -> the image's own stem in ns) once calibrate has grouped free-running cameras' images
+    into shared frames (rigcal.data.dataset.associate_by_time), else None."""
 
     imus: Mapping[str, ImuSamples]
     image_t_ns: Mapping[str, np.ndarray]
     notes: tuple[str, ...]
+    frame_t_ns: Mapping[str, Mapping[str, int]] | None = None
 
 
-def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages) -> MotionCheck:
+def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages, min_overlap_s: float = 0.0
+                         ) -> MotionCheck:
     """The checks of imu.md for a dataset with imu/: every declared IMU has a file and every
     file a declared IMU, each file is well formed, every image stem is an integer, and each
     camera's images (shifted by its declared time_offset_s) overlap each IMU's samples within
-    1 s. Without imu/ nothing is checked; a rig with IMUs gets the note that the reference
-    falls back to `aligned`."""
+    1 s, and for at least min_overlap_s (what the camera-IMU step's spline needs). Without
+    imu/ nothing is checked; a rig with IMUs gets the note that the reference falls back to
+    `aligned`."""
     folder = Path(root) / "imu"
     if not folder.exists():
         if not rig.imus:
@@ -184,6 +189,14 @@ def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages) -> M
                     f"{first}: camera {cam}'s images ({t[0] * 1e-9:.3f}-{t[-1] * 1e-9:.3f} s on the IMU clock, "
                     f"stem + time_offset_s) do not overlap {s.path.name}'s samples ({lo * 1e-9:.3f}-{hi * 1e-9:.3f} s) "
                     f"within {OVERLAP_SLACK_S:g} s; are both in nanoseconds on the same clock?")
+            shared = (min(int(t[-1]), hi) - max(int(t[0]), lo)) * 1e-9
+            if shared < min_overlap_s:
+                first = images.corners[cam] if cam in images.corners else min(
+                    images.frames[cam].items(), key=lambda kv: int(kv[0]))[1]
+                raise DatasetError(
+                    f"{first}: camera {cam}'s images overlap {s.path.name}'s samples for {max(shared, 0.0):.2f} s "
+                    f"({t[0] * 1e-9:.3f}-{t[-1] * 1e-9:.3f} s on the IMU clock); the camera-IMU calibration needs at "
+                    f"least {min_overlap_s:g} s: record longer or drop the camera")
     notes = []
     for name, s in samples.items():
         n_gaps, longest = gaps(s.t_ns, rig.imu(name).update_rate)

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from rigcal.core import geometry as geo
-from rigcal.core.rig import Rig, load_yaml, rig_from_dict
+from rigcal.core.rig import Rig, load_yaml, rig_file, rig_from_dict
 from rigcal.core.validate import read_text
 from rigcal.errors import InputError
 
@@ -55,8 +55,10 @@ def _mapping(v: Any, key: str, label: str) -> dict:
 
 
 def load_truth(path: str | Path) -> Truth:
-    """truth.yaml (docs/formats.md#dataset) or a plain rig file (then there are no board/frame poses)."""
+    """truth.yaml (docs/formats.md#truth) or a plain rig file, or a shipped rig's name (then there
+    are no board/frame poses)."""
     label = str(path)
+    path = rig_file(path)
     doc = load_yaml(read_text(path, InputError), label, InputError)
     if isinstance(doc, dict) and "cameras" in doc:
         return Truth(rig_from_dict(doc, label), {}, {}, {})

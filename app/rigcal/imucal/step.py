@@ -228,14 +228,24 @@ def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndar
 
 
 def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
-                 line_delays: dict[str, float]) -> Inputs:
+                 line_delays: dict[str, float], image_t_ns=None) -> Inputs:
     """The inlier corners of the camera-only calibration `cal` (rigcal.camcal.pipeline.Calibration) on
     each camera's clock (frames are integer-ns stems), one PnP pose per image (its largest
-    board view) for the start, and the IMU."""
+    board view) for the start, and the IMU. image_t_ns: camera -> frame -> the image's own
+    stem (ns) where it differs from the frame's name (free-running cameras grouped into
+    shared frames for the camera-only start, rigcal.data.dataset.associate_by_time)."""
     t_base = int(samples.t_ns[0])
-    ok = cal.inliers
+    # grouped free-running images are not one instant: the camera-only step's outlier test
+    # rejected corners for the motion between them, which this step models; all are used
+    ok = cal.inliers if not image_t_ns else np.ones_like(cal.inliers)
     o = cal.obs
     t_frame = np.array([(int(f) - t_base) * 1e-9 for f in cal.frames])
+    t_frame = np.tile(t_frame, (len(cal.cam_names), 1))  # (C, F): each image at its own time
+    for c, name in enumerate(cal.cam_names):
+        own = (image_t_ns or {}).get(name, {})
+        for fi, f in enumerate(cal.frames):
+            if f in own:
+                t_frame[c, fi] = (int(own[f]) - t_base) * 1e-9
     cams, boards_of, T_board_cam = [], [], []
     for c, name in enumerate(cal.cam_names):
         m = cal.rig.camera(name).intrinsics
@@ -244,14 +254,15 @@ def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_decla
         if len(frames) < MIN_FRAMES:
             raise CalibrationError(f"camera {name}: a board pose in only {len(frames)} images; the clock offset "
                                    f"needs at least {MIN_FRAMES}")
-        by_time = np.argsort(t_frame[frames], kind="stable")  # frame order is the camera-only step's
+        by_time = np.argsort(t_frame[c, frames], kind="stable")  # frame order is the camera-only step's
         frames, b, T = frames[by_time], b[by_time], T[by_time]
         T_world_cam = cal.state.T_world_board[b] @ T
-        cams.append(ic.CameraInput(m, cal.rig.camera(name).T_body_cam.copy(), t_frame[frames], T_world_cam,
+        cams.append(ic.CameraInput(m, cal.rig.camera(name).T_body_cam.copy(), t_frame[c, frames], T_world_cam,
                                    line_delays.get(name, 0.0), t_declared.get(name, 0.0)))
         boards_of.append(b)
         T_board_cam.append(T)
-    return Inputs(tuple(cams), tuple(boards_of), tuple(T_board_cam), o.cam[ok], o.board[ok], t_frame[o.frame[ok]],
+    return Inputs(tuple(cams), tuple(boards_of), tuple(T_board_cam), o.cam[ok], o.board[ok],
+                  t_frame[o.cam[ok], o.frame[ok]],
                   o.uv[ok], o.p_board[ok], imu_input(samples, imu, t_base), t_base, tuple(cal.state.intrinsics))
 
 
@@ -464,14 +475,14 @@ def noise_warnings(imu: Imu, gyro: tuple[float, float], accel: tuple[float, floa
 
 def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: list[float],
                   line_delays: dict[str, float], time_offsets: dict[str, float],
-                  settings: ic.Settings | None = None) -> ImuCalibration:
+                  settings: ic.Settings | None = None, image_t_ns=None) -> ImuCalibration:
     """The camera-IMU calibration after the camera-only one (`cal`): see the module text.
     Raises CalibrationError (exit 1) when the recording cannot determine it, DatasetError
     (exit 2) when it is too short."""
     t0 = time.perf_counter()
     estimate_delay = options.rolling_shutter if options.rolling_shutter is not None else any(
         v > 0 for v in line_delays.values())
-    inp = build_inputs(cal, samples, imu, faces, time_offsets, line_delays)
+    inp = build_inputs(cal, samples, imu, faces, time_offsets, line_delays, image_t_ns)
     base = settings or ic.Settings()
     knot = None
     if options.knot_spacing is not None:

@@ -16,7 +16,7 @@ from rich.table import Table
 
 from rigcal.core import geometry as geo
 from rigcal.errors import InputError, RigFileError
-from rigcal.core.rig import Rig, load_rig, load_yaml
+from rigcal.core.rig import Rig, load_rig, load_yaml, rig_file
 from rigcal.core.validate import read_text
 from rigcal.data.truth import load_truth
 
@@ -87,6 +87,7 @@ def compare_rigs(est: Rig, truth: Rig) -> dict:
 
 def run(calibrated: Path, truth_path: Path):
     est = load_rig(calibrated)
+    truth_path = rig_file(truth_path)  # a shipped rig's name gives its file
     truth = load_truth(truth_path).rig
     missing = [n for n in est.names if n not in truth.names]
     if missing:

@@ -11,6 +11,13 @@ Clocks: camera frame k is taken at t_cam = MARGIN_S + k / camera_rate on its own
 (its stem, integer ns: mid-exposure of the first row), which is t_cam + time_offset_s on
 the IMU clock (imu.md). All cameras share the stem grid, so equal stems name the same
 camera-clock instant; the true offsets (up to --time-offset-ms) differ per camera.
+Each camera may have its own rate (then the grids coincide only where k / rate does).
+Free-running cameras (`free_running`) each take frames on their own schedule: a start
+phase uniform over one frame period, a frame period off the nominal by up to
+RATE_ERROR (relative), a jitter of JITTER_S (1-sigma) per frame, and a start up to
+STAGGER_S late and a stop up to STAGGER_S early; their stems (the true capture times on
+the camera clock) then practically never coincide. `drop` removes that fraction of every
+camera's frames at random (dropped frames).
 
 An image is the average of sub-exposure renders spread over --exposure (enough that the
 image moves less than half a pixel between them: true motion blur), and with a rolling
@@ -18,7 +25,8 @@ shutter (line_delay_s) each band of BAND_ROWS rows is rendered at its own time
 t + r_mid * line_delay_s: the rows really are exposed one after the other.
 
 Randomness: one seed; streams [seed, 1] truth rig, [seed, 2] trajectory, [seed, 3] clock
-offsets and IMU mounts, [seed, 4, i] IMU i's noise, [seed, camera, frame, IMAGE_KEY] each image.
+offsets and IMU mounts, [seed, 4, i] IMU i's noise, [seed, camera, frame, IMAGE_KEY] each image,
+[seed, SCHEDULE_KEY, camera] a camera's free-running schedule and dropped frames.
 """
 
 from __future__ import annotations
@@ -29,7 +37,7 @@ import sys
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import cv2
 import numpy as np
@@ -41,7 +49,7 @@ from rigcal.sim import render
 from rigcal.errors import InputError, OutputError
 from rigcal.core.io import atomic_dir
 from rigcal.data.imu_csv import imu_csv
-from rigcal.core.rig import Imu, Rig, load_rig, rig_to_dict
+from rigcal.core.rig import Imu, Rig, load_rig, rig_file, rig_to_dict
 from rigcal.sim.simulate import (DICTIONARY, MARKER_RATIO, OPTICS_SIGMA_PX, RenderSettings, Scene, CameraCoverage,
                                  coverage, perturb_rig, prepare_state, run_render_tasks)
 from rigcal.core.target import Board, Target, dump_target
@@ -56,6 +64,10 @@ BAND_ROWS = 8  # rolling shutter: rows rendered at one time (their middle row's)
 MAX_SUBSTEP_PX = 0.5  # image motion between two sub-exposure renders
 MAX_SUB_EXPOSURES = 16
 IMAGE_KEY = 0x1A0
+SCHEDULE_KEY = 0x5C4  # the random stream of frame schedules (free-running, dropped frames)
+RATE_ERROR = 1e-3  # free-running: a camera's frame period is off the nominal by up to this (relative)
+JITTER_S = 1e-4  # free-running: 1-sigma jitter of each frame's capture time
+STAGGER_S = 1.0  # free-running: a camera starts up to this late and stops up to this early
 DEFAULTS = {"duration": 30.0, "camera_rate": 20.0, "exposure": 0.005, "time_offset_ms": 10.0}
 TRAJECTORY_HEADER = "#t_ns,px [m],py [m],pz [m],qw,qx,qy,qz"
 
@@ -149,20 +161,71 @@ def plan_boards(rig: Rig, T_world_body: np.ndarray, target: Target | None = None
 
 @dataclass(frozen=True)
 class Timing:
-    """Stems (F,) int64 ns on the camera clocks, and per camera (C, F) the IMU-clock seconds
-    (since EPOCH_NS) of each frame's mid-exposure first row."""
+    """Per camera (rig order) its stems (F_c,) int64 ns on its own clock and the IMU-clock
+    seconds (since EPOCH_NS) of each frame's mid-exposure first row (F_c,). Synchronised
+    cameras at one rate share their stems; free-running ones do not."""
 
-    stems_ns: np.ndarray
-    t_imu_s: np.ndarray
+    stems_ns: tuple[np.ndarray, ...]
+    t_imu_s: tuple[np.ndarray, ...]
+    rates_hz: tuple[float, ...] = ()  # per camera its nominal frame rate
+
+    @property
+    def n_images(self) -> int:
+        return sum(len(s) for s in self.stems_ns)
 
 
-def frame_timing(rig: Rig, duration: float, camera_rate: float) -> Timing:
-    n = max(1, int(math.floor(duration * camera_rate + 1e-9)))
-    t_cam = MARGIN_S + np.arange(n) / camera_rate
-    stems = EPOCH_NS + np.rint(t_cam * 1e9).astype(np.int64)
-    # the stem as written is the truth: offsets apply to the integer time, not to t_cam
-    t_stem = (stems - EPOCH_NS) * 1e-9
-    return Timing(stems, np.stack([t_stem + (c.time_offset_s or 0.0) for c in rig.cameras]))
+def camera_rates(rig: Rig, camera_rate: float | Mapping[str, float]) -> tuple[float, ...]:
+    """Per camera (rig order) its frame rate: one rate for all, or name -> rate (InputError
+    naming a camera the rig does not declare, or one left without a rate)."""
+    if not isinstance(camera_rate, Mapping):
+        return tuple(float(camera_rate) for _ in rig.cameras)
+    for name in camera_rate:
+        if name not in rig.names:
+            raise InputError(f"--camera-rate {name}=...: {name} is not a camera of the rig (it declares "
+                             f"{', '.join(rig.names)})")
+    missing = [c.name for c in rig.cameras if c.name not in camera_rate]
+    if missing:
+        raise InputError(f"--camera-rate: no rate for camera {missing[0]}; give one rate for all (--camera-rate HZ) "
+                         f"or NAME=HZ for every camera")
+    return tuple(float(camera_rate[c.name]) for c in rig.cameras)
+
+
+def camera_schedule(rate: float, duration: float, rng: np.random.Generator, free_running: bool = False,
+                    drop: float = 0.0) -> np.ndarray:
+    """Capture times (camera clock, s) of one camera within [MARGIN_S, MARGIN_S + duration):
+    the grid MARGIN_S + k / rate, or (free_running) its own phase, period error, jitter,
+    late start and early stop drawn from `rng`; then `drop` of them removed at random (the
+    first and last kept). Strictly increasing."""
+    if not free_running:
+        n = max(1, int(math.floor(duration * rate + 1e-9)))
+        t = MARGIN_S + np.arange(n) / rate
+    else:
+        period = (1.0 + rng.uniform(-RATE_ERROR, RATE_ERROR)) / rate
+        stagger = min(STAGGER_S, duration / 4)
+        start = rng.uniform(0.0, stagger) + rng.uniform(0.0, period)
+        stop = duration - rng.uniform(0.0, stagger)
+        n = max(1, int(math.floor((stop - start) / period)))
+        jitter = np.clip(rng.normal(0.0, JITTER_S, n), -0.25 * period, 0.25 * period)
+        t = MARGIN_S + start + np.arange(n) * period + jitter
+    if drop > 0 and len(t) > 2:
+        keep = rng.uniform(size=len(t)) >= drop
+        keep[[0, -1]] = True  # the span stays the one asked for
+        t = t[keep]
+    return t
+
+
+def frame_timing(rig: Rig, duration: float, camera_rate: float | Mapping[str, float], free_running: bool = False,
+                 drop: float = 0.0, seed: int = 0) -> Timing:
+    """Every camera's stems and IMU-clock frame times (see the module text: Clocks)."""
+    stems, t_imu = [], []
+    rates = camera_rates(rig, camera_rate)
+    for ci, (c, rate) in enumerate(zip(rig.cameras, rates)):
+        t_cam = camera_schedule(rate, duration, np.random.default_rng([seed, SCHEDULE_KEY, ci]), free_running, drop)
+        s = EPOCH_NS + np.rint(t_cam * 1e9).astype(np.int64)
+        # the stem as written is the truth: offsets apply to the integer time, not to t_cam
+        stems.append(s)
+        t_imu.append((s - EPOCH_NS) * 1e-9 + (c.time_offset_s or 0.0))
+    return Timing(tuple(stems), tuple(t_imu), rates)
 
 
 def exposure_times(t_first: float, exposure: float, n_sub: int, row_mid: np.ndarray, line_delay: float) -> np.ndarray:
@@ -216,7 +279,7 @@ def render_motion_image(ci: int, fi: int) -> np.ndarray:
     nb = len(textures)
     black, white = rng.uniform(10.0, 60.0), rng.uniform(150.0, 235.0)
     grey = [(black * g, min(white * g, 250.0)) for g in rng.uniform(0.85, 1.08, nb)]
-    t_first = float(_STATE["t_imu_s"][ci, fi])
+    t_first = float(_STATE["t_imu_s"][ci][fi])
     exposure = _STATE["exposure"]
     bands = _STATE["bands"][ci]
     rows_mid = np.array([(r0 + r1 - 1) / 2.0 for r0, r1 in bands])
@@ -302,29 +365,37 @@ class MotionSimResult:
     image_cpu_seconds: float
 
 
-def check_motion_settings(rig: Rig, duration: float, camera_rate: float, exposure: float, time_offset_ms: float,
-                          label: str) -> None:
+def check_motion_settings(rig: Rig, duration: float, camera_rate: float | Mapping[str, float], exposure: float,
+                          time_offset_ms: float, label: str, drop: float = 0.0) -> None:
     if not rig.imus:
         raise InputError(f"{label}: imus: --scene imu needs a rig that declares an IMU (imu.md)")
-    for flag, v, lo, hi in (("--duration", duration, 0.0, 3600.0), ("--camera-rate", camera_rate, 0.0, 1000.0),
+    rates = camera_rates(rig, camera_rate) if rig.cameras else ()
+    for flag, v, lo, hi in (("--duration", duration, 0.0, 3600.0),
+                            *(("--camera-rate", r, 0.0, 1000.0) for r in rates),
                             ("--time-offset-ms", time_offset_ms, -1e-12, 100.0)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and lo < v <= hi):
             raise InputError(f"{flag}: expected a number above {max(lo, 0):g} and at most {hi:g}, got {v!r}")
-    if not (isinstance(exposure, (int, float)) and math.isfinite(exposure) and 0 <= exposure < 1.0 / camera_rate):
-        raise InputError(f"--exposure: expected seconds from 0 to below one frame period ({1 / camera_rate:g} s), "
+    if not (isinstance(drop, (int, float)) and 0.0 <= drop < 1.0):
+        raise InputError(f"--drop-frames: expected a fraction from 0 to below 1, got {drop!r}")
+    fastest = max(rates, default=1.0)
+    if not (isinstance(exposure, (int, float)) and math.isfinite(exposure) and 0 <= exposure < 1.0 / fastest):
+        raise InputError(f"--exposure: expected seconds from 0 to below one frame period ({1 / fastest:g} s), "
                          f"got {exposure!r}")
 
 
 def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = DEFAULTS["duration"],
-                            camera_rate: float = DEFAULTS["camera_rate"], exposure: float = DEFAULTS["exposure"],
+                            camera_rate: float | Mapping[str, float] = DEFAULTS["camera_rate"],
+                            exposure: float = DEFAULTS["exposure"], free_running: bool = False, drop: float = 0.0,
                             time_offset_ms: float = DEFAULTS["time_offset_ms"], seed: int = 0, noise: float = 2.0,
                             mount_error_mm: float = 5.0, mount_error_deg: float = 1.0, focal_error: float = 0.02,
                             target: Target | None = None, imu_noise: bool = True, force: bool = False,
                             jobs: int | None = None, progress: bool = False, rig_text: str | None = None,
                             target_text: str | None = None, label: str = "<rig>") -> MotionSimResult:
-    """Render a motion dataset (imu.md) of `rig` into out_dir, whole or not at all."""
+    """Render a motion dataset (imu.md) of `rig` into out_dir, whole or not at all. camera_rate:
+    one rate or camera name -> rate; free_running: every camera on its own schedule (module
+    text); drop: the fraction of frames dropped at random."""
     t0 = time.perf_counter()
-    check_motion_settings(rig, duration, camera_rate, exposure, time_offset_ms, label)
+    check_motion_settings(rig, duration, camera_rate, exposure, time_offset_ms, label, drop)
     for cam in rig.cameras:
         if cam.T_body_cam is None:
             raise InputError(f"{label}: cameras.{cam.name}: has no pose; simulate needs every camera's pose")
@@ -333,7 +404,7 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
     truth = true_rig_for_motion(rig, seed, time_offset_ms, perturbation)
     traj = imu_model.hand_held_trajectory(np.random.default_rng([seed, 2]))
     target, T_world_board = plan_boards(truth, _mean_pose(traj), target)
-    timing = frame_timing(truth, duration, camera_rate)
+    timing = frame_timing(truth, duration, camera_rate, free_running, drop, seed)
     t_end = duration + 2 * MARGIN_S
     _check_inside_imu_stream(truth, timing, exposure, t_end, label)
     settings = RenderSettings(seed=seed, noise=float(noise), blur=0.0, optics_sigma_px=OPTICS_SIGMA_PX)
@@ -341,10 +412,13 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
     for ii, i in enumerate(truth.imus):
         t = np.arange(int(math.floor(t_end * i.update_rate)) + 1) / i.update_rate
         streams[i.name] = imu_model.synthesize(traj.at(t), i, np.random.default_rng([seed, 4, ii]), noise=imu_noise)
-    scene = Scene(name="imu", target=target, frames=tuple(str(s) for s in timing.stems_ns),
-                  T_world_body=traj.at(timing.t_imu_s[0]).T_world_body,
-                  T_world_board=np.repeat(T_world_board[None], len(timing.stems_ns), axis=0), moving_boards=False)
-    cover = coverage(truth, scene)
+    cover = {}
+    for c, stems, t in zip(truth.cameras, timing.stems_ns, timing.t_imu_s):  # each camera at its own times
+        own = Scene(name="imu", target=target, frames=tuple(str(x) for x in stems),
+                    T_world_body=traj.at(t).T_world_body,
+                    T_world_board=np.repeat(T_world_board[None], len(stems), axis=0), moving_boards=False)
+        cover.update(coverage(truth.with_cameras([c]), own))
+        scene = own  # prepare_state reads the target from it
     out_dir = Path(out_dir)
     with atomic_dir(out_dir, force=force) as tmp:
         state = prepare_state(truth, scene, settings, jobs)
@@ -355,8 +429,8 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
         for ci, cam in enumerate(truth.cameras):
             d = tmp / "images" / cam.name
             d.mkdir(parents=True)
-            paths[cam.name] = tuple(out_dir / "images" / cam.name / f"{s}.png" for s in timing.stems_ns)
-            tasks += [(ci, fi, str(d / f"{s}.png")) for fi, s in enumerate(timing.stems_ns)]
+            paths[cam.name] = tuple(out_dir / "images" / cam.name / f"{s}.png" for s in timing.stems_ns[ci])
+            tasks += [(ci, fi, str(d / f"{s}.png")) for fi, s in enumerate(timing.stems_ns[ci])]
         cpu = run_render_tasks(state, tasks, jobs, progress, work=_render_and_write, init=_set_state,
                                preload="rigcal.sim.imu_scene")
         _write_files(tmp, rig, truth, target, T_world_board, traj, streams, timing, settings, exposure, rig_text,
@@ -405,8 +479,7 @@ def _write_files(tmp: Path, declared: Rig, truth: Rig, target: Target, T_world_b
         "gravity_world": [float(x) + 0.0 for x in imu_model.G_WORLD],
         "boards": {b.name: _pose_dict(T) for b, T in zip(target.boards, T_world_board)},
         "render": {"seed": int(settings.seed), "scene": "imu", "noise_sigma": float(settings.noise),
-                   "frames": len(timing.stems_ns), "camera_rate_hz": float(1e9 / np.diff(timing.stems_ns).mean())
-                   if len(timing.stems_ns) > 1 else None, "exposure_s": float(exposure),
+                   **_frames_truth(truth, timing), "exposure_s": float(exposure),
                    "supersampling": int(settings.ss), "optics_sigma_px": float(settings.optics_sigma_px),
                    "rolling_shutter_band_rows": BAND_ROWS, "epoch_ns": EPOCH_NS,
                    **{k: float(v) for k, v in perturbation.items()}},
@@ -414,28 +487,70 @@ def _write_files(tmp: Path, declared: Rig, truth: Rig, target: Target, T_world_b
     (tmp / "truth.yaml").write_text(dump(doc), encoding="utf-8")
 
 
+def _frames_truth(truth: Rig, timing: Timing) -> dict[str, Any]:
+    """truth.yaml's render.frames and camera_rate_hz: numbers when every camera has the same
+    stems, else per camera (name -> value), with free_running when the stems differ."""
+    first = timing.stems_ns[0]
+    if all(len(s) == len(first) and np.array_equal(s, first) for s in timing.stems_ns):
+        return {"frames": len(first), "camera_rate_hz": float(1e9 / np.diff(first).mean()) if len(first) > 1 else None}
+    return {"frames": {c.name: len(s) for c, s in zip(truth.cameras, timing.stems_ns)},
+            "camera_rate_hz": {c.name: float(r) for c, r in zip(truth.cameras, timing.rates_hz)},
+            "shared_stems": False}
+
+
 # ----------------------------------------------------------------------------- the command
 
 
-def run(rig_path, out_dir, duration=None, camera_rate=None, exposure=None, time_offset_ms=None, seed=0, noise=2.0,
-        mount_error_mm=5.0, mount_error_deg=1.0, focal_error=0.02, target_path=None, force=False, jobs=None) -> str:
-    """`rigcal simulate --scene imu`: returns the summary for stdout."""
-    from rigcal.core.target import load_target
+def parse_camera_rates(values: Sequence[str] | None) -> float | dict[str, float] | None:
+    """`--camera-rate` given any number of times: None (not given), one HZ for every camera,
+    or NAME=HZ per camera (InputError on anything else: one line naming the value)."""
+    if not values:
+        return None
+    plain = [v for v in values if "=" not in v]
+    if plain and len(values) > 1:
+        raise InputError(f"--camera-rate: give one HZ for every camera or NAME=HZ per camera, not both "
+                         f"({', '.join(values)})")
+    out: dict[str, float] = {}
+    for v in values:
+        name, _, hz = v.rpartition("=")
+        try:
+            rate = float(hz)
+        except ValueError:
+            raise InputError(f"--camera-rate: {v!r}: expected HZ or NAME=HZ (a number of images per second)") from None
+        if not plain:
+            if name in out:
+                raise InputError(f"--camera-rate: camera {name} given twice")
+            out[name.strip()] = rate
+        else:
+            return rate
+    return out
 
-    rig_path = Path(rig_path)
+
+def run(rig_path, out_dir, duration=None, camera_rate=None, exposure=None, time_offset_ms=None, seed=0, noise=2.0,
+        mount_error_mm=5.0, mount_error_deg=1.0, focal_error=0.02, target_path=None, force=False, jobs=None,
+        free_running=False, drop=0.0) -> str:
+    """`rigcal simulate --scene imu`: returns the summary for stdout. rig_path: a file or a
+    shipped rig's name; camera_rate: a number, name -> number, or --camera-rate's texts."""
+    from rigcal.core.target import load_target
+    from rigcal.core.validate import read_text
+    from rigcal.errors import RigFileError, TargetFileError
+
+    rig_path = rig_file(rig_path)  # a shipped rig's name gives its file
     rig = load_rig(rig_path)
+    if isinstance(camera_rate, (list, tuple)):
+        camera_rate = parse_camera_rates(camera_rate)
     target = target_text = None
     if target_path is not None:
         target = load_target(target_path)
-        target_text = Path(target_path).read_text(encoding="utf-8")
+        target_text = read_text(target_path, TargetFileError)
     res = simulate_motion_dataset(
         rig, out_dir, duration=DEFAULTS["duration"] if duration is None else duration,
         camera_rate=DEFAULTS["camera_rate"] if camera_rate is None else camera_rate,
         exposure=DEFAULTS["exposure"] if exposure is None else exposure,
         time_offset_ms=DEFAULTS["time_offset_ms"] if time_offset_ms is None else time_offset_ms, seed=seed,
         noise=noise, mount_error_mm=mount_error_mm, mount_error_deg=mount_error_deg, focal_error=focal_error,
-        target=target, force=force, jobs=jobs, progress=sys.stderr.isatty(),
-        rig_text=rig_path.read_text(encoding="utf-8"),
+        target=target, force=force, jobs=jobs, progress=sys.stderr.isatty(), free_running=free_running, drop=drop,
+        rig_text=read_text(rig_path, RigFileError),
         target_text=target_text, label=str(rig_path))
     return summary(res)
 
@@ -444,7 +559,11 @@ def summary(res: MotionSimResult) -> str:
     n_img = sum(len(v) for v in res.image_paths.values())
     ex = res.excitation
     fmt = lambda v, d=0: "/".join(f"{x:.{d}f}" for x in v)  # noqa: E731
-    lines = [f"wrote {res.out_dir}: imu scene, {len(res.timing.stems_ns)} frames per camera, {n_img} images, "
+    counts = sorted({len(s) for s in res.timing.stems_ns})
+    per = str(counts[0]) if len(counts) == 1 else "/".join(str(len(s)) for s in res.timing.stems_ns)
+    shared = all(np.array_equal(s, res.timing.stems_ns[0]) for s in res.timing.stems_ns)
+    lines = [f"wrote {res.out_dir}: imu scene, {per} frames per camera"
+             f"{'' if shared else ' (own stems per camera)'}, {n_img} images, "
              f"{len(res.streams)} IMU stream(s), {len(res.target.boards)} board(s), {res.seconds:.1f} s",
              f"  motion: peak rate {fmt(ex['peak_rate_deg_s'])} deg/s (body x/y/z), peak acceleration "
              f"{fmt(ex['peak_accel_m_s2'], 1)} m/s^2 (world x/y/z), position range {fmt(ex['position_range_m'], 2)} m"]

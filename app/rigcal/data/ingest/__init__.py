@@ -22,7 +22,7 @@ import yaml
 
 from rigcal.errors import InputError
 from rigcal.core.io import atomic_dir
-from rigcal.core.rig import NAME_RE, rig_from_dict
+from rigcal.core.rig import NAME_RE, rig_file, rig_from_dict
 from rigcal.data.ingest import euroc
 from rigcal.data.ingest.bag import BagRecording, declared_cameras, is_bag, open_bag, topic_table, topics
 from rigcal.data.ingest.video import VIDEO_SUFFIXES, VideoRecording, is_video
@@ -142,7 +142,7 @@ def ingest(source: str | Path, out_dir: str | Path, opts: IngestOptions, rig_pat
     check_options(opts)
     source, out_dir = Path(source), Path(out_dir)
     _check_out(source, out_dir, force)
-    rig_text = _read_text(rig_path, "--rig")
+    rig_text = _read_text(rig_file(rig_path) if rig_path is not None else None, "--rig")  # or a shipped rig's name
     target_text = _read_text(target_path, "--target")
     warnings: list[str] = []
     with contextlib.ExitStack() as stack:
