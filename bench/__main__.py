@@ -16,15 +16,16 @@ Sections (each also runs alone: python -m bench.<name>):
   indie_noise  noise_limit's error / CRB on independent renders (fisheye pair + pinhole control)
   solvers      rigcal's bundle adjustment vs gtsam's factor graph on the same problem and start
   simulate_imu `simulate --scene imu` time, 3 cameras x 30 s x 20 Hz + 200 Hz IMU; trajectory and IMU figures
-  imu_calib    prototype camera-IMU estimator (not in calibrate yet): errors vs truth, sigmas, time; 30 s x 3 seeds + 30 s rendered
+  imu_calib    the camera-IMU estimator alone (true intrinsics, board poses): errors vs truth, sigmas, time;
+               30 s x 3 seeds + 30 s rendered
   imu_euroc    the camera-IMU estimator on EuRoC's real 72 s imu_april corners + IMU vs EuRoC's T_BS (Kalibr);
                with EuRoC's intrinsics and on each half of the recording; then `rigcal calibrate` on it
   imu_euroc_defaults  `rigcal calibrate` on EuRoC with nothing but --jobs 2: knot spacing chosen, the
                accuracy band without and with a camera calibration as --rig, halves / sigma, time
   imu_speed    `rigcal calibrate` on a simulated 30 s 3-camera IMU recording: whole time / detection time
-               (issue 18: <= 1.5), errors via compare
+               (target <= 1.5), errors via compare
   imu_coverage `rigcal calibrate` end to end on 20 rendered 4 s IMU recordings: every reported camera-IMU
-               and intrinsic parameter's error / its 1-sigma (issue 18: 90-98 % within 2 sigma)
+               and intrinsic parameter's error / its 1-sigma (target: 90-98 % within 2 sigma)
   imu_freerun  `rigcal calibrate` on free-running, mixed-rate and rolling-shutter free-running 30 s recordings
                vs a synchronised one: T_imu_cam, clock offset and line delay errors, share within 2 sigma
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
@@ -33,7 +34,7 @@ Sections (each also runs alone: python -m bench.<name>):
   check        `rigcal check`: false alarms on an unchanged drone-stereo-back and detection of one camera
                turned 0.2 deg, moved 2 mm, focal +0.3 %, principal point +2 px (20-frame recordings, level 0.01)
   aprilgrid    AprilGrid corner error vs truth by method (box, detector, long arms, exact geometry) and
-               tag size in the four rendered scenes of issue 19, ChArUco alongside; EuRoC PnP
+               tag size in four rendered AprilGrid scenes, ChArUco alongside; EuRoC PnP
   imu_noise    `rigcal imu-noise` on simulated static recordings (seeds x 3 h at 200 Hz) vs truth, interval
                coverage, allan_variance_ros's and imu_utils's formulas on the same data; 3 h at 400 Hz end to end
 
@@ -42,9 +43,9 @@ Not sections (checks run by hand, each also `python -m bench.<name>`):
   same_outputs `rigcal calibrate` on every benchmark dataset, calibrated YAMLs compared to 1e-9
                (before and after a change to the pipeline)
   faults       a messy capture (blur, truncated, black and missing images) calibrates within 1.5x of the
-               clean one's error (issue 7)
+               clean one's error
 
-Finished studies, whose conclusions the README records, are in bench/archive/ (its README
+Finished studies, whose conclusions the documentation records (docs/accuracy.md, docs/decisions.md), are in bench/archive/ (its README
 says what each concluded and where); they are not run here and not smoke-tested.
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to

@@ -1,5 +1,5 @@
-"""Benchmark: the prototype camera-IMU estimator (rigcal.imucal.estimator; not yet used by
-`rigcal calibrate`) on synthetic corner recordings of rigs/drone-stereo-back-imu.yaml:
+"""Benchmark: the camera-IMU estimator alone (rigcal.imucal.estimator, the one `rigcal calibrate`
+runs, here given true intrinsics and board poses) on synthetic corner recordings of rigs/drone-stereo-back-imu.yaml:
 3 cameras x 30 s x 20 Hz + a 200 Hz IMU, the `simulate --scene imu` truth projected
 (not rendered) with 0.3 px corner noise, true intrinsics, known board poses.
 
@@ -52,13 +52,13 @@ def run_seed(seed: int, duration: float) -> dict:
 
 def run_rendered(duration: float, camera_rate: float = 20.0, seed: int = 0) -> dict:
     """The same on a rendered `simulate --scene imu` recording: detection and PnP by
-    rigcal.imucal.inputs, true intrinsics and board poses (the prototype's assumptions)."""
+    tests.support.motion_inputs, true intrinsics and board poses given."""
     import shutil
     import tempfile
     from dataclasses import replace
     from pathlib import Path
 
-    from rigcal.imucal import inputs as imu_dataset
+    from tests.support import motion_inputs as imu_dataset
     from rigcal.sim.imu_scene import simulate_motion_dataset
 
     rig = load_rig(RIG)
@@ -122,7 +122,7 @@ def tables(r: dict) -> str:
         d = r["results"][0]["duration_s"]
         t = md_table(["seed", "camera", "rotation err deg (1-sigma)", "translation err mm (1-sigma)",
                       "offset err ms (1-sigma)", "start: rot deg / offset ms", "start + solve s", "LM iterations"],
-                     rows, title=f"camera-IMU prototype (rigcal.imucal.estimator), drone-stereo-back-imu, {d:g} s synthetic "
+                     rows, title=f"camera-IMU estimator alone (rigcal.imucal.estimator), drone-stereo-back-imu, {d:g} s synthetic "
                                  f"corners, 0.3 px noise (issue 18 targets: 0.01 deg, 1 mm, 0.05 ms)")
         rms = r["results"][0]["normalised_rms"]
         t += ("\nresidual RMS / declared noise (seed 0): " + ", ".join(f"{k} {v:.2f}" for k, v in rms.items()) +

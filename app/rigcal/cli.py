@@ -308,7 +308,7 @@ def calibrate(
 @guarded
 def check(
     rig: Path = typer.Argument(..., help="calibrated rig YAML (what `rigcal calibrate` writes, with sigmas)"),
-    dataset: Path = typer.Argument(..., help="a short new recording of the rig (dataset.md: images/ or corners/, "
+    dataset: Path = typer.Argument(..., help="a short new recording of the rig (docs/formats.md#dataset: images/ or corners/, "
                                              "target.yaml)"),
     report: Optional[Path] = typer.Option(None, help="write an HTML report here (residual maps, tests)"),
     level: float = typer.Option(0.01, help="false-alarm rate of the whole check (an unchanged rig fails this "

@@ -1,4 +1,4 @@
-"""The prototype camera-IMU estimator on synthetic corner recordings (imu_synthetic: the
+"""The camera-IMU estimator alone on synthetic corner recordings (imu_synthetic: the
 `simulate --scene imu` truth, projected instead of rendered) against the truth."""
 
 from __future__ import annotations
@@ -111,9 +111,9 @@ def test_rolling_shutter_line_delay_is_estimated():
 
 def test_rendered_recording_end_to_end(tmp_path):
     """`simulate --scene imu` images (4 s, 10 Hz, 640x480) -> detected corners and PnP poses
-    (rigcal.imucal.inputs) -> the estimator, against truth.yaml's rig. Intrinsics and board
-    poses from the truth (the prototype's assumptions)."""
-    from rigcal.imucal import inputs as imu_dataset
+    (tests.support.motion_inputs) -> the estimator, against truth.yaml's rig. Intrinsics and board
+    poses from the truth."""
+    from tests.support import motion_inputs as imu_dataset
     from rigcal.sim.imu_scene import simulate_motion_dataset
 
     rig = load_rig(RIG)

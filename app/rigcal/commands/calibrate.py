@@ -363,7 +363,7 @@ def _check_detections(rig: Rig, det, views: list[BoardView], images, target, tar
 
 
 def _motion_notes(dataset: Path, rig: Rig, images, min_overlap_s: float = 0.0):
-    """imu.md's checks of a motion dataset (DatasetError on bad input): (notes for the
+    """the motion-dataset format's checks of a motion dataset (DatasetError on bad input): (notes for the
     user, the MotionCheck with the IMU samples read)."""
     from rigcal.data.imu_csv import check_motion_dataset
 
@@ -379,7 +379,7 @@ def _refuse_square_chessboard(target, rig: Rig, target_file) -> None:
     """A chessboard with as many inner corners along x as along y looks the same turned
     by 90 degrees: its corner order could differ between the cameras of one frame by a
     quarter turn, which the 180-degree resolution cannot undo. One camera does not care
-    (any order is just another board pose); a rig is refused, as dataset.md allows."""
+    (any order is just another board pose); a rig is refused, as docs/formats.md#dataset allows."""
     if len(rig.cameras) < 2:
         return
     for k, b in enumerate(target.boards):

@@ -1,4 +1,4 @@
-"""The dataset folder (../shared/spec/dataset.md): which image is which camera's which frame.
+"""The dataset folder (docs/formats.md#dataset): which image is which camera's which frame.
 
     DATASET/rig.yaml, DATASET/target.yaml, DATASET/images/<camera>/<frame>.<ext>
 

@@ -1,4 +1,4 @@
-"""Motion datasets (../shared/spec/imu.md): reading and checking `imu/<imu>.csv` and the
+"""Motion datasets (docs/formats.md#motion-datasets): reading and checking `imu/<imu>.csv` and the
 integer-nanosecond image stems, before anything is detected or solved.
 
 Every refusal is one DatasetError line naming the file (and row), exit 2. Row numbers are
@@ -22,7 +22,7 @@ from rigcal.core.validate import parses_as_float
 IMU_HEADER = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
               "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]")
 COLUMNS = 7
-OVERLAP_SLACK_S = 1.0  # images and IMU samples must overlap within this (imu.md)
+OVERLAP_SLACK_S = 1.0  # images and IMU samples must overlap within this (docs/formats.md#motion-datasets)
 GAP_SAMPLES = 5  # a gap longer than this many nominal sample periods is reported
 _INTEGER = re.compile(r"^[0-9]+$")
 
@@ -84,7 +84,7 @@ def read_imu_csv(path: str | Path) -> ImuSamples:
 
 
 def imu_csv(t_ns: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> str:
-    """The text of an imu/<imu>.csv (EuRoC's imu0/data.csv, imu.md) that read_imu_csv reads:
+    """The text of an imu/<imu>.csv (EuRoC's imu0/data.csv, docs/formats.md#motion-datasets) that read_imu_csv reads:
     integer-ns stamps and every number as the shortest text that reads back to the same double."""
     rows = [f"{int(t)}," + ",".join(repr(float(x)) for x in (*g, *a)) for t, g, a in zip(t_ns, gyro, accel)]
     return IMU_HEADER + "\n" + "\n".join(rows) + "\n"
@@ -149,7 +149,7 @@ class MotionCheck:
 
 def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages, min_overlap_s: float = 0.0
                          ) -> MotionCheck:
-    """The checks of imu.md for a dataset with imu/: every declared IMU has a file and every
+    """The checks of docs/formats.md#motion-datasets for a dataset with imu/: every declared IMU has a file and every
     file a declared IMU, each file is well formed, every image stem is an integer, and each
     camera's images (shifted by its declared time_offset_s) overlap each IMU's samples within
     1 s, and for at least min_overlap_s (what the camera-IMU step's spline needs). Without
@@ -161,7 +161,7 @@ def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages, min_
             return MotionCheck({}, {}, ())
         names = ", ".join(i.name for i in rig.imus)
         return MotionCheck({}, {}, (f"the rig declares IMU(s) {names} but the dataset has no imu/ folder: their blocks "
-                                    f"are carried through unchanged and the reference is `aligned` (imu.md)",))
+                                    f"are carried through unchanged and the reference is `aligned` (docs/formats.md#motion-datasets)",))
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder (expected imu/<imu>.csv per IMU of the rig)")
     files = {p.stem: p for p in sorted(folder.iterdir()) if p.suffix.lower() == ".csv" and not p.name.startswith(".")}

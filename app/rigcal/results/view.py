@@ -134,7 +134,7 @@ def rig_figure(rig: Rig) -> go.Figure:
             fig.add_traces(camera_traces(cam, 0.4 * extent))
     for imu in rig.imus:
         fig.add_traces(imu_traces(imu, 0.3 * extent))
-    for mag in rig.magnetometers:  # dashed: a magnetometer's measurement axes (magnetometer.md)
+    for mag in rig.magnetometers:  # dashed: a magnetometer's measurement axes (docs/magnetometer.md)
         fig.add_traces(axes_traces(mag.T_body_mag, mag.name, 0.25 * extent, "x", 7, dash="dash"))
     unit = {"showbackground": False, "zeroline": False}
     fig.update_layout(

@@ -1,4 +1,4 @@
-"""`rigcal simulate --scene imu`: a moving recording with cameras and IMUs (../shared/spec/imu.md).
+"""`rigcal simulate --scene imu`: a moving recording with cameras and IMUs (docs/formats.md#motion-datasets).
 
 The rig is carried by hand-held-like motion (imu.SineTrajectory: analytic derivatives)
 in front of static ChArUco boards, one board per viewing direction of the rig, about
@@ -9,7 +9,7 @@ lies inside the IMU stream.
 
 Clocks: camera frame k is taken at t_cam = MARGIN_S + k / camera_rate on its own clock
 (its stem, integer ns: mid-exposure of the first row), which is t_cam + time_offset_s on
-the IMU clock (imu.md). All cameras share the stem grid, so equal stems name the same
+the IMU clock (docs/formats.md#motion-datasets). All cameras share the stem grid, so equal stems name the same
 camera-clock instant; the true offsets (up to --time-offset-ms) differ per camera.
 Each camera may have its own rate (then the grids coincide only where k / rate does).
 Free-running cameras (`free_running`) each take frames on their own schedule: a start
@@ -368,7 +368,7 @@ class MotionSimResult:
 def check_motion_settings(rig: Rig, duration: float, camera_rate: float | Mapping[str, float], exposure: float,
                           time_offset_ms: float, label: str, drop: float = 0.0) -> None:
     if not rig.imus:
-        raise InputError(f"{label}: imus: --scene imu needs a rig that declares an IMU (imu.md)")
+        raise InputError(f"{label}: imus: --scene imu needs a rig that declares an IMU (docs/formats.md#motion-datasets)")
     rates = camera_rates(rig, camera_rate) if rig.cameras else ()
     for flag, v, lo, hi in (("--duration", duration, 0.0, 3600.0),
                             *(("--camera-rate", r, 0.0, 1000.0) for r in rates),
@@ -391,7 +391,7 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
                             target: Target | None = None, imu_noise: bool = True, force: bool = False,
                             jobs: int | None = None, progress: bool = False, rig_text: str | None = None,
                             target_text: str | None = None, label: str = "<rig>") -> MotionSimResult:
-    """Render a motion dataset (imu.md) of `rig` into out_dir, whole or not at all. camera_rate:
+    """Render a motion dataset (docs/formats.md#motion-datasets) of `rig` into out_dir, whole or not at all. camera_rate:
     one rate or camera name -> rate; free_running: every camera on its own schedule (module
     text); drop: the fraction of frames dropped at random."""
     t0 = time.perf_counter()
@@ -435,7 +435,7 @@ def simulate_motion_dataset(rig: Rig, out_dir: str | Path, *, duration: float = 
                                preload="rigcal.sim.imu_scene")
         _write_files(tmp, rig, truth, target, T_world_board, traj, streams, timing, settings, exposure, rig_text,
                      target_text, perturbation)
-        if truth.magnetometers:  # magnetometer.md: mag/ along the same motion, its truth in truth.yaml
+        if truth.magnetometers:  # docs/magnetometer.md: mag/ along the same motion, its truth in truth.yaml
             from rigcal.sim.mag_scene import add_magnetometers
 
             add_magnetometers(tmp, truth, traj, seed, t_end)

@@ -1,11 +1,12 @@
-"""A motion dataset (images/ + imu/, ../shared/spec/imu.md) as the prototype camera-IMU
-estimator's inputs (rigcal.imucal.estimator): corners detected in every image, each camera's
-per-frame pose by PnP, the IMU samples. Prototype assumptions, as imu_calib's: the boards'
-world poses and every camera's intrinsics are given (a simulated dataset's truth.yaml, or
-a camera-only calibration), one IMU.
+"""A motion dataset (images/ + imu/) as the camera-IMU estimator's inputs
+(rigcal.imucal.estimator) with the boards' world poses and every camera's intrinsics given (a
+simulated dataset's truth.yaml): corners detected in every image, each camera's per-frame
+pose by PnP, the IMU samples, one IMU. A harness that tests and benchmarks the estimator
+alone, apart from `rigcal calibrate`'s camera-only step (rigcal.imucal.step builds the
+estimator's inputs from that step).
 
 Times are seconds since the IMU's first sample, on each sensor's own clock (the stems are
-integer nanoseconds), so the offsets the estimator finds are imu.md's time_offset_s.
+integer nanoseconds), so the offsets the estimator finds are the motion-dataset format's time_offset_s.
 """
 
 from __future__ import annotations
