@@ -45,13 +45,14 @@ Not sections (checks run by hand, each also `python -m bench.<name>`):
   faults       a messy capture (blur, truncated, black and missing images) calibrates within 1.5x of the
                clean one's error
 
-Finished studies, whose conclusions the documentation records (docs/accuracy.md, docs/decisions.md), are in bench/archive/ (its README
+Finished studies, whose conclusions the documentation records (docs/accuracy.md,
+docs/decisions.md), are in bench/archive/ (its README
 says what each concluded and where); they are not run here and not smoke-tested.
 
 Tables go to stdout and, together, to bench/out/summary.md; numbers to
 bench/out/<section>.json. Renders and detections are cached in bench/out/cache, so
 a rerun skips them. Measured on 2 cores: 760 s from a fresh clone, 490 s rerun.
-The dome and long_recording sections (issue 21) add about 15 min and, on a fresh clone,
+The dome and long_recording sections add about 15 min and, on a fresh clone,
 5 min of rendering (measured under load 7; --quick: dome 100 frames, 300-frame recording).
 
     python -m bench [--only SECTION ...] [--quick]
