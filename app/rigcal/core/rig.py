@@ -448,6 +448,14 @@ def _mags_from_doc(v: Any, camera_names: set[str], imus: tuple[Imu, ...], err) -
     return tuple(out)
 
 
+
+def _time_offset(v, key: str, err) -> float:
+    """A sensor's declared clock offset (t_imu = t_sensor + offset), seconds within +-MAX_TIME_OFFSET_S."""
+    offset = finite_number(v, key, err)
+    if abs(offset) > MAX_TIME_OFFSET_S:
+        raise err(key, f"expected seconds within +-{MAX_TIME_OFFSET_S:g}, got {offset!r}")
+    return offset
+
 def _mag_from_dict(name: str, d: Any, key: str, imu_names: list[str], err) -> Magnetometer:
     if not isinstance(d, dict):
         raise err(key, f"expected a mapping, got {describe(d)}")
@@ -472,9 +480,7 @@ def _mag_from_dict(name: str, d: Any, key: str, imu_names: list[str], err) -> Ma
         raise err(f"{key}.imu", f"expected one of the rig's IMUs ({', '.join(imu_names)}), got {describe(imu)}")
     offset = field = None
     if "time_offset_s" in d:
-        offset = finite_number(d["time_offset_s"], f"{key}.time_offset_s", err)
-        if abs(offset) > MAX_TIME_OFFSET_S:
-            raise err(f"{key}.time_offset_s", f"expected seconds within +-{MAX_TIME_OFFSET_S:g}, got {offset!r}")
+        offset = _time_offset(d["time_offset_s"], f"{key}.time_offset_s", err)
     if "earth_field_uT" in d:
         field = positive_number(d["earth_field_uT"], f"{key}.earth_field_uT", err)
         if field > MAX_EARTH_FIELD_UT:
@@ -551,9 +557,7 @@ def _camera_from_dict(name: str, d: Any, key: str, err) -> Camera:
     check_finite_tree(calib, f"{key}.calibration", err)
     offset = delay = None
     if "time_offset_s" in d:
-        offset = finite_number(d["time_offset_s"], f"{key}.time_offset_s", err)
-        if abs(offset) > MAX_TIME_OFFSET_S:
-            raise err(f"{key}.time_offset_s", f"expected seconds within +-{MAX_TIME_OFFSET_S:g}, got {offset!r}")
+        offset = _time_offset(d["time_offset_s"], f"{key}.time_offset_s", err)
     if "line_delay_s" in d:
         delay = finite_number(d["line_delay_s"], f"{key}.line_delay_s", err)
         if delay < 0 or delay * height > MAX_FRAME_READOUT_S:

@@ -147,6 +147,21 @@ class MotionCheck:
     frame_t_ns: Mapping[str, Mapping[str, int]] | None = None
 
 
+
+def declared_csv_files(folder: Path, declared: list[str], what: str, key: str) -> dict[str, Path]:
+    """A sensor folder's `<name>.csv` files (imu/, mag/) by name: every file a sensor the rig
+    declares under `key` and every declared sensor a file, or one DatasetError naming the file."""
+    files = {p.stem: p for p in sorted(folder.iterdir()) if p.suffix.lower() == ".csv" and not p.name.startswith(".")}
+    for name, p in files.items():
+        if name not in declared:
+            have = f"declares {', '.join(declared)}" if declared else f"declares no {what}"
+            raise DatasetError(f"{p}: {what} {name!r} is not declared in the rig (it {have}); add it under `{key}:` "
+                               f"or remove the file")
+    for name in declared:
+        if name not in files:
+            raise DatasetError(f"{folder / (name + '.csv')}: missing; the rig declares {what} {name!r}")
+    return files
+
 def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages, min_overlap_s: float = 0.0
                          ) -> MotionCheck:
     """The checks of docs/formats.md#motion-datasets for a dataset with imu/: every declared IMU has a file and every
@@ -164,16 +179,8 @@ def check_motion_dataset(root: str | Path, rig: Rig, images: DatasetImages, min_
                                     f"are carried through unchanged and the reference is `aligned` (docs/formats.md#motion-datasets)",))
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder (expected imu/<imu>.csv per IMU of the rig)")
-    files = {p.stem: p for p in sorted(folder.iterdir()) if p.suffix.lower() == ".csv" and not p.name.startswith(".")}
     declared = [i.name for i in rig.imus]
-    for name, p in files.items():
-        if name not in declared:
-            have = f"declares {', '.join(declared)}" if declared else "declares no IMU"
-            raise DatasetError(f"{p}: IMU {name!r} is not declared in the rig (it {have}); add it under `imus:` "
-                               f"or remove the file")
-    for name in declared:
-        if name not in files:
-            raise DatasetError(f"{folder / (name + '.csv')}: missing; the rig declares IMU {name!r}")
+    files = declared_csv_files(folder, declared, "IMU", "imus")
     samples = {name: read_imu_csv(files[name]) for name in declared}
     times = image_times_ns(images)
     for cam in images.cameras:

@@ -21,7 +21,7 @@ import numpy as np
 
 from rigcal.core.rig import Rig
 from rigcal.core.validate import parses_as_float
-from rigcal.data.imu_csv import ImuSamples
+from rigcal.data.imu_csv import ImuSamples, declared_csv_files
 from rigcal.errors import DatasetError
 
 MAG_HEADER = "#timestamp [ns],m_x [uT],m_y [uT],m_z [uT]"
@@ -130,16 +130,7 @@ def check_mag_dataset(root: str | Path, rig: Rig, imus: Mapping[str, ImuSamples]
         return {}
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder (expected mag/<magnetometer>.csv per magnetometer of the rig)")
-    files = {p.stem: p for p in sorted(folder.iterdir()) if p.suffix.lower() == ".csv" and not p.name.startswith(".")}
-    declared = [m.name for m in rig.magnetometers]
-    for name, p in files.items():
-        if name not in declared:
-            have = f"declares {', '.join(declared)}" if declared else "declares no magnetometer"
-            raise DatasetError(f"{p}: magnetometer {name!r} is not declared in the rig (it {have}); add it under "
-                               f"`magnetometers:` or remove the file")
-    for name in declared:
-        if name not in files:
-            raise DatasetError(f"{folder / (name + '.csv')}: missing; the rig declares magnetometer {name!r}")
+    files = declared_csv_files(folder, [m.name for m in rig.magnetometers], "magnetometer", "magnetometers")
     out = {}
     for mag in rig.magnetometers:
         s = read_mag_csv(files[mag.name])
