@@ -448,13 +448,13 @@ def _mags_from_doc(v: Any, camera_names: set[str], imus: tuple[Imu, ...], err) -
     return tuple(out)
 
 
-
 def _time_offset(v, key: str, err) -> float:
     """A sensor's declared clock offset (t_imu = t_sensor + offset), seconds within +-MAX_TIME_OFFSET_S."""
     offset = finite_number(v, key, err)
     if abs(offset) > MAX_TIME_OFFSET_S:
         raise err(key, f"expected seconds within +-{MAX_TIME_OFFSET_S:g}, got {offset!r}")
     return offset
+
 
 def _mag_from_dict(name: str, d: Any, key: str, imu_names: list[str], err) -> Magnetometer:
     if not isinstance(d, dict):
