@@ -156,6 +156,13 @@ def test_a_camera_never_taken_with_another_is_refused(tmp_path):
     _refused(_dataset(tmp_path / "ds", stems), "camera back", "within 25.0 ms", "taken together")
 
 
+def test_a_camera_never_taken_with_another_without_an_imu_is_refused(tmp_path):
+    # no IMU either: nothing relates back's clock to the others'
+    front = _grid(0.0, 50.0, 21) + _grid(2300.0, 50.0, 21)
+    stems = {"front_left": front, "front_right": front, "back": _grid(1060.0, 50.0, 24)}
+    _refused(_dataset(tmp_path / "ds", stems, imu=False), "camera back", "within 25.0 ms", "taken together")
+
+
 def test_a_camera_overlapping_the_imu_too_briefly_is_refused(tmp_path):
     # back records for 0.4 s of the front cameras' 2 s: the spline needs 20 knots of 0.05 s
     stems = {"front_left": _grid(0.0, 50.0, 40), "front_right": _grid(3.0, 50.0, 40), "back": _grid(1.0, 50.0, 9)}
