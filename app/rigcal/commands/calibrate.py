@@ -192,12 +192,22 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
     _write_outputs(out_path, o.report, out_rig, cal, found.det, pairs, timings,
                    imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]))
+    start_warnings = warnings_for(cal)
+    if free_running:  # the written poses' sigmas are the continuous-time estimate's, not the start's
+        from rigcal.results.visual_outputs import is_start_pose_warning, pose_warnings
+
+        start_warnings = ([w for w in start_warnings if not is_start_pose_warning(w)]
+                          + pose_warnings(list(cal.cam_names), vm))
     imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
-    for w in found.warnings + warnings_for(cal) + imu_warnings:
+    for w in found.warnings + start_warnings + imu_warnings:
         console.print(f"warning: {w}")
     for n in list(cal.notes) + list(inp.motion_notes) + plan_notes + imu_notes:
         console.print(f"note: {n}")
     summary = console_summary(cal, out_rig, found.det, timings, out_path, o.report)
+    if free_running:
+        from rigcal.results.visual_outputs import console_table
+
+        summary = Group(summary, console_table(out_rig, vm, list(cal.cam_names)))
     if imu_res is None:
         return Group(summary, *mag_tables) if mag_tables else summary
     from rigcal.results.imu_outputs import console_tables

@@ -74,3 +74,46 @@ def summary_note(names: list[str], vm: VisualMotionResult) -> str:
             f"{1000 * vm.knot_dt:.0f} ms shaped by the views alone (and a smoothness prior), every image at its own "
             f"time; poses, clock offsets and their sigmas are this estimate's, clocks relative to "
             f"{names[vm.reference]}: {offs}; corner RMS {vm.corner_rms_px:.3f} px")
+
+
+def pose_warnings(names: list[str], vm: VisualMotionResult) -> list[str]:
+    """outputs.warnings_for's poorly-constrained-pose warnings on this estimate's sigmas (the
+    camera-only start's describe images grouped across instants, not the written poses)."""
+    from rigcal.results.outputs import AXES, MOTION_HINT, SIGMA_WARN_DEG, SIGMA_WARN_MM
+
+    out = []
+    for k, n in enumerate(names):
+        for i, s in enumerate(1000 * vm.sigma[k, 3:6]):
+            if s > SIGMA_WARN_MM:
+                out.append(f"{n}: position along body {AXES[i]} is poorly constrained (1-sigma {s:.2f} mm > "
+                           f"{SIGMA_WARN_MM} mm); {MOTION_HINT[AXES[i]]}")
+        for i, s in enumerate(np.degrees(vm.sigma[k, :3])):
+            if s > SIGMA_WARN_DEG:
+                out.append(f"{n}: rotation about body {AXES[i]} is poorly constrained (1-sigma {s:.3f} deg > "
+                           f"{SIGMA_WARN_DEG} deg); rotate the rig about more than one axis and tilt the board")
+    return out
+
+
+def is_start_pose_warning(line: str) -> bool:
+    """A warnings_for line about a camera-only pose sigma (replaced by pose_warnings)."""
+    return "is poorly constrained (1-sigma" in line and (" position along body " in line
+                                                         or " rotation about body " in line)
+
+
+def console_table(rig: Rig, vm: VisualMotionResult, names: list[str]):
+    """The written poses' sigmas and clock offsets (the cameras table above is the start's)."""
+    from rich.table import Table
+
+    ref = names[vm.reference]
+    t = Table(title=f"free-running cameras without an IMU: relative to {ref} (clocks: t_{ref} = t_cam + offset)")
+    for col in ("camera", "time offset ms", "1-sigma ms", "sigma pos mm (F L U)", "sigma rot deg (F L U)"):
+        t.add_column(col, justify="left" if col == "camera" else "right")
+    for c in rig.cameras:
+        k = names.index(c.name)
+        s = vm.sigma[k]
+        t.add_row(c.name + (" (reference)" if k == vm.reference else ""), f"{1000 * vm.time_offset_s[k]:+.4f}",
+                  f"{1000 * s[6]:.4f}", " ".join(f"{1000 * x:.3f}" for x in s[3:6]),
+                  " ".join(f"{np.degrees(x):.4f}" for x in s[:3]))
+    t.caption = (f"knots every {1000 * vm.knot_dt:.0f} ms, corner RMS {vm.corner_rms_px:.3f} px; the cameras table "
+                 f"above describes the camera-only start (images grouped by time)")
+    return t
