@@ -272,10 +272,14 @@ def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_pa
 
 
 def _integer_stems(images) -> bool:
-    """Every image's stem an integer (a capture time in ns): cameras that share no stem may
-    then be free-running, their images grouped by time (dataset.associate_by_time)."""
-    return all(f.lstrip("-").isdigit() for c, frames in images.frames.items() if c not in images.corners
-               for f in frames)
+    """Every image's stem an integer (a capture time in ns) and every camera's images within
+    another camera's span: cameras that share no stem are then free-running, their images
+    grouped by time (dataset.associate_by_time); otherwise check_shared_stems' naming hint stands."""
+    frames = {c: f for c, f in images.frames.items() if c not in images.corners and f}
+    if not all(s.lstrip("-").isdigit() for f in frames.values() for s in f):
+        return False
+    span = {c: (min(int(s) for s in f), max(int(s) for s in f)) for c, f in frames.items()}
+    return all(any(span[c][0] < span[o][1] and span[o][0] < span[c][1] for o in span if o != c) for c in span)
 
 
 def _min_overlap_s(imu_options: Options | None) -> float:
