@@ -139,7 +139,8 @@ def check_views(views: Views, names: list[str], dt: float) -> None:
         raise CalibrationError(
             f"free-running cameras without an IMU: {len(views.image_t)} images with a board over {span:.2f} s are "
             f"{per_knot:.2f} per knot of the trajectory (every {1000 * dt:.0f} ms); the motion between the cameras' "
-            f"instants needs at least {MIN_VIEWS_PER_KNOT:g}: record more images with the boards in view, or add an IMU")
+            f"instants needs at least {MIN_VIEWS_PER_KNOT:g}: record more images with the boards in view, or add "
+            f"an IMU")
     for c, name in enumerate(names):
         own = np.sort(views.image_t[views.image_cam == c])
         other = np.sort(views.image_t[views.image_cam != c])
@@ -288,14 +289,16 @@ def calibrate_visual_motion(cal, image_t_ns, reference: str = "aligned", hold_in
     lay = ir.layout_for(state, HELD | ({"intrinsics"} if hold_intrinsics else set()))
     ref_cols = np.r_[lay.cam + 6 * g + np.arange(6), lay.offset + g]
     obs = views.corners
-    sigma_px, iters = SIGMA_PX, 0
-    for _ in range(2):  # then again with the corners weighted by the noise the first pass measured
-        if iters:
-            sigma_px *= max(blocks[0].residual_rms, 1e-3)
-        state, blocks, it = ic.levenberg_marquardt(
-            state, lay, lambda s: _blocks(s, lay, obs, models, sigma_px, ref_cols, prior), MAX_ITER,
-            ic.ESTIMATE_COST_TOL)
-        iters += it
+
+    def solve(state, sigma_px):
+        return ic.levenberg_marquardt(state, lay, lambda s: _blocks(s, lay, obs, models, sigma_px, ref_cols, prior),
+                                      MAX_ITER, ic.ESTIMATE_COST_TOL)
+
+    state, blocks, it1 = solve(state, SIGMA_PX)
+    # again with the corners weighted by the noise the first pass measured: the sigmas rest on it
+    sigma_px = SIGMA_PX * max(blocks[0].residual_rms, 1e-3)
+    state, blocks, it2 = solve(state, sigma_px)
+    iters = it1 + it2
     sigma, sigma_intr = sigmas_of(state, lay, obs, models, sigma_px, ref_cols, prior)
     bad = [n for c, n in enumerate(names) if c != g and not sigma[c, 6] <= MAX_OFFSET_SIGMA_KNOTS * dt]
     if bad:
