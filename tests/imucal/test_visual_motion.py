@@ -163,3 +163,21 @@ def test_too_few_views_per_knot_are_refused():
 def test_knot_spacing_follows_the_slowest_camera():
     views = _views({0: np.arange(0, 2, 0.05), 1: np.arange(0, 2, 1 / 15)})
     assert vmo.knot_spacing(views, 2) == pytest.approx(1 / 15)
+
+
+def test_a_declared_camera_calibration_holds_the_intrinsics(run, tmp_path):
+    # the two-recording workflow: a rig that is itself a calibration (its cameras carry
+    # calibration.sigma.intrinsics) as --rig; here the first run's output stands in for it
+    sim, first, _ = run
+    ds = first.parent / "ds"
+    out = tmp_path / "held.yaml"
+    r = _cli("calibrate", ds, "--rig", first, "--out", out, "--jobs", 1, "--guided", "off")
+    assert r.exit_code == 0, r.output
+    est, given, truth = load_rig(out), load_rig(first), load_truth(sim / "truth.yaml").rig
+    assert est.calibration["free_running"]["intrinsics"] == "held"
+    for c in est.cameras:
+        a, b = c.intrinsics, given.camera(c.name).intrinsics
+        assert np.allclose([a.fx, a.fy, a.cx, a.cy, *a.dist], [b.fx, b.fy, b.cx, b.cy, *b.dist], rtol=0, atol=1e-9)
+    ref = est.calibration["free_running"]["clock"].split(":", 1)[1]
+    for name, (d_rot, d_pos, d_off) in _relative_errors(est, truth, ref).items():
+        assert abs(d_off) < 1e-4 and np.degrees(np.linalg.norm(d_rot)) < 0.05 and np.linalg.norm(d_pos) < 1e-3, name
