@@ -56,6 +56,8 @@ def visual_motion_rig(out_rig: Rig, cal, vm: VisualMotionResult) -> Rig:
         "model": "continuous-time trajectory from the views alone (no IMU)",
         "clock": f"camera:{names[vm.reference]}",
         "knot_spacing_s": _r(vm.knot_dt, 6),
+        # each spacing tried (coarsest first) with the corner RMS (px) of its first pass
+        "knot_spacing_tried": [[_r(dt, 6), _r(rms, 4)] for dt, rms in vm.knots_tried],
         "smoothness_prior": {"acceleration_m_s2": _r(vm.prior_sigma[0], 4),
                              "angular_acceleration_rad_s2": _r(vm.prior_sigma[1], 4)},
         "intrinsics": "estimated" if vm.intrinsics else "held",
