@@ -182,3 +182,15 @@ def test_a_declared_camera_calibration_holds_the_intrinsics(run, tmp_path):
     ref = est.calibration["free_running"]["clock"].split(":", 1)[1]
     for name, (d_rot, d_pos, d_off) in _relative_errors(est, truth, ref).items():
         assert abs(d_off) < 1e-4 and np.degrees(np.linalg.norm(d_rot)) < 0.05 and np.linalg.norm(d_pos) < 1e-3, name
+
+
+def test_views_that_cannot_model_the_motion_are_refused_by_calibrate(run, tmp_path, monkeypatch):
+    # the recording's ~3 images per knot made too few by asking for 100: exit 1, one line, nothing written
+    _, first, _ = run
+    monkeypatch.setattr(vmo, "MIN_VIEWS_PER_KNOT", 100.0)
+    out = tmp_path / "refused.yaml"
+    r = _cli("calibrate", first.parent / "ds", "--out", out, "--jobs", 1, "--guided", "off")
+    assert r.exit_code == 1, r.output
+    line = r.output.strip().splitlines()[-1]
+    assert line.startswith("rigcal: free-running cameras without an IMU:") and "per knot" in line, line
+    assert "Traceback" not in r.output and not out.exists()
