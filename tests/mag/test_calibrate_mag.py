@@ -228,3 +228,23 @@ def test_the_fast_reader_and_the_row_reader_agree(dance):
     for bad in ("+16,1,2,3", "16,nan,2,3", "16,1,2", "16,1,2,3,4", "1.6e1,1,2,3", "99,1,2,3"):
         assert mag_csv._read_fast("#h\n" + "\n".join([bad] + good)) is None, bad
     assert mag_csv._read_fast("#h\n" + "\n".join(["16,-1,2,3"] + good)) is not None
+
+
+def test_a_dataset_without_images_does_not_import_the_camera_stack(dance, tmp_path):
+    """`rigcal calibrate` on imu/ + mag/ alone (a fresh interpreter, as a user runs it) imports
+    none of the camera pipeline's, video's, bags' or plots' libraries, nor scipy.stats /
+    scipy.signal / scipy.optimize: their imports cost seconds the 10-minute log's budget lacks."""
+    import subprocess
+    import sys
+
+    d, _ = dance
+    heavy = ["cv2", "plotly", "rosbags", "av", "scipy.stats", "scipy.signal", "scipy.optimize",
+             "rigcal.camcal.pipeline", "rigcal.imucal.step", "rigcal.detect"]
+    code = ("import sys\nfrom rigcal.cli import main\nsys.argv = ['rigcal', 'calibrate', sys.argv[1], '--out', sys.argv[2]]\n"
+            "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+            f"print('imported:', [m for m in {heavy!r} if m in sys.modules])")
+    r = subprocess.run([sys.executable, "-c", code, str(d), str(tmp_path / "cal.yaml")], capture_output=True, text=True,
+                       env={**__import__("os").environ, "PYTHONPATH": str(Path(__file__).parents[2] / "app")})
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "cal.yaml").exists()
+    assert r.stdout.splitlines()[-1] == "imported: []"

@@ -53,12 +53,12 @@ def run_mag_only(dataset: Path, out_path: Path, rig_path: Path | None, report_pa
     if not rig.magnetometers:
         raise DatasetError(f"{Path(dataset) / 'mag'}: the rig declares no magnetometer (add `magnetometers:`)")
     motion = check_motion_dataset(dataset, rig, DatasetImages(Path(dataset), (), MappingProxyType({})))
-    check_mag_dataset(dataset, rig, motion.imus)  # every bad input refused before anything is printed
+    samples = check_mag_dataset(dataset, rig, motion.imus)  # every bad input refused before anything is printed
     for n in motion.notes:
         console.print(f"note: {n}")
     console.print(f"note: no images: {len(rig.cameras)} camera(s) carried through unchanged; the IMUs keep their "
                   f"declared poses; magnetometers calibrated against them")
-    step = calibrate_magnetometers(rig, dataset, motion.imus, refuse=True)
+    step = calibrate_magnetometers(rig, dataset, motion.imus, refuse=True, samples=samples)
     for n in step.notes:
         console.print(n if n.startswith("warning: ") else f"note: {n}")
     files = [(out_path, dump_rig(step.rig))]

@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from rigcal.core import geometry as geo
 
@@ -91,9 +90,9 @@ def rate_alignment(t: np.ndarray, c: np.ndarray, omega_imu: np.ndarray, smooth_s
     signals are smoothed (Savitzky-Golay, smooth_s) before c is differentiated."""
     dt = float(np.median(np.diff(t)))
     n = max(int(round(smooth_s / dt)) | 1, 5)
-    cs = savgol_filter(c, n, 3, axis=0)
-    dc = savgol_filter(c, n, 3, deriv=1, delta=dt, axis=0)
-    ws = savgol_filter(omega_imu, n, 3, axis=0)
+    cs = savgol(c, n, 3)
+    dc = savgol(c, n, 3, deriv=1, delta=dt)
+    ws = savgol(omega_imu, n, 3)
     # c x (X w) = -skew(X w) c = skew(c) X w ... written as rows acting on X's 9 entries (row-major)
     K = geo.skew(cs)  # (N, 3, 3)
     # (X w)_i = sum_j X_ij w_j: d(Xw)/dX_ij = e_i w_j
@@ -101,3 +100,25 @@ def rate_alignment(t: np.ndarray, c: np.ndarray, omega_imu: np.ndarray, smooth_s
     Xv = np.linalg.lstsq(A.reshape(-1, 9), dc.reshape(-1), rcond=None)[0]
     # dc = c x (X w) = skew(c) X w -> X = R_imu_mag.T
     return geo.nearest_rotation(Xv.reshape(3, 3)).T
+
+
+def savgol(x: np.ndarray, n: int, order: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    """Savitzky-Golay smoothing (or its deriv-th derivative) of x (N, D) along axis 0 over odd
+    windows of n samples, the first and last n // 2 samples from the polynomial fitted to the
+    first and last n: scipy.signal.savgol_filter's default (mode "interp"), in numpy alone
+    (importing scipy.signal costs more than a 10-minute recording's whole fit)."""
+    x = np.asarray(x, float)
+    half = n // 2
+    z = np.arange(n, dtype=float) - half
+    fit = np.linalg.pinv(z[:, None] ** np.arange(order + 1))  # (order + 1, n): polynomial coefficients
+    # the deriv-th derivative at z of the fitted polynomial, as weights on the n samples
+    powers = np.arange(deriv, order + 1)
+    scale = np.array([np.prod(np.arange(k - deriv + 1, k + 1)) for k in powers], float) / delta ** deriv
+    at = (z[:, None] ** (powers - deriv)) * scale  # (n, order + 1 - deriv)
+    weights = at @ fit[deriv:]  # (n, n): row i gives the value at sample i of the window
+    out = np.empty_like(x)
+    windows = np.lib.stride_tricks.sliding_window_view(x, n, axis=0)  # (N - n + 1, D, n)
+    out[half:len(x) - half] = windows @ weights[half]
+    out[:half] = weights[:half] @ x[:n]
+    out[len(x) - half:] = weights[n - half:] @ x[len(x) - n:]
+    return out

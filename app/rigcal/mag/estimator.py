@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
 from rigcal.core import geometry as geo
@@ -302,6 +301,8 @@ def _bias_jacobian(w: Windows, bg: np.ndarray) -> np.ndarray:
 def least_squares_solve(p: _Problem, x: np.ndarray, tol: float) -> np.ndarray:
     """scipy's least_squares (trf, lsmr) on the same residuals and Jacobian: the reference the
     tests hold _gauss_newton to (5-10x slower on long recordings)."""
+    from scipy.optimize import least_squares  # the tests' reference only: its import is not the CLI's to pay
+
     # one BLAS thread: lsmr's many vector products slow down several-fold when BLAS threads
     # compete for 2 cores (measured: 14 s -> 7 s for a 60 s recording under load)
     with threadpool_limits(1, user_api="blas"):

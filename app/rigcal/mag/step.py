@@ -16,6 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 from rich.table import Table
+from threadpoolctl import threadpool_limits
 
 from rigcal.core import geometry as geo
 from rigcal.core.rig import Magnetometer, Rig
@@ -133,13 +134,14 @@ def calibration_block(r: MagResult, mag: Magnetometer) -> dict[str, Any]:
     }
 
 
-def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, ImuSamples], refuse: bool = True
-                            ) -> MagStep:
+def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, ImuSamples], refuse: bool = True,
+                            samples: Mapping[str, MagSamples] | None = None) -> MagStep:
     """Every magnetometer of `rig` calibrated against its IMU (whose T_body_imu, declared or
-    calibrated, `rig` holds) from DATASET/mag/; the rig unchanged when there is no mag/.
+    calibrated, `rig` holds) from DATASET/mag/ (or `samples`, check_mag_dataset's answer when
+    the caller has it already); the rig unchanged when there is no mag/.
     A recording refused (poor coverage, a disturbance) raises CalibrationError, or with
     refuse=False leaves that magnetometer's block unchanged with a warning note."""
-    samples = check_mag_dataset(dataset, rig, imus)
+    samples = check_mag_dataset(dataset, rig, imus) if samples is None else samples
     if not samples:
         note = (f"the rig declares magnetometer(s) {', '.join(m.name for m in rig.magnetometers)} but the dataset "
                 f"has no mag/ folder: their blocks are carried through unchanged",) if rig.magnetometers else ()
@@ -149,9 +151,10 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
         imu = rig.mag_imu(mag)
         inp = mag_input(rig, mag, samples[mag.name], imus[imu.name], imu.T_body_imu[:3, :3])
         try:
-            check_recording(inp)
-            r = estimate(inp)
-            check_residuals(inp, r)
+            with threadpool_limits(1, user_api="blas"):  # small products: more BLAS threads only spin (estimator.estimate)
+                check_recording(inp)
+                r = estimate(inp)
+                check_residuals(inp, r)
         except CalibrationError as e:
             if refuse:
                 raise
