@@ -213,10 +213,15 @@ def test_a_declared_clock_offset_is_estimated(tmp_path):
                              "residual_rms_uT"]
 
 
-def test_the_fast_reader_and_the_row_reader_agree(dance):
+def test_the_fast_reader_and_the_row_reader_agree(dance, tmp_path):
     """read_mag_csv's numpy path gives what the row-by-row checker gives, and leaves every
     file it should refuse (or is unsure of) to the checker."""
     from rigcal.data import mag_csv
+
+    def fast_path(text: str):
+        p = tmp_path / "m.csv"
+        p.write_text(text)
+        return mag_csv._read_fast(p)
 
     d, _ = dance
     f = d / "mag" / "mag0.csv"
@@ -225,9 +230,10 @@ def test_the_fast_reader_and_the_row_reader_agree(dance):
     np.testing.assert_array_equal(fast.t_ns, slow.t_ns)
     np.testing.assert_array_equal(fast.m_uT, slow.m_uT)
     good = [f"{17 + i},1,2,3" for i in range(12)]
-    for bad in ("+16,1,2,3", "16,nan,2,3", "16,1,2", "16,1,2,3,4", "1.6e1,1,2,3", "99,1,2,3"):
-        assert mag_csv._read_fast("#h\n" + "\n".join([bad] + good)) is None, bad
-    assert mag_csv._read_fast("#h\n" + "\n".join(["16,-1,2,3"] + good)) is not None
+    for bad in ("+16,1,2,3", "16,nan,2,3", "16,1,2", "16,1,2,3,4", "1.6e1,1,2,3", "99,1,2,3", "16,1,2,3#x", " 16,1,2,3"):
+        assert fast_path("#h\n" + "\n".join([bad] + good)) is None, bad
+    assert fast_path("#h\n" + "\n".join(["16,-1,2,3"] + good)) is not None
+    assert fast_path("\ufeff#h\n" + "\n".join(good)) is not None  # a BOM before the header
 
 
 def test_a_dataset_without_images_does_not_import_the_camera_stack(dance, tmp_path):
