@@ -182,10 +182,12 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
         from rigcal.commands.calibrate_imu import calibrate_with_imu
 
         imu_res, out_rig = calibrate_with_imu(cal, out_rig, inp.motion, reference, inp.target, imu_options)
-    out_rig, mag_tables = calibrate_mag.with_magnetometers(out_rig, dataset, inp.motion.imus, console)
+    before_mag = out_rig
+    out_rig, mag_tables, mag_step = calibrate_mag.with_magnetometers(out_rig, dataset, inp.motion.imus, console)
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
     _write_outputs(out_path, o.report, out_rig, cal, found.det, pairs, timings,
-                   imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]))
+                   imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]),
+                   mag=None if mag_step is None or not mag_step.results else (mag_step, before_mag))
     imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
     for w in found.warnings + warnings_for(cal) + imu_warnings:
         console.print(f"warning: {w}")
@@ -309,9 +311,10 @@ def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_r
 
 
 def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, det, pairs: dict,
-                   timings: dict, imu: tuple | None = None) -> None:
+                   timings: dict, imu: tuple | None = None, mag: tuple | None = None) -> None:
     """The calibrated rig YAML and the HTML report (when asked for), written together or not
-    at all. `imu`: (camera-IMU result, its IMU's samples) for the report's IMU part."""
+    at all. `imu`: (camera-IMU result, its IMU's samples) for the report's IMU part; `mag`:
+    (the magnetometer step, the rig it was given) for its magnetometer part."""
     text = dump_rig(out_rig)
     report_html = None
     if report_path is not None:
@@ -322,6 +325,12 @@ def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, 
             from rigcal.results.report_imu import with_imu_section
 
             report_html = with_imu_section(report_html, out_rig, *imu)
+        if mag is not None:
+            from rigcal.results.report_mag import with_mag_section
+
+            step, declared = mag
+            report_html = with_mag_section(report_html, out_rig, declared, dict(step.results),
+                                           {k: v.m for k, v in step.inputs.items()})
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
 
 
