@@ -4,6 +4,7 @@ bad mag/ files (one line naming file and row, exit 2, nothing written)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +79,9 @@ def test_poor_coverage_is_refused_naming_the_missing_directions(tmp_path):
     assert r.exit_code == 1, (r.stdout, r.stderr)
     line = r.stderr.strip().splitlines()[-1]
     assert "mag0.csv" in line and "axis" in line and ("+z" in line or "-z" in line)
+    # the IMU's own figures: turns about the vertical with 10 deg of roll and pitch, up near one axis
+    tilt = float(re.search(r"tilted at most ([0-9.]+) deg", line).group(1))
+    assert 10 <= tilt <= 20 and "of its +z axis (1 of 6 directions)" in line, line
     assert not out.exists() and not page.exists()
 
 

@@ -23,7 +23,7 @@ from rigcal.core.rig import Magnetometer, Rig
 from rigcal.data.imu_csv import ImuSamples
 from rigcal.data.mag_csv import MagSamples, check_mag_dataset
 from rigcal.errors import CalibrationError
-from rigcal.mag.ellipsoid import check_coverage, fit_ellipsoid
+from rigcal.mag.ellipsoid import AXIS_NAMES, COVERAGE_DEG, check_coverage, fit_ellipsoid, missing_directions
 from rigcal.mag.estimator import MagInput, MagResult, estimate
 
 DISTURBANCE_SHARE = 0.03  # a 1 s mean field magnitude this far (plus 5 sigma of noise) from the median is refused
@@ -58,10 +58,14 @@ def mag_input(rig: Rig, mag: Magnetometer, samples: MagSamples, imu: ImuSamples,
 
 
 def check_recording(inp: MagInput) -> None:
-    """CalibrationError naming the directions a recording lacks (ellipsoid.check_coverage),
-    else naming when the field magnitude leaves what noise explains."""
-    fit = fit_ellipsoid(inp.m, inp.earth_field_uT, inp.label)
-    check_coverage(inp.m, fit, inp.label)
+    """CalibrationError naming the directions a recording lacks (ellipsoid.check_coverage,
+    with how far the IMU turned: motion_summary), else naming when the field magnitude leaves
+    what noise explains."""
+    try:
+        fit = fit_ellipsoid(inp.m, inp.earth_field_uT, inp.label)
+        check_coverage(inp.m, fit, inp.label)
+    except CalibrationError as e:
+        raise CalibrationError(f"{e}; {motion_summary(inp)}") from None
     mag = np.linalg.norm((inp.m - fit.hard_iron) @ fit.soft_iron.T, axis=1)
     gain = np.linalg.det(fit.soft_iron) ** (1.0 / 3.0)
     b = np.floor((inp.t_mag - inp.t_mag[0]) / BIN_S).astype(int)
@@ -76,6 +80,22 @@ def check_recording(inp: MagInput) -> None:
         raise CalibrationError(f"{inp.label}: magnetic disturbance at {_spans(np.flatnonzero(ok)[bad])} of the "
                                f"recording: the field magnitude reads up to {worst:.1f} uT there against {ref:.1f} uT "
                                f"elsewhere (beyond noise and {DISTURBANCE_SHARE:.0%}); " + ADVICE)
+
+
+def motion_summary(inp: MagInput) -> str:
+    """How much the recording turned, from the IMU alone (no magnetometer calibration needed):
+    the gyroscope's total rotation, the largest tilt of the specific force from its median
+    direction, and the IMU axes the vertical came within COVERAGE_DEG of (all six for a compass
+    dance; one for a level flight)."""
+    f = inp.accel / np.linalg.norm(inp.accel, axis=1, keepdims=True)
+    med = np.median(f, axis=0)
+    tilt = np.degrees(np.arccos(np.clip(f @ (med / np.linalg.norm(med)), -1.0, 1.0))).max()
+    turned = np.degrees(np.sum(np.linalg.norm(inp.gyro[1:], axis=1) * np.diff(inp.t_imu)))
+    missing = missing_directions(inp.accel, np.zeros(3), np.eye(3))
+    seen = [a for a in AXIS_NAMES if a not in missing]
+    return (f"the IMU turned {turned:.0f} deg in all and tilted at most {tilt:.0f} deg from its median attitude; "
+            f"up (the accelerometer's specific force) came within {COVERAGE_DEG:g} deg of its {', '.join(seen) or 'no'} axis "
+            f"({len(seen)} of 6 directions)")
 
 
 def check_residuals(inp: MagInput, r: MagResult) -> None:
