@@ -36,7 +36,7 @@ from threadpoolctl import threadpool_limits
 
 from rigcal.core import geometry as geo
 from rigcal.mag import model
-from rigcal.mag.attitude import Windows, corrected, integrate_windows, rate_alignment
+from rigcal.mag.attitude import Windows, corrected, integrate_windows_at, rate_alignment
 from rigcal.mag.ellipsoid import EllipsoidFit, check_coverage, fit_ellipsoid
 
 GRAVITY = 9.80665
@@ -385,8 +385,7 @@ def _estimate(inp: MagInput, window_s: float, solve) -> MagResult:
     inp = MagInput(**{**inp.__dict__, "t_mag": inp.t_mag[keep], "m": inp.m[keep]})
     c = c[keep]
     bias = np.zeros(3)
-    wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, bias)
-    wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, bias)
+    wm, wa = integrate_windows_at(inp.t_imu, inp.gyro, (inp.t_mag, inp.t_imu[ia]), window_s, bias)
     K = wm.n
     u = _window_means(wm, c @ R_im.T, K)
     f = _window_means(wa, inp.accel[ia], K)
@@ -404,8 +403,7 @@ def _estimate(inp: MagInput, window_s: float, solve) -> MagResult:
     sigma_a = float(np.sqrt((ra ** 2).mean()) * np.sqrt(_autocorr_time(ra)))
     for tol in (1e-10, 0.0):  # then once more from the folded rotations: the Jacobian there is exact
         p, x = _fold(p, x)
-        wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, x[13:16])
-        wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, x[13:16])
+        wm, wa = integrate_windows_at(inp.t_imu, inp.gyro, (inp.t_mag, inp.t_imu[ia]), window_s, x[13:16])
         p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, p.R0, p.Rk0, sigma_a, omega_m)
         if tol:
             x = solve(p, x, tol)
