@@ -41,12 +41,12 @@ class IngestOptions:
     cameras: dict[str, str]
     imus: dict[str, str]
     offsets: dict[str, float]
-    mags: dict[str, str] = field(default_factory=dict)  # --mag NAME=TOPIC (bags)
     rate_hz: float | None = None
     start_s: float | None = None
     end_s: float | None = None
     body_axes: tuple[str, str, str] = euroc.EUROC_BODY_AXES
     link: bool = True
+    mags: dict[str, str] = field(default_factory=dict)  # --mag NAME=TOPIC (bags)
 
 
 @dataclass(frozen=True)
