@@ -426,6 +426,8 @@ def ingest(
     camera: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag), NAME=FILE (video) or NAME=camN "
                                                           "(EuRoC); repeat per camera"),
     imu: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag) or NAME=imuN (EuRoC)"),
+    mag: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC: a bag's sensor_msgs/MagneticField topic, written "
+                                                       "as mag/NAME.csv (microtesla); repeat per magnetometer"),
     rate: Optional[float] = typer.Option(None, help="keep one instant per 1/HZ s, the sharpest (variance of the "
                                                     "Laplacian); default: every frame"),
     start: Optional[float] = typer.Option(None, help="seconds after the first image stamp to start at"),
@@ -448,7 +450,7 @@ def ingest(
     from rigcal.data import ingest as ing
 
     out(ing.run(source, out_dir, rig_path=rig, target_path=target, cameras=camera, imus=imu, rate=rate, start=start,
-                end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force))
+                end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force, mags=mag))
 
 
 class NoiseFormat(str, Enum):
