@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import allantools
 import numpy as np
+from scipy.signal import fftconvolve
 
 MAX_TAU_FRACTION = 0.1  # the longest tau: a tenth of the recording
 
@@ -57,3 +58,50 @@ def edf(alpha: int, m: np.ndarray, n: int) -> np.ndarray:
     # allantools counts n as phase points; frequency data of n samples gives n + 1
     return np.array([float(allantools.edf_greenhall(alpha=alpha, d=2, m=int(k), N=int(n) + 1, overlapping=True))
                      for k in np.atleast_1d(m)])
+
+
+# the cluster size the shortest tau of a range is scaled down to in `correlation` (the
+# white-noise and random-walk covariances are then within ~1/SCALED_M of their continuum form)
+SCALED_M = 32
+
+
+def _second_difference_filters(m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(g, h): the overlapping Allan estimator's second difference of phase at cluster size m,
+    D_m(j) = sum_i g(i) y(j+i) over frequency samples y (g = m times -1 then m times +1), and
+    the same difference over the increments e of a random-walk y: D_m(j) = sum_u h(u) e(j+u),
+    h the triangle 1, 2, ..., m, ..., 1 (h(u) = sum of g(i) for i >= u)."""
+    g = np.concatenate([-np.ones(m), np.ones(m)])
+    h = np.concatenate([np.arange(1, m + 1), np.arange(m - 1, 0, -1)]).astype(float)
+    return g, h
+
+
+def correlation(m: np.ndarray, white_var: float, walk_var: float) -> np.ndarray:
+    """(K, K) correlation of the overlapping Allan variance estimates at cluster sizes m (K,)
+    of one recording, for white frequency noise of variance white_var per sample plus a
+    random walk of variance walk_var per step.
+
+    Derivation: the estimate at m is the mean over j of D_m(j)^2 / (2 m^2), D_m a linear
+    filter of Gaussian noise (`_second_difference_filters`). For Gaussian D,
+    cov(D1(j)^2, D2(k)^2) = 2 R12(k - j)^2, R12 the filters' cross-covariance, so over M >> m
+    shifts cov(est1, est2) ~ 2 / (4 m1^2 m2^2 M) sum_h R12(h)^2 and
+    corr = sum R12^2 / sqrt(sum R11^2 sum R22^2); white and random-walk parts add in R
+    (independent). Their variances come from Greenhall's edf (rigcal.imunoise.allan.edf),
+    exact for few clusters; only the correlation is taken from this many-cluster form.
+    Long filters are scaled down by c = m_min / SCALED_M (octave sizes: exact): in the
+    continuum limit R_white scales as c and R_walk as c^3 at lags scaled by c."""
+    m = np.asarray(m, np.int64)
+    c = max(1, int(m.min()) // SCALED_M)
+    filt = [_second_difference_filters(int(k) // c) for k in m]
+    K = len(m)
+    S = np.empty((K, K))
+    for i in range(K):
+        for j in range(i, K):
+            rw = fftconvolve(filt[i][0], filt[j][0][::-1])
+            rr = fftconvolve(filt[i][1], filt[j][1][::-1])
+            n = max(len(rw), len(rr))
+            r = np.zeros(n)
+            r[(n - len(rw)) // 2:(n - len(rw)) // 2 + len(rw)] += white_var * c * rw
+            r[(n - len(rr)) // 2:(n - len(rr)) // 2 + len(rr)] += walk_var * c ** 3 * rr
+            S[i, j] = S[j, i] = float(np.sum(r * r))
+    d = np.sqrt(np.diag(S))
+    return np.clip(S / np.outer(d, d), 0.0, 1.0)
