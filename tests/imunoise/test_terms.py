@@ -115,3 +115,23 @@ def test_interval_widths_match_the_errors_over_seeds():
         z_k.append((a.random_walk.value - k_walk) / ((a.random_walk.hi - a.random_walk.lo) / 3.92))
     assert 0.6 < np.std(z_n) < 1.4
     assert 0.6 < np.std(z_k) < 1.4
+
+
+def test_pooled_stretches_give_the_whole_recordings_curve_and_add_their_edf():
+    """A series cut into two stretches: every second difference of either is one of the whole
+    series', so the pooled Allan variance matches the whole's within its precision, and the
+    stretches' edf add to about the whole's."""
+    from rigcal.imunoise.allan import curve_edf, pooled_allan_deviation
+
+    x = series(3600, N, K, seed=13)
+    whole = allan_deviation(x, RATE)
+    pooled = pooled_allan_deviation([x[:300_000], x[300_500:]], RATE)
+    assert pooled.segments == (300_000, len(x) - 300_500) and pooled.n == len(x) - 500
+    k = len(pooled.m)
+    assert np.array_equal(pooled.m, whole.m[:k])
+    nu = curve_edf(0, pooled, pooled.m)
+    assert np.all(np.abs(pooled.adev / whole.adev[:k] - 1) < 3 / np.sqrt(2 * nu))
+    nu_whole = curve_edf(0, whole, pooled.m)
+    assert np.all(nu < nu_whole) and nu[0] == pytest.approx(nu_whole[0], rel=0.01)
+    a = fit_axis(pooled, "x")
+    assert a.white.lo < N < a.white.hi

@@ -17,6 +17,7 @@ import numpy as np
 from scipy.signal import fftconvolve
 
 MAX_TAU_FRACTION = 0.1  # the longest tau: a tenth of the recording
+MIN_SPAN_CLUSTERS = 4  # a stretch between gaps counts at cluster size m when it holds this many clusters
 
 # Power-law exponent alpha of each noise term seen as frequency data (Greenhall's edf):
 # quantisation = white phase (+2), white noise = white frequency (0), bias instability =
@@ -27,13 +28,17 @@ ALPHA = {"quantisation": 2, "white": 0, "flicker": -1, "random_walk": -2}
 @dataclass(frozen=True)
 class AllanCurve:
     """One axis' overlapping Allan deviation: tau (K,) s, adev (K,), m (K,) cluster sizes in
-    samples, over n samples at rate_hz."""
+    samples, over n samples at rate_hz (in one stretch, or in `segments` pooled)."""
 
     tau: np.ndarray
     adev: np.ndarray
     m: np.ndarray
     n: int
     rate_hz: float
+    segments: tuple[int, ...] = ()  # the samples of each stretch pooled (pooled_allan_deviation); () = one of n
+
+    def lengths(self) -> tuple[int, ...]:
+        return self.segments or (self.n,)
 
 
 def octave_clusters(n: int, fraction: float = MAX_TAU_FRACTION) -> np.ndarray:
@@ -58,6 +63,46 @@ def edf(alpha: int, m: np.ndarray, n: int) -> np.ndarray:
     # allantools counts n as phase points; frequency data of n samples gives n + 1
     return np.array([float(allantools.edf_greenhall(alpha=alpha, d=2, m=int(k), N=int(n) + 1, overlapping=True))
                      for k in np.atleast_1d(m)])
+
+
+def pooled_allan_deviation(parts: list[np.ndarray], rate_hz: float) -> AllanCurve:
+    """The overlapping Allan deviation of one axis recorded in stretches between gaps: per
+    octave m the mean of every stretch's squared second differences (no cluster spans a gap),
+    i.e. each stretch's Allan variance weighted by its number of them; a stretch counts at m
+    from MIN_SPAN_CLUSTERS clusters of m. Taus up to a tenth of the longest stretch."""
+    parts = [np.asarray(x, np.float64) for x in parts]
+    if len(parts) == 1:
+        return allan_deviation(parts[0], rate_hz)
+    lengths = tuple(len(x) for x in parts)
+    m = octave_clusters(max(lengths))
+    num, den = np.zeros(len(m)), np.zeros(len(m))
+    for x in parts:
+        ok = m[MIN_SPAN_CLUSTERS * m <= len(x)]
+        if not len(ok):
+            continue
+        tau, adev, _, _ = allantools.oadev(x - x.mean(), rate=rate_hz, data_type="freq", taus=ok / rate_hz)
+        mu = np.rint(np.asarray(tau) * rate_hz).astype(np.int64)
+        idx = np.searchsorted(m, mu)
+        terms = len(x) + 1 - 2 * mu  # second differences of the n + 1 phase points
+        num[idx] += terms * np.asarray(adev, float) ** 2
+        den[idx] += terms
+    keep = den > 0
+    return AllanCurve(m[keep] / rate_hz, np.sqrt(num[keep] / den[keep]), m[keep], int(sum(lengths)), float(rate_hz),
+                      lengths)
+
+
+def curve_edf(alpha: int, curve: AllanCurve, m: np.ndarray) -> np.ndarray:
+    """edf of the curve's Allan variance at cluster sizes m: a pooled curve's stretches are
+    independent, so their edf add (those with MIN_SPAN_CLUSTERS clusters of m)."""
+    m = np.atleast_1d(m)
+    if not curve.segments:
+        return edf(alpha, m, curve.n)
+    out = np.zeros(len(m))
+    for n_s in curve.segments:
+        ok = MIN_SPAN_CLUSTERS * m <= n_s
+        if ok.any():
+            out[ok] += edf(alpha, m[ok], n_s)
+    return out
 
 
 # the cluster size the shortest tau of a range is scaled down to in `correlation` (the

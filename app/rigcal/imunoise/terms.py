@@ -50,7 +50,7 @@ from scipy.optimize import nnls
 from scipy.stats import chi2
 
 from rigcal.errors import InputError
-from rigcal.imunoise.allan import ALPHA, MAX_TAU_FRACTION, AllanCurve, correlation, edf
+from rigcal.imunoise.allan import ALPHA, MAX_TAU_FRACTION, AllanCurve, correlation, curve_edf
 
 TERMS = ("quantisation", "white", "flicker", "random_walk")
 FLAT = 2.0 * math.log(2.0) / math.pi  # bias instability's variance factor: sigma = sqrt(FLAT) B = 0.664 B
@@ -111,7 +111,7 @@ def _edf_by_term(curve: AllanCurve, alpha: np.ndarray) -> np.ndarray:
     out = np.empty(len(curve.m))
     for a in np.unique(alpha):
         sel = alpha == a
-        out[sel] = edf(int(a), curve.m[sel], curve.n)
+        out[sel] = curve_edf(int(a), curve, curve.m[sel])
     return out
 
 
@@ -191,7 +191,7 @@ def fit_bias_instability(curve: AllanCurve, p: np.ndarray) -> TermFit:
     """The flat minimum of the measured deviation / 0.664, chi-square interval with the
     flicker edf at that tau; `dominant` False when the flat term dominates no tau."""
     i = int(np.argmin(curve.adev))
-    nu = float(edf(ALPHA["flicker"], curve.m[i:i + 1], curve.n)[0])
+    nu = float(curve_edf(ALPHA["flicker"], curve, curve.m[i:i + 1])[0])
     scale = 1.0 / math.sqrt(FLAT)
     lo, hi = _interval(curve.adev[i] ** 2, nu)
     parts = design(curve.tau) * p
