@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from rigcal.check import decide
 from rigcal.cli import app
 from rigcal.core.rig import load_rig
+from tests.support.check_cases import documented_keys, json_keys
 from tests.support import imu_check_cases as cases
 
 runner = CliRunner()
@@ -58,6 +59,7 @@ def test_unchanged_rig_passes_against_the_imu(work):
             assert det == pytest.approx(lam6 * sig, rel=2e-3)
         assert imu["clock"]["detectable_ms"] == pytest.approx(lam1 * imu["clock"]["sigma_ms"], rel=2e-3)
     assert any("against imu0" in n for n in d["notes"])
+    assert {k for k in documented_keys() if k.startswith("imu")} <= json_keys(d)
 
 
 def test_camera_turned_relative_to_the_imu_is_moved_with_its_size(work, tmp_path):
@@ -77,13 +79,16 @@ def test_camera_turned_relative_to_the_imu_is_moved_with_its_size(work, tmp_path
     assert code == 0, d  # the updated rig fits the recording it was updated from
 
 
-def test_changed_clock_offset_is_flagged_with_its_size(work):
-    code, d = check_json(work["rig"], work["clock"])
+def test_changed_clock_offset_is_flagged_with_its_size(work, tmp_path):
+    report = tmp_path / "clock.html"
+    code, d = check_json(work["rig"], work["clock"], "--report", report)
     assert code == 1 and d["changed"] == [CHANGED], d
     cam = d["cameras"][CHANGED]
     clock = cam["imu"]["clock"]
     assert cam["status"] == "clock changed" and clock["changed"] and not cam["imu"]["changed"]
     assert abs(clock["offset_change_ms"] - 2.0) <= 2 * clock["sigma_ms"]
+    page = report.read_text()
+    assert "Cameras against the IMU" in page and f"{clock['offset_change_ms']:+.3f}" in page
 
 
 def test_rig_without_camera_imu_calibration_is_checked_camera_to_camera(work, tmp_path):

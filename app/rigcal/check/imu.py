@@ -27,7 +27,6 @@ import numpy as np
 from rigcal.check import decide
 from rigcal.check.estimate import with_subset
 from rigcal.check.verdict import ChiSquare, decide_test
-from rigcal.core import geometry as geo
 from rigcal.core.rig import Rig
 from rigcal.errors import CalibrationError, DatasetError
 

@@ -12,7 +12,7 @@ from rich.table import Table
 from rigcal import __version__
 from rigcal.check import decide
 from rigcal.check.estimate import NewEstimate
-from rigcal.check.verdict import CHANGED, CLOCK, INTRINSICS, MOVED, OK, CameraVerdict, IntrinsicsCheck, PoseCheck, \
+from rigcal.check.verdict import CHANGED, INTRINSICS, OK, CameraVerdict, IntrinsicsCheck, PoseCheck, \
     ChiSquare, pose_variances
 from rigcal.core import geometry as geo
 from rigcal.core.rig import Rig
