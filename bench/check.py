@@ -221,6 +221,31 @@ def sigma_seed(seed: int, frames: int, work: Path, truth) -> dict:
                 out["z_rig"].append(float(([m.fx, m.fy, m.cx, m.cy][j] - t[j]) / float(s_rig[k])))
             if s_new[j] > 0:
                 out["z_new"].append(float((new[j] - t[j]) / s_new[j]))
+    # the pose tests, leave one out: the rig's error alone (rig vs truth, the rig's variances
+    # only), the new estimate's alone (new vs truth, its covariance only) and the check's
+    # (new vs rig, both), each with the rig's variances as reported (independent) and with
+    # the independent errors behind them (decide.gauge_free_variances): chi-square(6) each
+    from rigcal.check import decide
+    from rigcal.check.verdict import pose_variances, relative_pose_variances
+
+    T_rig = np.array([rig.camera(n).T_body_cam for n in est.names])
+    T_true = np.array([truth.camera(n).T_body_cam for n in est.names])
+    variances = {"reported": pose_variances(rig, list(est.names)),
+                 "gauge_free": relative_pose_variances(rig, list(est.names))}
+    zero_new = np.zeros_like(est.cov_poses)
+    C = len(est.names)
+    for i in range(C):
+        others = [j for j in range(C) if j != i]
+        d_new = decide.aligned_delta(est.T_body_cam, T_true, i, others)
+        cov_new = decide.delta_covariance(est.state.T_cam_body, est.cov_poses, T_true, np.zeros((C, 6)), i, others)
+        out.setdefault("stat_new_alone", []).append(decide.chi2_test(d_new, cov_new)[0])
+        for key, var in variances.items():
+            d_rig = decide.aligned_delta(T_rig, T_true, i, others)
+            cov_rig = decide.delta_covariance(est.state.T_cam_body, zero_new, T_true, var, i, others)
+            out.setdefault(f"stat_rig_alone_{key}", []).append(decide.chi2_test(d_rig, cov_rig)[0])
+            d = decide.aligned_delta(est.T_body_cam, T_rig, i, others)
+            cov = decide.delta_covariance(est.state.T_cam_body, est.cov_poses, T_rig, var, i, others)
+            out.setdefault(f"stat_check_{key}", []).append(decide.chi2_test(d, cov)[0])
     return out
 
 
@@ -236,6 +261,13 @@ def run_sigmas(seeds: int, frames: int, first: int = 0) -> dict:
         z = np.concatenate([r[key] for r in rows])
         summary[key] = {"n": int(len(z)), "rms": float(np.sqrt(np.mean(z ** 2))),
                         "beyond_2": float(np.mean(np.abs(z) > 2)), "beyond_3": float(np.mean(np.abs(z) > 3))}
+    from scipy import stats
+
+    for key in [k for k in rows[0] if k.startswith("stat_")]:
+        x = np.concatenate([r[key] for r in rows])
+        p = stats.chi2.sf(x, 6)
+        summary[key] = {"n": int(len(x)), "mean_over_dof": float(np.mean(x) / 6),
+                        **{f"p_below_{a}": float(np.mean(p < a)) for a in (0.01, 0.05, 0.2, 0.5)}}
     return {"seeds": seeds, "first_seed": first, "frames": frames, "summary": summary, "per_seed": rows}
 
 

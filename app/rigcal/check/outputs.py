@@ -13,7 +13,7 @@ from rigcal import __version__
 from rigcal.check import decide
 from rigcal.check.estimate import NewEstimate
 from rigcal.check.verdict import CHANGED, INTRINSICS, OK, CameraVerdict, IntrinsicsCheck, PoseCheck, \
-    ChiSquare, pose_variances
+    ChiSquare, relative_pose_variances
 from rigcal.core import geometry as geo
 from rigcal.core.rig import Rig
 
@@ -184,7 +184,7 @@ def updated_rig(rig: Rig, est: NewEstimate, res: CheckResult, dataset: str, imu_
     T_new = est.T_body_cam
     T_old = np.array([rig.camera(n).T_body_cam for n in names])
     keep = [names.index(n) for n in res.aligned_by]
-    var_old = pose_variances(rig, names)
+    var_old = relative_pose_variances(rig, names)
     cams, actions = [], {}
     for cam in rig.cameras:
         v = next(x for x in res.verdicts if x.name == cam.name)

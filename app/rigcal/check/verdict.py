@@ -98,6 +98,19 @@ def pose_variances(rig: Rig, names: list[str]) -> np.ndarray:
     return np.array(out, float)
 
 
+def relative_pose_variances(rig: Rig, names: list[str]) -> np.ndarray:
+    """(C, 6) the variances of the cameras `names` to propagate into their relative poses:
+    the rig's own (pose_variances) when its body frame is one camera's, and when it is fitted
+    to every camera (`aligned-to-declared`, rigcal calibrate's default) the independent
+    errors behind them (decide.gauge_free_variances over all the rig's cameras)."""
+    var = pose_variances(rig, names)
+    if not str((rig.calibration or {}).get("reference", "")).startswith("aligned"):
+        return var
+    T = np.array([c.T_body_cam for c in rig.cameras])
+    free = decide.gauge_free_variances(T, pose_variances(rig, list(rig.names)))
+    return free[[list(rig.names).index(n) for n in names]]
+
+
 def intrinsics_to_test(tie_focal: bool, hold_centre: bool, held: bool) -> list[int]:
     """Indices into [fx, fy, cx, cy] of the parameters both calibrations estimate."""
     if held:
@@ -203,7 +216,7 @@ def verdicts(rig: Rig, est: NewEstimate | None, structures: dict[str, tuple], mi
     poses, keep = {}, []
     if est is not None and imu_est is None:
         T_old = np.array([rig.camera(n).T_body_cam for n in names])
-        poses, keep = check_poses(est, T_old, pose_variances(rig, names), level_each)
+        poses, keep = check_poses(est, T_old, relative_pose_variances(rig, names), level_each)
     out = []
     for n in rig.names:
         why = f"{n}: {missing.get(n, 'not estimated')}"
