@@ -146,10 +146,11 @@ def check_camera(rig: Rig, est: ImuEstimate, name: str, level_each: float) -> Im
     o_stat, o_p = decide.chi2_test(np.array([d_off]), np.array([[var_off]]))
     o_det = decide.detectable(np.array([[var_off]]), level_each)[0]
     return ImuCheck(imu=est.imu, rotation_deg=np.degrees(delta[:3]), rotation_sigma_deg=np.degrees(sd[:3]),
-                    translation_mm=1000 * delta[3:], translation_sigma_mm=1000 * sd[3:], pose_test=decide_test(stat, 6, p, level_each),
+                    translation_mm=1000 * delta[3:], translation_sigma_mm=1000 * sd[3:],
+                    pose_test=decide_test(stat, 6, p, level_each),
                     detectable_rotation_deg=np.degrees(det[:3]), detectable_translation_mm=1000 * det[3:],
-                    offset_ms=1000 * d_off, offset_sigma_ms=1000 * np.sqrt(var_off), offset_test=decide_test(o_stat, 1, o_p, level_each),
-                    detectable_offset_ms=1000 * float(o_det))
+                    offset_ms=1000 * d_off, offset_sigma_ms=1000 * np.sqrt(var_off),
+                    offset_test=decide_test(o_stat, 1, o_p, level_each), detectable_offset_ms=1000 * float(o_det))
 
 
 def try_estimate(dataset: Path, rig: Rig, imu_name: str, views: list, names: list[str], corners: dict,

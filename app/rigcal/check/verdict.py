@@ -204,7 +204,8 @@ def verdicts(rig: Rig, est: NewEstimate | None, structures: dict[str, tuple], mi
     rest); solo: name -> the estimate of a camera from its own views alone (its views
     could not be connected to the others'): its intrinsics are tested, its pose not;
     imu_est: the camera-IMU estimate (rigcal.check.imu.ImuEstimate) whose cameras are
-    tested against the IMU instead of against each other (module text). Returns (verdicts, number of tests, per-test level, the aligning set's indices in est)."""
+    tested against the IMU instead of against each other (module text). Returns (verdicts,
+    number of tests, per-test level, the aligning set's indices in est)."""
     solo = solo or {}
     names = list(est.names) if est is not None else []
     # on a moving recording the camera-only estimate's intrinsics carry the clock offsets'
