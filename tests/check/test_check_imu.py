@@ -102,3 +102,18 @@ def test_rig_without_camera_imu_calibration_is_checked_camera_to_camera(work, tm
     d = json.loads(r.stdout)
     assert all("imu" not in c for c in d["cameras"].values())
     assert any("not a camera-IMU calibration" in n for n in d["notes"])
+
+
+def test_recording_without_the_rigs_imu_file_is_refused_with_one_line(work, tmp_path):
+    """imu/ without the csv of the IMU the rig was calibrated against: exit 2, one line on
+    stderr naming the folder, nothing written."""
+    import shutil
+
+    rec = tmp_path / "rec"
+    shutil.copytree(work["unchanged"], rec)
+    (rec / "imu" / "imu0.csv").rename(rec / "imu" / "other.csv")
+    out = tmp_path / "fixed.yaml"
+    r = runner.invoke(app, ["check", str(work["rig"]), str(rec), "--jobs", "1", "--update", str(out)])
+    assert r.exit_code == 2, r.output
+    assert len(r.stderr.strip().splitlines()) == 1 and "imu" in r.stderr
+    assert not out.exists()
