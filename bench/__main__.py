@@ -130,7 +130,8 @@ TABLE = (
     Section("aprilgrid", "aprilgrid_excess", lambda q, d: aprilgrid_excess.run(frames=1 if q else 3),
             _only(aprilgrid_excess)),
     Section("imu_noise", "imu_noise", lambda q, d: imu_noise.run(seeds=3 if q else 10, hours=1.0 if q else 3.0,
-                                                                 speed_hours=1.0 if q else 3.0), _only(imu_noise)),
+                                                                 speed_hours=1.0 if q else 3.0,
+                                                                 coverage_seeds=2 if q else 40), _only(imu_noise)),
 )
 SECTIONS = tuple(s.name for s in TABLE)
 

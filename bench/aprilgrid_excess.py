@@ -1,5 +1,5 @@
-"""Why AprilGrid corners through the fisheye in the room scene are worse than ChArUco's
-(issue 19), and what the long-arm pass (corner_refine._aprilgrid_mapped) does about it.
+"""Why AprilGrid corners through the fisheye in the room scene are worse than ChArUco's,
+and what the long-arm pass (corner_refine._aprilgrid_mapped) does about it.
 
     python -m bench.aprilgrid_excess [--frames 3] [--seed 1]
 

@@ -1,4 +1,4 @@
-"""Dome (issue 21): 60 cameras on a sphere around a capture volume, `rigcal calibrate` on
+"""Dome: 60 cameras on a sphere around a capture volume, `rigcal calibrate` on
 synthetic detections written as corners/<camera>.csv files, 100 / 300 / 1,000 frames.
 Targets at 300 frames: solve < 3 min, peak memory < 4 GB.
 

@@ -1,4 +1,4 @@
-"""Fault-injection benchmark (issue 7): a messy capture still calibrates, says what it
+"""Fault-injection benchmark: a messy capture still calibrates, says what it
 skipped, and loses little accuracy.
 
     python -m bench.faults [--frames 60] [--seeds 3] [--blur-px 9] [--jobs N] [--keep DIR]

@@ -3,6 +3,7 @@ beside the published procedures of allan_variance_ros and imu_utils applied to t
 deviation; and its speed and memory on a long 400 Hz recording, end to end from the csv.
 
     python -m bench.imu_noise [--seeds N] [--hours H] [--rate HZ] [--speed-hours H] [--speed-rate HZ]
+                              [--coverage-seeds N] [--reuse-curves]
 
 Accuracy: the IMU of rigs/drone-stereo-back-imu.yaml (gyroscope N 1.7e-4 rad/s/sqrt(Hz), K 1.9e-5
 rad/s^2/sqrt(Hz); accelerometer N 2e-3 m/s^2/sqrt(Hz), K 3e-3 m/s^3/sqrt(Hz)), flicker bias
@@ -18,9 +19,12 @@ Peers (their formulas, our overlapping Allan deviation at octave taus):
   unweighted in log10(sigma^2); `*_n` = sqrt(rate) * the fitted deviation at 1 s, `*_w` = the
   fitted curve's minimum (its bias instability, without 0.664); the axes averaged.
 
-Independent recordings: the same seeds through tests/support/imu_static.py (written apart from
-rigcal.sim: white noise and random walk only, no flicker, no quantisation), where the four-term
-model is exact and the intervals' coverage shows how conservative they are.
+Coverage (--coverage-seeds per simulator, each seed 6 independent axes, at --hours and
+--rate): how often each 95 % interval holds the truth, with its binomial standard error, on
+three simulators: rigcal's own (above), allantools' generators (`noise.white` +
+`noise.brown`, written apart from rigcal; white noise + random walk) and
+tests/support/imu_static.py (white noise + random walk). The Allan curves are kept in
+bench/out (--reuse-curves reads them back instead of simulating again).
 
 Speed: simulate --scene static's csv at --speed-rate for --speed-hours and half of it, then
 `python -m rigcal imu-noise` on each in a child process: wall time and peak memory (ru_maxrss).
@@ -30,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import pickle
 import subprocess
 import sys
 import tempfile
@@ -100,23 +105,118 @@ def one_seed(imu, duration_s: float, seed: int) -> dict:
     return out
 
 
-def one_indie_seed(imu, duration_s: float, seed: int) -> dict:
-    """The same figures from tests/support/imu_static.py's white noise + random walk."""
-    from tests.support.imu_static import static_imu
+# ----------------------------------------------------------------------------- coverage over many seeds
+SIMULATORS = ("rigcal", "allantools", "indie")
 
-    nd = [imu.gyroscope_noise_density] * 3 + [imu.accelerometer_noise_density] * 3
-    kw = [imu.gyroscope_random_walk] * 3 + [imu.accelerometer_random_walk] * 3
-    t_ns, gyro, accel = static_imu(duration_s, imu.update_rate, nd, kw, seed=1000 + seed)
-    noise = estimate(imu.name, check(ImuRecording(f"indie seed {seed}", t_ns, gyro, accel)))
-    out = {"seed": seed}
-    for s, n_true, k_true in zip(noise.sensors(), nd[::3], kw[::3]):
-        out[s.sensor] = {"axes": [{"axis": ax, "N": a.white.value / n_true, "K": a.random_walk.value / k_true,
-                                   "N_in": bool(a.white.lo <= n_true <= a.white.hi),
-                                   "K_in": bool(a.random_walk.lo <= k_true <= a.random_walk.hi),
-                                   "N_halfwidth": (a.white.hi - a.white.lo) / 2 / a.white.value,
-                                   "K_halfwidth": (a.random_walk.hi - a.random_walk.lo) / 2 / a.random_walk.value}
-                                  for ax, a in zip(AXES, s.axes)]}
+
+def simulate_axes(sim: str, imu, duration_s: float, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x (N, 6) gyroscope then accelerometer, true N (6,), true K (6,)) of one static recording.
+
+    rigcal: rigcal.sim.static_imu (white, random walk, flicker as Gauss-Markov sum, 16-bit
+    quantisation; N with the quantisation in it). allantools: its own generators, written
+    apart from rigcal: `noise.white(b0)` (one-sided PSD b0 = 2 N^2, Allan variance N^2 / tau) plus
+    `noise.brown(b_minus2)` (PSD b_minus2 / f^2 with b_minus2 = K^2 / (2 pi^2), Allan variance
+    K^2 tau / 3); seeded through numpy's legacy global generator, which allantools draws from.
+    indie: tests/support/imu_static.py (white + random walk, written apart from rigcal.sim)."""
+    nd = np.array([imu.gyroscope_noise_density] * 3 + [imu.accelerometer_noise_density] * 3)
+    kw = np.array([imu.gyroscope_random_walk] * 3 + [imu.accelerometer_random_walk] * 3)
+    rate, n = imu.update_rate, int(round(duration_s * imu.update_rate))
+    if sim == "rigcal":
+        truth = imu_truth(imu, duration_s)
+        _, g, a = simulate_imu(imu, duration_s, np.random.default_rng([seed, 5, 0]), truth)
+        nq = np.repeat([truth["gyroscope"].noise_density_with_quantisation,
+                        truth["accelerometer"].noise_density_with_quantisation], 3)
+        return np.hstack([g, a]), nq, kw
+    if sim == "allantools":
+        import allantools
+
+        np.random.seed(7_000 + seed)
+        x = np.empty((n, 6))
+        for k in range(6):
+            x[:, k] = (allantools.noise.white(n, b0=2.0 * nd[k] ** 2, fs=rate)
+                       + allantools.noise.brown(n, b_minus2=kw[k] ** 2 / (2.0 * np.pi ** 2), fs=rate))
+        x[:, 5] += 9.80665
+        return x, nd, kw
+    if sim == "indie":
+        from tests.support.imu_static import static_imu
+
+        _, g, a = static_imu(duration_s, rate, nd, kw, seed=1000 + seed)
+        return np.hstack([g, a]), nd, kw
+    raise KeyError(sim)
+
+
+def coverage_curves(sim: str, imu, duration_s: float, seeds: int) -> list[dict]:
+    """Per seed and axis the Allan curve (what estimate fits) with the truth beside it."""
+    from rigcal.imunoise.allan import allan_deviation
+
+    out = []
+    for seed in range(seeds):
+        x, nd, kw = simulate_axes(sim, imu, duration_s, seed)
+        for k in range(6):
+            c = allan_deviation(x[:, k], imu.update_rate)
+            out.append({"sim": sim, "seed": seed, "axis": k, "tau": c.tau, "adev": c.adev, "m": c.m, "n": c.n,
+                        "rate_hz": c.rate_hz, "N": float(nd[k]), "K": float(kw[k])})
+        del x
     return out
+
+
+def cached_curves(sim: str, imu, hours: float, seeds: int, reuse: bool) -> list[dict]:
+    """coverage_curves, kept in OUT (pickle) so that a change in how the terms are read from
+    the curves can be measured again without simulating again (--reuse-curves)."""
+    path = OUT / f"imu_noise_curves_{sim}_{seeds}x{hours:g}h_{imu.update_rate:g}hz.pkl"
+    if reuse and path.exists():
+        return pickle.loads(path.read_bytes())
+    curves = coverage_curves(sim, imu, hours * 3600, seeds)
+    OUT.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(pickle.dumps(curves))
+    return curves
+
+
+def coverage(curves: list[dict]) -> dict:
+    """Per sensor and term: how often the 95 % interval holds the truth (with its binomial
+    standard error), the figure / truth, and the errors in units of the interval's sigma."""
+    from rigcal.imunoise.allan import AllanCurve
+    from rigcal.imunoise.terms import TooShort, fit_axis
+
+    rows: dict[str, list] = {}
+    short = 0
+    for c in curves:
+        try:
+            a = fit_axis(AllanCurve(c["tau"], c["adev"], c["m"], c["n"], c["rate_hz"]))
+        except TooShort:
+            short += 1
+            continue
+        sensor = SENSORS[0] if c["axis"] < 3 else SENSORS[1]
+        for term, fit, truth in (("N", a.white, c["N"]), ("K", a.random_walk, c["K"])):
+            sigma = (fit.hi - fit.lo) / 2 / 1.96
+            rows.setdefault(f"{sensor} {term}", []).append(
+                (fit.value / truth, fit.lo <= truth <= fit.hi, (fit.hi - fit.lo) / 2 / fit.value, (fit.value - truth) / sigma))
+    out = {"too_short": short}
+    for key, v in rows.items():
+        v = np.asarray(v, float)
+        n, cov = len(v), float(v[:, 1].mean())
+        out[key] = {"n": n, "covered": int(v[:, 1].sum()), "coverage": cov, "coverage_se": float(np.sqrt(cov * (1 - cov) / n)),
+                    "ratio_median": float(np.median(v[:, 0])), "ratio_sd": float(np.std(v[:, 0])),
+                    "worst": float(np.max(np.abs(v[:, 0] - 1))), "halfwidth_median": float(np.median(v[:, 2])),
+                    "z_sd": float(np.std(v[:, 3]))}
+    return out
+
+
+def coverage_table(cov: dict, seeds: int, hours: float, rate_hz: float) -> str:
+    rows = []
+    for sim, res in cov.items():
+        for key in (f"{s} {t}" for s in SENSORS for t in ("N", "K")):
+            if key not in res:
+                continue
+            r = res[key]
+            rows.append([sim, key, f"{r['covered']}/{r['n']}",
+                         f"{100 * r['coverage']:.1f} +- {100 * r['coverage_se']:.1f} %",
+                         f"{100 * r['halfwidth_median']:.2g} %", f"{r['ratio_median']:.4f}", f"{100 * r['ratio_sd']:.2g} %",
+                         f"{100 * r['worst']:.2g} %", f"{r['z_sd']:.2f}"])
+    return md_table(["simulator", "figure", "truth inside", "coverage (binomial se)", "95 % half-width (median)",
+                     "figure / truth (median)", "sd of figure / truth", "worst error", "sd of error / sigma"], rows,
+                    title=f"95 % interval coverage: {seeds} seeds x 3 axes per sensor, {hours:g} h at {rate_hz:g} Hz "
+                          f"(target 90-98 %; a sd of error / sigma near 1 means the intervals are as wide as the errors)")
 
 
 def speed(imu, hours: float, rate_hz: float) -> list[dict]:
@@ -137,31 +237,35 @@ def speed(imu, hours: float, rate_hz: float) -> list[dict]:
             del t_ns, g, a
             script = ("import resource, sys, time; from rigcal.cli import main; sys.argv = ['rigcal'] + sys.argv[1:]\n"
                       "t = time.perf_counter()\ntry:\n    main()\nexcept SystemExit as e:\n    code = e.code\n"
-                      "print('BENCH', time.perf_counter() - t, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, "
-                      "code, file=sys.stderr)")
+                      "r = resource.getrusage(resource.RUSAGE_SELF)\n"
+                      "print('BENCH', time.perf_counter() - t, r.ru_maxrss, code, r.ru_utime + r.ru_stime, file=sys.stderr)")
             res = subprocess.run([sys.executable, "-c", script, "imu-noise", str(csv), "--out",
                                   str(Path(tmp) / "imu.yaml")], capture_output=True, text=True,
                                  env={**__import__("os").environ, "PYTHONPATH": str(ROOT / "app")})
             line = [ln for ln in res.stderr.splitlines() if ln.startswith("BENCH")]
             if not line:
                 raise RuntimeError(res.stderr[-2000:])
-            _, wall, rss_kb, code = line[0].split()
+            _, wall, rss_kb, code, cpu = line[0].split()
             rows.append({"hours": h, "rate_hz": rate_hz, "samples": n, "simulate_s": sim_s, "write_csv_s": write_s,
-                         "csv_mb": csv.stat().st_size / 1e6, "imu_noise_s": float(wall),
+                         "csv_mb": csv.stat().st_size / 1e6, "imu_noise_s": float(wall), "imu_noise_cpu_s": float(cpu),
                          "peak_mb": int(rss_kb) / 1024, "exit": code})
             csv.unlink()
     return rows
 
 
 def run(seeds: int = 10, hours: float = 3.0, rate_hz: float = 200.0, speed_hours: float = 3.0,
-        speed_rate: float = 400.0) -> dict:
+        speed_rate: float = 400.0, coverage_seeds: int = 40, reuse_curves: bool = False) -> dict:
     imu = dataclasses.replace(load_rig(RIG).imus[0], update_rate=rate_hz)
     t0 = time.perf_counter()
     results = [one_seed(imu, hours * 3600, s) for s in range(seeds)]
-    indie = [one_indie_seed(imu, hours * 3600, s) for s in range(seeds)]
     acc_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    cov = {sim: coverage(cached_curves(sim, imu, hours, coverage_seeds, reuse_curves)) for sim in SIMULATORS} \
+        if coverage_seeds else {}
     return {"rig": RIG.name, "seeds": seeds, "hours": hours, "rate_hz": rate_hz, "accuracy_s": acc_s,
-            "results": results, "indie": indie, "speed": speed(imu, speed_hours, speed_rate) if speed_hours > 0 else [],
+            "results": results, "coverage_seeds": coverage_seeds, "coverage": cov,
+            "coverage_s": time.perf_counter() - t0,
+            "speed": speed(imu, speed_hours, speed_rate) if speed_hours > 0 else [],
             "load_avg": __import__("os").getloadavg()[0]}
 
 
@@ -186,16 +290,8 @@ def tables(r: dict) -> str:
                          "K / truth", "worst K", "K in 95 % interval", "B (flat min / 0.664) / design B"], rows,
                         title=f"imu-noise on {r['seeds']} seeds x 3 axes, {r['hours']:g} h at {r['rate_hz']:g} Hz "
                               f"(targets: N within 3 %, K within 20 %, intervals hold the truth 90-98 %)"))
-    rows = []
-    for sensor in SENSORS if r.get("indie") else ():
-        ax = [a for res in r["indie"] for a in res[sensor]["axes"]]
-        rows.append([sensor, _stats([a["N"] for a in ax]), f"{100 * max(abs(a['N'] - 1) for a in ax):.1f} %",
-                     f"{100 * np.mean([a['N_in'] for a in ax]):.0f} % (+-{100 * np.median([a['N_halfwidth'] for a in ax]):.1f} %)",
-                     _stats([a["K"] for a in ax]), f"{100 * max(abs(a['K'] - 1) for a in ax):.0f} %",
-                     f"{100 * np.mean([a['K_in'] for a in ax]):.0f} % (+-{100 * np.median([a['K_halfwidth'] for a in ax]):.0f} %)"])
-    out.append("" if not rows else md_table(
-        ["sensor", "N / truth", "worst N", "N in 95 % interval", "K / truth", "worst K", "K in 95 % interval"], rows,
-        title="independent recordings (tests/support/imu_static.py: white noise + random walk only), same seeds"))
+    if r.get("coverage"):
+        out.append(coverage_table(r["coverage"], r["coverage_seeds"], r["hours"], r["rate_hz"]))
     rows = []
     for sensor in SENSORS if r["results"] else ():
         ax = [a for res in r["results"] for a in res[sensor]["axes"]]
@@ -210,8 +306,9 @@ def tables(r: dict) -> str:
     if r["speed"]:
         rows = [[f"{s['hours']:g} h x {s['rate_hz']:g} Hz", s["samples"], f"{s['csv_mb']:.0f}",
                  f"{s['simulate_s']:.1f}", f"{s['write_csv_s']:.1f}", f"{s['imu_noise_s']:.1f}",
+                 f"{s['imu_noise_cpu_s']:.1f}",
                  f"{s['peak_mb']:.0f}", s["exit"]] for s in r["speed"]]
-        out.append(md_table(["recording", "samples", "csv MB", "simulate s", "write csv s", "imu-noise s (end to end)",
+        out.append(md_table(["recording", "samples", "csv MB", "simulate s", "write csv s", "imu-noise s (end to end)", "its CPU s (user + sys)",
                              "imu-noise peak MB", "exit"], rows,
                             title=f"speed and memory (target: 3 h at 400 Hz in <= 30 s on 2 cores; load average "
                                   f"{r['load_avg']:.1f})"))
@@ -225,8 +322,10 @@ def main(argv=None) -> None:
     ap.add_argument("--rate", type=float, default=200.0)
     ap.add_argument("--speed-hours", type=float, default=3.0, help="0: skip the speed runs")
     ap.add_argument("--speed-rate", type=float, default=400.0)
+    ap.add_argument("--coverage-seeds", type=int, default=40, help="per simulator (x 6 axes); 0: skip")
+    ap.add_argument("--reuse-curves", action="store_true", help="the coverage runs' Allan curves from bench/out")
     a = ap.parse_args(argv)
-    r = run(a.seeds, a.hours, a.rate, a.speed_hours, a.speed_rate)
+    r = run(a.seeds, a.hours, a.rate, a.speed_hours, a.speed_rate, a.coverage_seeds, a.reuse_curves)
     write_json("imu_noise" if a.seeds else "imu_noise_speed", r)
     text = tables(r)
     say(text)

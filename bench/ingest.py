@@ -1,4 +1,4 @@
-"""Speed of `rigcal ingest` on a bag (issue 19): 60 s, 2 cameras at 20 Hz (752x480 mono8,
+"""Speed of `rigcal ingest` on a bag: 60 s, 2 cameras at 20 Hz (752x480 mono8,
 EuRoC's size), IMU at 200 Hz, ROS 1 raw images and ROS 2 mcap with PNG-compressed images.
 
 The bag is written with rosbags' writer from rendered frames of a stereo rig (20 frames

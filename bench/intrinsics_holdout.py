@@ -1,4 +1,4 @@
-"""Held-out views decide between two sets of intrinsics (issue 22's caliscope gap).
+"""Held-out views decide between two sets of intrinsics (the caliscope gap).
 
 On caliscope's webcams rigcal's principal points land 10-35 px from caliscope's, and the
 pairs' rotations follow them. A likelihood ratio on the same corners (bench.real) says

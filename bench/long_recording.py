@@ -1,4 +1,4 @@
-"""Long recordings (issue 21): 4 cameras x 1,500 frames rendered at 640x480, then
+"""Long recordings: 4 cameras x 1,500 frames rendered at 640x480, then
 `rigcal calibrate` end to end. Target: < 5 min on 2 cores.
 
 rigs/quad-forward (four forward cameras, 2x2 block) with the `board` scene (one board

@@ -1,4 +1,4 @@
-"""Monte Carlo check of the reported uncertainty (issue 5).
+"""Monte Carlo check of the reported uncertainty.
 
 Is the sigma rigcal writes per camera (rotation about body F, L, U in deg; position
 along F, L, U in mm) the real spread of its errors? Over many seeds of the SAME scene

@@ -5,7 +5,7 @@ Fisher information of the bundle adjustment at the TRUE state, for the corners t
 calibration used, with the measured corner noise (detected corners vs their true
 projections), pushed through each pair's relative pose (rigcal.camcal.bounds). The ratio
 reported per pair is RMS(error over seeds) / RMS(bound over seeds); 1.0 is an
-efficient estimator, the goal is <= 1.2 (issue 4: within 1.3x).
+efficient estimator, the goal is <= 1.2 (target: within 1.3x).
 
 A ratio well above 1 is something systematic. To say what, every seed is also
 calibrated with the detected corners REPLACED by their true projections plus white

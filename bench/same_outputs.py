@@ -1,7 +1,7 @@
 """Same calibration before and after a change: `rigcal calibrate` on a fixed set of
 datasets, its calibrated YAMLs compared as data.
 
-A reshaping of the pipeline (issue 16) must leave every calibrated parameter the same
+A reshaping of the pipeline must leave every calibrated parameter the same
 to 1e-9. This runs the command line itself (not the package's internals, which are
 what changes) on the benchmark's datasets: the four `bench.accuracy` scenarios (seed 0),
 the demo's render (seed 7), the real sets in samples/real and those that

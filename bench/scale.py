@@ -1,6 +1,6 @@
-"""Scale: solver time and memory for 6 cameras and many frames (issue 8; target 6 x 500 < 30 s).
+"""Scale: solver time and memory for 6 cameras and many frames (target: 6 x 500 < 30 s).
 
-Peak memory per corner (issue 21: <= 1 kB) is the process's peak RSS over the corners; the
+Peak memory per corner (target: <= 1 kB) is the process's peak RSS over the corners; the
 table also gives it above the RSS before calibrating (interpreter, libraries, the views).
 
 Detections are synthetic (exact projections of four wall boards around rigs/surround-6

@@ -1,6 +1,6 @@
 """rigcal's hand-written bundle adjustment against gtsam's factor graph on the same problem.
 
-Issue 16 asks, before more solver code is written (camera-IMU terms, time offsets,
+The question, before more solver code is written (camera-IMU terms, time offsets,
 rolling shutter), what a maintained library would give. Both solvers get the same rig
 problem, the same observations and the same start, and solve plain least squares:
 

@@ -1,4 +1,4 @@
-"""Speed of `rigcal calibrate` as a user runs it (issue 4): drone-stereo-back, 60 frames.
+"""Speed of `rigcal calibrate` as a user runs it: drone-stereo-back, 60 frames.
 
 The command runs in a subprocess on the rendered dataset (bench/out/cache, seed 0);
 its own "time:" line gives detection, intrinsics and solve seconds; the wall clock

@@ -32,7 +32,7 @@ def test_bench_module_imports(name):
 
 
 def test_every_live_bench_module_is_a_section_a_check_or_shared():
-    """bench/'s convention (issue 16): a module in bench/ itself is a section of the one
+    """bench/'s convention: a module in bench/ itself is a section of the one
     TABLE (running its module), a check named in CHECKS, or shared code; finished studies
     live in bench/archive/ with a line in its README."""
     from bench.__main__ import TABLE

@@ -1,4 +1,4 @@
-"""The wheel installs on its own and does the main job without the source tree (issue 20).
+"""The wheel installs on its own and does the main job without the source tree.
 
 The wheel is built from this checkout and installed into a fresh virtual environment;
 rigcal's dependencies come from the test environment through a path file (so the test

@@ -309,7 +309,7 @@ def calibrate(
 def check(
     rig: Path = typer.Argument(..., help="calibrated rig YAML (what `rigcal calibrate` writes, with sigmas)"),
     dataset: Path = typer.Argument(..., help="a short new recording of the rig (docs/formats.md#dataset: images/ or corners/, "
-                                             "target.yaml)"),
+                                             "target.yaml; with imu/ a camera-IMU rig is checked against its IMU)"),
     report: Optional[Path] = typer.Option(None, help="write an HTML report here (residual maps, tests)"),
     level: float = typer.Option(0.01, help="false-alarm rate of the whole check (an unchanged rig fails this "
                                            "share of recordings)"),
@@ -318,7 +318,7 @@ def check(
                                                      "recording (the rest held)"),
     jobs: Optional[int] = typer.Option(None, help="detection worker processes (default: all cores)"),
 ):
-    """Is the rig's calibration still good? Per camera ok, moved, intrinsics changed or undetermined.
+    """Is the rig's calibration still good? Per camera ok, moved, intrinsics changed, clock changed or undetermined.
     Exit 0: all ok; 1: something changed; 2: bad input."""
     from rigcal.check.run import run as run_check
 
@@ -426,6 +426,8 @@ def ingest(
     camera: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag), NAME=FILE (video) or NAME=camN "
                                                           "(EuRoC); repeat per camera"),
     imu: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC (bag) or NAME=imuN (EuRoC)"),
+    mag: Optional[list[str]] = typer.Option(None, help="NAME=TOPIC: a bag's sensor_msgs/MagneticField topic, written "
+                                                       "as mag/NAME.csv (microtesla); repeat per magnetometer"),
     rate: Optional[float] = typer.Option(None, help="keep one instant per 1/HZ s, the sharpest (variance of the "
                                                     "Laplacian); default: every frame"),
     start: Optional[float] = typer.Option(None, help="seconds after the first image stamp to start at"),
@@ -448,7 +450,7 @@ def ingest(
     from rigcal.data import ingest as ing
 
     out(ing.run(source, out_dir, rig_path=rig, target_path=target, cameras=camera, imus=imu, rate=rate, start=start,
-                end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force))
+                end=end, offsets=offset, body_axes=body_axes, copy=copy, force=force, mags=mag))
 
 
 class NoiseFormat(str, Enum):

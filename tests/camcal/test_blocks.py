@@ -1,4 +1,4 @@
-"""The residual-block interface of the bundle adjustment (rigcal.camcal.blocks, issue 16): a toy
+"""The residual-block interface of the bundle adjustment (rigcal.camcal.blocks): a toy
 residual kind plugged in with its own parameter blocks — 2-D points (the eliminated
 family) ranged from anchors (kept; one held) — checked against finite differences, the
 whole-Jacobian reference, and a known answer."""

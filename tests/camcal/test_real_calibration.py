@@ -1,4 +1,4 @@
-"""Calibration on real photographs against published references (issue 4, "Real images").
+"""Calibration on real photographs against published references (docs/accuracy.md, "Real image sets").
 
 Each test compares with an independent answer: a published calibration, or OpenCV's own
 stereoCalibrate run on the same corners. Gaps to the published numbers are measured and
@@ -53,14 +53,14 @@ def bumblebee():
 
 
 def test_bumblebee2_baseline_against_boofcv(bumblebee):
-    """BoofCV's reference (radial2 model): 120.05 mm; issue 4's target is 0.2 mm. With the
+    """BoofCV's reference (radial2 model): 120.05 mm; the target is 0.2 mm. With the
     same model rigcal is 0.10 mm away.
 
     `auto` estimates decentering (radtan4, the floor of auto; pipeline.py says why) and must
-    not take k3, the term that overfits this 11-pair set (issue 4: 120.48 mm). Its
+    not take k3, the term that overfits this 11-pair set (120.48 mm). Its
     baseline, 120.27 mm, is 0.22 mm from BoofCV's radial2 figure: the joint solve finds
     both cameras' decentering significant (Wald 9 and 35 against 6 at 5 %), so the 0.11 mm
-    between radial2 and radtan4 is the model, not noise (README, "Real images")."""
+    between radial2 and radtan4 is the model, not noise (docs/accuracy.md, "Real image sets")."""
     rig, target, views = bumblebee
     corners = {b.name: b.corners for b in target.boards}
     cal2 = calibrate_views(views, rig, corners, distortion="radial2")
@@ -163,10 +163,10 @@ def test_caliscope_four_cameras_from_the_images_alone(caliscope):
     """From these images alone (a 12-corner board, 26-45 views per camera, software sync):
     the joint solve fits 0.9 px against 0.04-0.08 px per camera alone, so rigcal takes the
     intrinsics from each camera's own views (pipeline.rigidity_check), with fx = fy and the
-    principal point at the image centre unless its own views reject them (issue 22). They
+    principal point at the image centre unless its own views reject them. They
     land within 1.6 % of caliscope's focal lengths (the joint solve had bent them 10-16 %),
     and the pairs 0.7-4.2 cm and 1.4-3.2 deg from caliscope's solution: the issue's
-    2.5 cm / 2 deg is not met from these images alone (README, "Real image sets": the gap
+    2.5 cm / 2 deg is not met from these images alone (docs/accuracy.md, "Real image sets": the gap
     is the principal points, which these views cannot place)."""
     _, rig_plain, target, views, ref = caliscope
     cal = calibrate_views(views, rig_plain, {b.name: b.corners for b in target.boards})

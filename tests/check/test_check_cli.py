@@ -9,9 +9,7 @@ checked against 8-frame recordings of it, unchanged or changed.
 from __future__ import annotations
 
 import json
-import re
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,10 +18,9 @@ from typer.testing import CliRunner
 from rigcal.cli import app
 from rigcal.core import geometry as geo
 from rigcal.core.rig import load_rig
-from tests.support.check_cases import RIG, calibrated_rig, changed_rig, record, true_rig
+from tests.support.check_cases import RIG, calibrated_rig, changed_rig, documented_keys, json_keys, record, true_rig
 
 FRAMES = 8
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -53,28 +50,8 @@ def test_unchanged_rig_passes(work, seed):
     for c in d["cameras"].values():
         assert c["pose"]["statistic"] < c["pose"]["threshold"]
         assert max(c["pose"]["detectable_rotation_deg"]) < 0.1  # 8 frames still see a tenth of a degree
-    assert documented_keys() <= json_keys(d)
-
-
-def documented_keys() -> set[str]:
-    """The JSON keys docs/check.md's two tables list (first cell of each row, backticked)."""
-    text = (ROOT / "docs" / "check.md").read_text(encoding="utf-8").split("## `--json`")[1].split("## ")[0]
-    keys = set()
-    for line in text.splitlines():
-        if line.startswith("| `"):
-            first = line.split("|")[1]
-            found = re.findall(r"`([a-z_.]+)`", first)
-            prefix = found[0].split(".")[0] + "." if "." in found[0] else ""
-            keys |= {k if "." in k or not prefix else prefix + k for k in found}
-    return keys
-
-
-def json_keys(d: dict) -> set[str]:
-    """Top-level keys, and per camera its keys and its pose./intrinsics. keys, of one check's JSON."""
-    keys = set(d)
-    for c in d["cameras"].values():
-        keys |= set(c) | {f"{part}.{k}" for part in ("pose", "intrinsics") if part in c for k in c[part]}
-    return keys
+    # those of a check against the IMU and of --update: tests/check/test_check_imu.py
+    assert {k for k in documented_keys() if not k.startswith(("imu", "update"))} <= json_keys(d)
 
 
 def test_turned_camera_is_flagged_as_moved_with_its_size(work):
@@ -175,3 +152,21 @@ def test_camera_the_new_views_cannot_place_is_undetermined(work):
     assert d["tests"] == 2 + 3  # the pair's two pose tests, three intrinsics tests
     assert d["cameras"]["front_left"]["status"] == "ok" and d["cameras"]["front_right"]["status"] == "ok"
     assert d["cameras"]["front_left"]["pose"]["relative_to"] == ["front_right"]
+
+
+def test_update_says_a_changed_camera_it_cannot_place_is_left_as_it_was(work, tmp_path):
+    """Seed 5's recording with back's focal length 1 % longer (3 px): back's intrinsics,
+    tested on its own views, have changed, but the new views cannot place it in the rig,
+    so --update leaves it as it was and says so, per camera, in the JSON and on the console."""
+    rec = record(changed_rig(work["truth"], "back", focal_rel=0.01), work["dir"] / "unlinked_focal", FRAMES, 5)
+    out = tmp_path / "fixed.yaml"
+    code, d = check_json(work, rec, "--update", out)
+    assert code == 1 and d["cameras"]["back"]["status"] == "intrinsics changed", d
+    assert d["cameras"]["back"]["update"].startswith("left as it was although it changed (intrinsics changed)")
+    assert d["cameras"]["front_left"]["update"] == "kept" and d["cameras"]["front_right"]["update"] == "kept"
+    old, new = load_rig(work["rig"]), load_rig(out)
+    assert new.camera("back").intrinsics.fx == old.camera("back").intrinsics.fx
+    assert "updated" not in new.camera("back").calibration
+    r = invoke(work["rig"], rec, "--jobs", 1, "--update", tmp_path / "again.yaml")
+    assert r.exit_code == 1
+    assert "--update: back: left as it was although it changed" in " ".join(r.stdout.split())

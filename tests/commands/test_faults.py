@@ -1,4 +1,4 @@
-"""Bad input and faults (issue 7): one test per row of the fault table (README, Robustness).
+"""Bad input and faults: one test per row of the fault table (docs/how-it-works.md, Robustness).
 
 Every command either works around the fault and says what it skipped, or stops with
 one stderr line (file, key, expected vs got) and exit code 2 (bad input) or 1 (the

@@ -147,14 +147,20 @@ def test_rig_gets_the_figures_and_keeps_the_rest(recording, tmp_path):
     assert new.cameras == old.cameras and imu.update_rate == 100.0
 
 
-def test_gap_uses_the_longest_stretch_and_says_so(tmp_path):
+def test_gap_pools_the_stretches_between_and_says_so(tmp_path):
     t, g, a = static_imu(1300, RATE, ND, KW, seed=8)
     keep = np.ones(len(t), bool)
     keep[5000:5100] = False  # a 1 s gap 50 s in
     path = write_csv(tmp_path / "imu0.csv", t[keep], g[keep], a[keep])
+    whole = write_csv(tmp_path / "whole.csv", t, g, a)
     r = run("imu-noise", path, "--out", tmp_path / "o.yaml")
     assert r.exit_code == 0, r.stderr
-    assert "1 gap(s)" in r.stdout and "longest stretch" in r.stdout and "samples 5001-" in r.stdout
+    assert "1 gap(s)" in r.stdout and "pools the 2 stretches" in r.stdout and "samples 5001-" in r.stdout
+    assert run("imu-noise", whole, "--out", tmp_path / "w.yaml").exit_code == 0
+    gap, ref = yaml.safe_load((tmp_path / "o.yaml").read_text()), yaml.safe_load((tmp_path / "w.yaml").read_text())
+    # 1 s of 1300 missing and the first 50 s a stretch of their own: the same figures within their precision
+    assert gap["gyroscope_noise_density"] == pytest.approx(ref["gyroscope_noise_density"], rel=0.005)
+    assert gap["accelerometer_random_walk"] == pytest.approx(ref["accelerometer_random_walk"], rel=0.1)
 
 
 def test_temperature_trend_is_reported(tmp_path):

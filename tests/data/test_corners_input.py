@@ -174,7 +174,7 @@ def test_euroc_corners_baseline(euroc_calibrated):
     "not met: EuRoC's published principal points do not fit these corners: rigcal gives cx 4-7 px lower; "
     "per-frame PnP fits rigcal's intrinsics to 0.40/0.43 px (best 98 %) against 0.48/0.49 px for EuRoC's, and "
     "on the sharpest frames OpenCV's own calibrateCamera also gives cx 357.3/371.0 against EuRoC's "
-    "367.2/380.0 (README, Real image sets)"))
+    "367.2/380.0 (docs/accuracy.md, Real image sets)"))
 def test_euroc_corners_intrinsics_within_half_a_percent_of_eurocs(euroc_calibrated):
     cal, _ = euroc_calibrated
     ref = yaml.safe_load((make_datasets.EUROC / "reference.yaml").read_text())

@@ -1,5 +1,5 @@
 """The dataset layout (../shared/spec/dataset.md): which file is which camera's which frame,
-and the layout faults of issue 7 (undeclared folder, missing folder, missing frame)."""
+and the layout faults (undeclared folder, missing folder, missing frame)."""
 
 from __future__ import annotations
 

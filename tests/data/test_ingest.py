@@ -1,4 +1,4 @@
-"""`rigcal ingest` (issue 19): EuRoC folders, ROS 1 / ROS 2 bags and videos built here from a
+"""`rigcal ingest`: EuRoC folders, ROS 1 / ROS 2 bags and videos built here from a
 small simulated recording; the dataset they give must hold the same frames (pixels, stems =
 capture times), the same IMU samples, and calibrate to the same rig as the simulated folder."""
 

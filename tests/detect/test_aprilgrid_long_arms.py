@@ -1,7 +1,7 @@
 """The AprilGrid long-arm pass (off by default: april.LONG_ARMS_BELOW_PX): the board map
 (homography + quartic), which pairs around a tag corner are point-symmetric or
 antisymmetric, the fit with antisymmetric pairs (corner_fit.refine_pairs), and what it does on
-the rendered fisheye room (issue 19; README, AprilGrid targets)."""
+the rendered fisheye room (docs/accuracy.md, AprilGrid)."""
 
 from __future__ import annotations
 
@@ -110,7 +110,7 @@ def test_refine_pairs_with_antisymmetric_arms_finds_an_ideal_tag_corner():
 
 
 def test_on_the_real_print_at_the_fisheye_rooms_tag_size_the_long_arms_are_no_better_than_the_box():
-    """Why the long arms stay off (README, AprilGrid targets): the real EuRoC frames averaged
+    """Why the long arms stay off (docs/accuracy.md, AprilGrid): the real EuRoC frames averaged
     down 1.5x (tags ~23 px, like the fisheye room's) still fit a smooth map of the board better
     with the box's corners than with the long arms' (measured 0.027 against 0.044 px in both
     cameras), where on the renders the long arms win 2.5x."""

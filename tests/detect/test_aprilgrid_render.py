@@ -53,7 +53,7 @@ def _rms(e: np.ndarray) -> float:
 
 
 FISHEYE_ROOM = pytest.mark.xfail(strict=True, reason=(
-    "not met on accuracy (README, AprilGrid targets; bench/aprilgrid_excess.py); the views now match ChArUco's "
+    "not met on accuracy (docs/accuracy.md, AprilGrid; bench/aprilgrid_excess.py); the views now match ChArUco's "
     "(6 of 6: frame 2's 13-16 px tags are decoded upsampled and their corners refined, "
     "test_fisheye_room_gives_as_many_aprilgrid_views_as_charuco). Accuracy: 0.029 px RMS against 0.0115 "
     "(frames 0-1 alone 0.027; before the small tags were found 0.021 on 4 views): at ~22 px tags the "

@@ -1,5 +1,5 @@
 """Detection and the guided pass on a Dask cluster (`--scheduler`): the same results as the
-local process pool, on a LocalCluster of worker processes (issue 21)."""
+local process pool, on a LocalCluster of worker processes."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Board detection on exact synthetic renders: corner accuracy against the true corners,
-inverted and legacy ChArUco, several boards, chessboard order, and the faults of issue 7
+inverted and legacy ChArUco, several boards, chessboard order, and the faults
 (unreadable, flat, 16-bit/colour images, wrong size, wrong board description).
 
 The renders warp the board's exact area-coverage print (Board.image) through a known
@@ -126,7 +126,7 @@ def rms(e: np.ndarray) -> float:
 
 @pytest.mark.parametrize("board", [CHARUCO, CHESS], ids=["charuco", "chessboard"])
 def test_symmetric_refinement_fence_at_twice_the_measured_hundredth_of_a_pixel(board):
-    """Measured (README): ~0.010 px RMS with the default refinement against ~0.08 px for
+    """Measured (docs/accuracy.md, Board detection): ~0.010 px RMS with the default refinement against ~0.08 px for
     OpenCV's own corners on these renders. A regression fence, looser than that: 0.02 px,
     per-view offset 0.006 px."""
     e, off = corner_errors(board, 5, seed=1, refine="symmetric")

@@ -170,7 +170,7 @@ def fisheye_pair(tmp_path_factory):
 
 def test_guided_pass_on_a_simulated_fisheye_pair_lowers_the_corner_error(fisheye_pair, tmp_path):
     """The corners the calibration uses, against their exact projections, before and after
-    the guided pass. Measured over 10 seeds of 20 frames (README): 0.0106 -> 0.0062 px, and
+    the guided pass. Measured over 10 seeds of 20 frames (docs/accuracy.md, The guided pass): 0.0106 -> 0.0062 px, and
     the pair's rotation error 2.4x lower. The CLI says which cameras it re-measured;
     --guided off leaves the detector's corners."""
     from rigcal.camcal.bounds import measured_corner_noise

@@ -493,7 +493,7 @@ def _load_regenerate():
 
 def test_exports_equal_the_golden_files_as_data(tmp_path):
     # As data with golden_data's tolerance, never byte for byte: the last digit of a
-    # quaternion differs between machines (issue 20).
+    # quaternion differs between machines.
     regen = _load_regenerate()
     fresh = regen.write_goldens(tmp_path)
     stored = sorted(p for p in regen.EXPORTS.rglob("*") if p.is_file())

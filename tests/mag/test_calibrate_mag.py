@@ -4,6 +4,7 @@ bad mag/ files (one line naming file and row, exit 2, nothing written)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -78,6 +79,9 @@ def test_poor_coverage_is_refused_naming_the_missing_directions(tmp_path):
     assert r.exit_code == 1, (r.stdout, r.stderr)
     line = r.stderr.strip().splitlines()[-1]
     assert "mag0.csv" in line and "axis" in line and ("+z" in line or "-z" in line)
+    # the IMU's own figures: turns about the vertical with 10 deg of roll and pitch, up near one axis
+    tilt = float(re.search(r"tilted at most ([0-9.]+) deg", line).group(1))
+    assert 10 <= tilt <= 20 and "of its +z axis (1 of 6 directions)" in line, line
     assert not out.exists() and not page.exists()
 
 
@@ -213,10 +217,15 @@ def test_a_declared_clock_offset_is_estimated(tmp_path):
                              "residual_rms_uT"]
 
 
-def test_the_fast_reader_and_the_row_reader_agree(dance):
+def test_the_fast_reader_and_the_row_reader_agree(dance, tmp_path):
     """read_mag_csv's numpy path gives what the row-by-row checker gives, and leaves every
     file it should refuse (or is unsure of) to the checker."""
     from rigcal.data import mag_csv
+
+    def fast_path(text: str):
+        p = tmp_path / "m.csv"
+        p.write_text(text)
+        return mag_csv._read_fast(p)
 
     d, _ = dance
     f = d / "mag" / "mag0.csv"
@@ -225,6 +234,27 @@ def test_the_fast_reader_and_the_row_reader_agree(dance):
     np.testing.assert_array_equal(fast.t_ns, slow.t_ns)
     np.testing.assert_array_equal(fast.m_uT, slow.m_uT)
     good = [f"{17 + i},1,2,3" for i in range(12)]
-    for bad in ("+16,1,2,3", "16,nan,2,3", "16,1,2", "16,1,2,3,4", "1.6e1,1,2,3", "99,1,2,3"):
-        assert mag_csv._read_fast("#h\n" + "\n".join([bad] + good)) is None, bad
-    assert mag_csv._read_fast("#h\n" + "\n".join(["16,-1,2,3"] + good)) is not None
+    for bad in ("+16,1,2,3", "16,nan,2,3", "16,1,2", "16,1,2,3,4", "1.6e1,1,2,3", "99,1,2,3", "16,1,2,3#x", " 16,1,2,3"):
+        assert fast_path("#h\n" + "\n".join([bad] + good)) is None, bad
+    assert fast_path("#h\n" + "\n".join(["16,-1,2,3"] + good)) is not None
+    assert fast_path("\ufeff#h\n" + "\n".join(good)) is not None  # a BOM before the header
+
+
+def test_a_dataset_without_images_does_not_import_the_camera_stack(dance, tmp_path):
+    """`rigcal calibrate` on imu/ + mag/ alone (a fresh interpreter, as a user runs it) imports
+    none of the camera pipeline's, video's, bags' or plots' libraries, nor scipy.stats /
+    scipy.signal / scipy.optimize: their imports cost seconds the 10-minute log's budget lacks."""
+    import subprocess
+    import sys
+
+    d, _ = dance
+    heavy = ["cv2", "plotly", "rosbags", "av", "scipy.stats", "scipy.signal", "scipy.optimize",
+             "rigcal.camcal.pipeline", "rigcal.imucal.step", "rigcal.detect"]
+    code = ("import sys\nfrom rigcal.cli import main\nsys.argv = ['rigcal', 'calibrate', sys.argv[1], '--out', sys.argv[2]]\n"
+            "try:\n    main()\nexcept SystemExit as e:\n    assert not e.code, e.code\n"
+            f"print('imported:', [m for m in {heavy!r} if m in sys.modules])")
+    r = subprocess.run([sys.executable, "-c", code, str(d), str(tmp_path / "cal.yaml")], capture_output=True, text=True,
+                       env={**__import__("os").environ, "PYTHONPATH": str(Path(__file__).parents[2] / "app")})
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "cal.yaml").exists()
+    assert r.stdout.splitlines()[-1] == "imported: []"

@@ -70,6 +70,43 @@ def test_the_logged_calibration_is_undone_to_the_raw_readings(log, tmp_path):
     assert geo.rotation_angle_deg(m.T_body_mag[:3, :3] @ sim.truth.magnetometers[0].T_body_mag[:3, :3].T) < 0.2
 
 
+def test_an_older_log_format_reads_the_same(log, tmp_path):
+    """Older ArduCopter DataFlash formats (3.3-dev's: TimeMS, no instance field, MOfsX..) give the same
+    dataset as today's (the simulation's stamps are whole milliseconds); a MAG message without
+    the offsets is one line naming the fields it has."""
+    path, rig, _, _ = log
+    from pymavlink import DFReader
+
+    reader = DFReader.DFReader_binary(str(path), zero_time_base=True)
+    imu_rows, mag_rows, params = [], [], {}
+    while (m := reader.recv_msg()) is not None:
+        if m.get_type() == "IMU":
+            imu_rows.append((m.TimeUS, m.GyrX, m.GyrY, m.GyrZ, m.AccX, m.AccY, m.AccZ))
+        elif m.get_type() == "MAG":
+            mag_rows.append((m.TimeUS, m.MagX, m.MagY, m.MagZ, m.OfsX, m.OfsY, m.OfsZ, m.MOX, m.MOY, m.MOZ))
+        elif m.get_type() == "PARM":
+            params[m.Name] = m.Value
+    assert all(r[0] % 1000 == 0 for r in imu_rows + mag_rows)
+    old = tmp_path / "old.bin"
+    write_log(old, imu_rows, mag_rows, params, legacy=True)
+    outs = {}
+    for p in (path, old):
+        outs[p] = tmp_path / f"ds-{p.stem}"
+        r = CliRunner().invoke(app, ["ingest", str(p), "--out", str(outs[p]), "--rig", str(rig)])
+        assert r.exit_code == 0, r.stderr
+    for f in ("imu/imu0.csv", "mag/mag0.csv"):
+        assert (outs[old] / f).read_text() == (outs[path] / f).read_text(), f
+    from tests.support.dataflash import LEGACY
+
+    bad = tmp_path / "bad.bin"
+    fmt = {**LEGACY, "MAG": (130, "Ihhh", "TimeMS,MagX,MagY,MagZ")}
+    write_log(bad, imu_rows[:20], [r[:4] for r in mag_rows[:20]], {}, legacy=True, formats=fmt)
+    r = CliRunner().invoke(app, ["ingest", str(bad), "--out", str(tmp_path / "x"), "--rig", str(rig)])
+    assert r.exit_code == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "MAG messages have no OfsX field (they have TimeMS, MagX, MagY, MagZ)" in r.stderr
+    assert not (tmp_path / "x").exists()
+
+
 def test_truncated_log_and_log_without_mag_are_refused(log, tmp_path):
     path, rig, _, _ = log
     data = path.read_bytes()

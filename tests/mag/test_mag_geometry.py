@@ -99,3 +99,16 @@ def test_rate_alignment_finds_the_chip_orientation_in_closed_form():
     c = b_imu @ R_imu_mag  # R_imu_mag.T @ b per row
     got = rate_alignment(t, c, motion.omega_body)
     assert geo.rotation_angle_deg(got @ R_imu_mag.T) < 0.05
+
+
+def test_savgol_is_scipys_savgol_filter():
+    """attitude.savgol (numpy alone, so the CLI need not import scipy.signal) against
+    scipy.signal.savgol_filter's default "interp" edges: values and derivatives."""
+    from scipy.signal import savgol_filter
+
+    from rigcal.mag.attitude import savgol
+
+    x = np.cumsum(np.random.default_rng(1).normal(size=(300, 3)), axis=0)
+    for n, deriv, delta in [(5, 0, 1.0), (25, 0, 1.0), (25, 1, 0.01), (7, 2, 0.1)]:
+        want = savgol_filter(x, n, 3, deriv=deriv, delta=delta, axis=0)
+        np.testing.assert_allclose(savgol(x, n, 3, deriv, delta), want, rtol=0, atol=1e-12 * np.abs(want).max())

@@ -254,7 +254,7 @@ def test_waved_board_pair_and_intrinsics_within_the_reported_noise(waved):
     _, _, truth, cal, _ = waved
     _check_against_truth(cal, truth)
     (e,) = pair_errors(cal, truth).values()
-    assert e["trans_mm"] < 0.5 and e["rot_deg"] < 0.05  # issue 4's own scale, whatever sigma says
+    assert e["trans_mm"] < 0.5 and e["rot_deg"] < 0.05  # the accuracy target's own scale, whatever sigma says
 
 
 # ----------------------------------------------------------------------------- the hand-eye room

@@ -10,6 +10,7 @@ at zero mount and focal error).
 
 from __future__ import annotations
 
+import re
 from dataclasses import replace
 from pathlib import Path
 
@@ -72,3 +73,25 @@ def calibrated_rig(truth: Rig, work: Path, frames: int = 30, seed: int = 1000, j
     out = work / "calibrated.yaml"
     run(base, out, CalibrateOptions(jobs=jobs))
     return out
+
+
+def documented_keys() -> set[str]:
+    """The JSON keys docs/check.md's two tables list (first cell of each row, backticked)."""
+    text = (RIG.parents[1] / "docs" / "check.md").read_text(encoding="utf-8").split("## `--json`")[1].split("## ")[0]
+    keys = set()
+    for line in text.splitlines():
+        if line.startswith("| `"):
+            first = line.split("|")[1]
+            found = re.findall(r"`([a-z_.]+)`", first)
+            prefix = found[0].split(".")[0] + "." if "." in found[0] else ""
+            keys |= {k if "." in k or not prefix else prefix + k for k in found}
+    return keys
+
+
+def json_keys(d: dict) -> set[str]:
+    """Top-level keys, and per camera its keys and its pose./intrinsics./imu./imu.clock. keys, of one check's JSON."""
+    keys = set(d)
+    for c in d["cameras"].values():
+        keys |= set(c) | {f"{part}.{k}" for part in ("pose", "intrinsics", "imu") if part in c for k in c[part]}
+        keys |= {f"imu.clock.{k}" for k in c.get("imu", {}).get("clock", {})}
+    return keys

@@ -14,6 +14,11 @@ FORMATS = {  # name: (type, format, columns)
     "MAG": (130, "QBhhhhhhhhh", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ"),
     "PARM": (131, "QNf", "TimeUS,Name,Value"),
 }
+LEGACY = {  # older ArduCopter's (3.3-dev): milliseconds, no instance field, MOfsX.. for the motor offsets
+    "IMU": (129, "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ"),
+    "MAG": (130, "Ihhhhhhhhh", "TimeMS,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOfsX,MOfsY,MOfsZ"),
+    "PARM": (131, "Nf", "Name,Value"),
+}
 
 
 def _pack(fmt: str, values) -> bytes:
@@ -26,19 +31,25 @@ def _fmt_message(mtype: int, name: str, fmt: str, columns: str) -> bytes:
                                              columns.encode())
 
 
-def write_log(path: Path, imu_rows, mag_rows, params: dict[str, float]) -> bytes:
+def write_log(path: Path, imu_rows, mag_rows, params: dict[str, float], legacy: bool = False,
+              formats: dict | None = None) -> bytes:
     """imu_rows: (TimeUS, gx, gy, gz, ax, ay, az); mag_rows: (TimeUS, mx, my, mz, ox, oy, oz,
-    mox, moy, moz) in integer milligauss; both merged in time order after the parameters."""
+    mox, moy, moz) in integer milligauss; both merged in time order after the parameters.
+    legacy: in older ArduCopter's formats (LEGACY; the times written in whole milliseconds);
+    formats: other message formats (e.g. a MAG with fewer fields) in place of those."""
+    formats = formats or (LEGACY if legacy else FORMATS)
     out = bytearray(_fmt_message(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns"))
-    for name, (mtype, fmt, cols) in FORMATS.items():
+    for name, (mtype, fmt, cols) in formats.items():
         out += _fmt_message(mtype, name, fmt, cols)
     for k, v in params.items():
-        out += HEAD + bytes([FORMATS["PARM"][0]]) + _pack("QNf", (0, k.encode(), v))
+        out += HEAD + bytes([formats["PARM"][0]]) + _pack(formats["PARM"][1], ((k.encode(), v) if legacy else
+                                                                              (0, k.encode(), v)))
     rows = [(r[0], 0, r) for r in imu_rows] + [(r[0], 1, r) for r in mag_rows]
     for t, kind, r in sorted(rows, key=lambda x: (x[0], x[1])):
+        stamp = (int(r[0]) // 1000,) if legacy else (int(r[0]), 0)
         if kind == 0:
-            out += HEAD + bytes([FORMATS["IMU"][0]]) + _pack("QBffffff", (int(r[0]), 0, *r[1:]))
+            out += HEAD + bytes([formats["IMU"][0]]) + _pack(formats["IMU"][1], (*stamp, *r[1:]))
         else:
-            out += HEAD + bytes([FORMATS["MAG"][0]]) + _pack("QBhhhhhhhhh", (int(r[0]), 0, *(int(x) for x in r[1:])))
+            out += HEAD + bytes([formats["MAG"][0]]) + _pack(formats["MAG"][1], (*stamp, *(int(x) for x in r[1:])))
     Path(path).write_bytes(bytes(out))
     return bytes(out)

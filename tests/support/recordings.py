@@ -136,6 +136,14 @@ def imu_msg(ts, t_ns: int, g, a, ros1: bool):
         linear_acceleration=V(x=float(a[0]), y=float(a[1]), z=float(a[2])), linear_acceleration_covariance=z9)
 
 
+def mag_msg(ts, t_ns: int, b_tesla, ros1: bool):
+    V = ts.types["geometry_msgs/msg/Vector3"]
+    return ts.types["sensor_msgs/msg/MagneticField"](
+        header=_header(ts, t_ns, ros1, "mag"), magnetic_field=V(x=float(b_tesla[0]), y=float(b_tesla[1]),
+                                                                z=float(b_tesla[2])),
+        magnetic_field_covariance=np.zeros(9))
+
+
 def camera_info_msg(ts, m, t_ns: int, ros1: bool):
     """A CameraInfo for rigcal CameraModel m (plumb_bob: k1 k2 p1 p2 k3)."""
     K = np.array([m.fx, 0.0, m.cx, 0.0, m.fy, m.cy, 0.0, 0.0, 1.0])
@@ -151,12 +159,13 @@ def camera_info_msg(ts, m, t_ns: int, ros1: bool):
 
 def write_bag(path: Path, kind: str, images: dict[str, list[tuple[int, np.ndarray]]],
               imu: tuple[np.ndarray, np.ndarray, np.ndarray] | None, compressed: bool = False,
-              encoding: str | None = None, record_delay_ns: int = 3_000_000, camera_info: dict | None = None
-              ) -> Path:
+              encoding: str | None = None, record_delay_ns: int = 3_000_000, camera_info: dict | None = None,
+              mag: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """A bag (kind 'ros1', 'sqlite3' or 'mcap') with one image topic per entry of `images`
     (`/<name>/image_raw`, or `/<name>/image_raw/compressed`) and `/imu0` when imu is given.
     Record times lag the header stamps by record_delay_ns, as a real recorder's do;
-    camera_info (name -> CameraModel) adds `/<name>/camera_info` with each frame."""
+    camera_info (name -> CameraModel) adds `/<name>/camera_info` with each frame; mag
+    (t_ns, field in tesla (N, 3)) adds `/mag0`, sensor_msgs/MagneticField."""
     from rosbags.typesys import Stores, get_typestore
 
     ros1 = kind == "ros1"
@@ -175,6 +184,9 @@ def write_bag(path: Path, kind: str, images: dict[str, list[tuple[int, np.ndarra
     if imu is not None:
         for t, g, a in zip(*imu):
             msgs.append((int(t) + record_delay_ns, "/imu0", "sensor_msgs/msg/Imu", imu_msg(ts, int(t), g, a, ros1)))
+    if mag is not None:
+        for t, b in zip(*mag):
+            msgs.append((int(t) + record_delay_ns, "/mag0", "sensor_msgs/msg/MagneticField", mag_msg(ts, int(t), b, ros1)))
     msgs.sort(key=lambda m: m[0])
     if ros1:
         from rosbags.rosbag1 import Writer

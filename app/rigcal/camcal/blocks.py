@@ -269,7 +269,7 @@ def sum_normal_equations(blocks: list, params: ParameterBlocks, x: np.ndarray, e
     offset = 0
     # One BLAS thread for the per-chunk products: they are small (a run's 2m x ~21
     # columns), and OpenBLAS's threads on them cost 10-100x their arithmetic in
-    # synchronisation, worst on a busy machine (README, scale: the dome).
+    # synchronisation, worst on a busy machine (docs/accuracy.md, A 60-camera dome).
     with threadpool_limits(1, user_api="blas"):
         for block in blocks:
             n = block.n_rows * block.dim

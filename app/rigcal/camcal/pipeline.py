@@ -1,6 +1,6 @@
 """The calibration pipeline: calibrate_views chains the stages, from board views to a calibrated rig.
 
-Each stage is a function with its own named result (README, How calibration works):
+Each stage is a function with its own named result (docs/how-it-works.md):
 usable_views -> start_cameras (initialise) -> resolve_flips (initialise) -> start_rig
 (pose_graph) -> first_solve (solve) -> choose_models (model_selection) -> guided_pass ->
 weighted_pass -> finish (body_frame). No image I/O here (that is detect.py) and no files
@@ -134,7 +134,7 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
                     intrinsics: str = "auto", faces: dict[str, float] | None = None) -> Calibration:
     """The whole calibration from detected views. corners: board name -> (N, 3) object points.
 
-    The stages in order (README, How calibration works): usable_views, start_cameras
+    The stages in order (docs/how-it-works.md): usable_views, start_cameras
     (initialise), resolve_flips (initialise), start_rig (pose_graph), first_solve,
     choose_models (model_selection), guided_pass, weighted_pass, finish.
 
@@ -143,7 +143,7 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
     weight_corners: weight each corner by its detector sigma (BoardView.sigma) calibrated per
     camera (weighted_solve). Off by default: measured over 10 seeds (bench.noise_limit) it
     lowers the fisheye pair's rotation error only 1.61 -> 1.48 x its bound and raises some
-    pinhole pairs' errors by 12-28 % (README, Accuracy and speed).
+    pinhole pairs' errors by 12-28 % (docs/accuracy.md).
     rerefine: `f(obs, state, cam_names, frames, boards) -> (uv, refined, sigma)` re-measures
     the corners once the rig is solved (guided.guided_uv: the cross placed by the calibrated
     model); the rig is then solved again on them. None: the detector's corners are final.

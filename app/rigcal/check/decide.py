@@ -137,6 +137,36 @@ def delta_covariance(T_cam_body_new: np.ndarray, cov_new: np.ndarray, T_old: np.
     return J_new @ cov_new @ J_new.T + (J_old * v_old) @ J_old.T
 
 
+def gauge_free_variances(T: np.ndarray, var: np.ndarray) -> np.ndarray:
+    """(C, 6) per camera pose variances [rotation about, position along body F, L, U] of
+    independent errors e0 whose projection through a rigid re-fit of the whole rig onto its
+    poses (geometry.fit_rigid_to, the `aligned` body frame: e = e0 - the fit's motion of each
+    camera) has the variances `var` (C, 6).
+
+    A rig calibrated with `--reference aligned` reports each camera's sigma in a body frame
+    fitted to every camera, so the reported errors are negatively correlated: their sum is
+    held near zero. Relative poses do not depend on the body frame, so their variance is that
+    of e0, which the reported sigmas understate (three like cameras: by sqrt(1.5) in
+    position). Solved linearly: diag(M diag(d) M^T) = var with M the fit's Jacobian, each
+    d at least the reported variance (the fit only removes variance; bounded least squares,
+    for reported sigmas that no independent errors explain exactly)."""
+    from scipy.optimize import lsq_linear
+
+    C = len(T)
+    if C < 2:
+        return var
+
+    def refit(Tp: np.ndarray) -> np.ndarray:
+        A = geo.fit_rigid_to(Tp, T)
+        return np.concatenate([pose_change(A @ Tp[c], T[c]) for c in range(C)])
+
+    M = numeric_jacobian(refit, T, list(range(C)), h=1e-6)
+    scale = np.where(var.ravel() > 0, var.ravel(), 1.0)  # each equation in units of its own variance
+    v = var.ravel()
+    fit = lsq_linear((M ** 2) / scale[:, None], v / scale, bounds=(v, np.full(v.shape, np.inf)))
+    return np.maximum(fit.x, v).reshape(C, 6)
+
+
 def locate_moved(stat_of: Callable[[int, list[int]], float], cams: list[int], threshold: float
                  ) -> tuple[list[int], dict[int, list[int]]]:
     """Which cameras moved, when only relative poses can be tested.

@@ -3,7 +3,7 @@ updated rig (`--update`): only what changed re-estimated, the rest of the rig he
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from rich.console import Group
@@ -12,8 +12,8 @@ from rich.table import Table
 from rigcal import __version__
 from rigcal.check import decide
 from rigcal.check.estimate import NewEstimate
-from rigcal.check.verdict import INTRINSICS, MOVED, OK, CameraVerdict, IntrinsicsCheck, PoseCheck, ChiSquare, \
-    pose_variances
+from rigcal.check.verdict import CHANGED, INTRINSICS, OK, CameraVerdict, IntrinsicsCheck, PoseCheck, \
+    ChiSquare, relative_pose_variances
 from rigcal.core import geometry as geo
 from rigcal.core.rig import Rig
 
@@ -35,10 +35,11 @@ class CheckResult:
     aligned_by: tuple[str, ...]
     timings: dict
     notes: tuple[str, ...] = ()
+    updated: dict = field(default_factory=dict)  # --update: camera -> what was done with it (update_actions)
 
     @property
     def changed(self) -> list[str]:
-        return [v.name for v in self.verdicts if v.status in (MOVED, INTRINSICS)]
+        return [v.name for v in self.verdicts if v.status in CHANGED]
 
     @property
     def exit_code(self) -> int:
@@ -73,6 +74,16 @@ def _intrinsics(i: IntrinsicsCheck) -> dict:
             "displacement_px": _f(i.displacement_px, 4)}
 
 
+def _imu(m) -> dict:
+    """The camera-IMU part of a camera (rigcal.check.imu.ImuCheck)."""
+    return {"imu": m.imu, "rotation_deg": _v(m.rotation_deg), "rotation_sigma_deg": _v(m.rotation_sigma_deg),
+            "translation_mm": _v(m.translation_mm, 4), "translation_sigma_mm": _v(m.translation_sigma_mm, 4),
+            **_test(m.pose_test), "detectable_rotation_deg": _v(m.detectable_rotation_deg),
+            "detectable_translation_mm": _v(m.detectable_translation_mm, 4),
+            "clock": {"offset_change_ms": _f(m.offset_ms, 5), "sigma_ms": _f(m.offset_sigma_ms, 5),
+                      **_test(m.offset_test), "detectable_ms": _f(m.detectable_offset_ms, 5)}}
+
+
 def to_json(res: CheckResult) -> dict:
     """The `--json` object (docs/check.md lists its keys)."""
     cams = {}
@@ -82,6 +93,10 @@ def to_json(res: CheckResult) -> dict:
             d["pose"] = _pose(v.pose)
         if v.intrinsics is not None:
             d["intrinsics"] = _intrinsics(v.intrinsics)
+        if v.imu is not None:
+            d["imu"] = _imu(v.imu)
+        if v.name in res.updated:
+            d["update"] = res.updated[v.name]
         if v.notes:
             d["notes"] = list(v.notes)
         cams[v.name] = d
@@ -114,8 +129,18 @@ def console_table(res: CheckResult) -> Group:
     tp = _table("pose change in the rig's body frame", ("camera", "rotation deg F L U", "1-sigma",
                                                         "position mm F L U", "1-sigma", "relative to"))
     ti = _table("intrinsics change (new - rig)", ("camera", "change px", "1-sigma px", "image shift px"))
+    tm = _table("camera relative to the IMU (new - rig, body frame) and clock offset",
+                ("camera", "rotation deg F L U", "1-sigma", "position mm F L U", "1-sigma", "chi2 / threshold",
+                 "clock offset change ms", "1-sigma", "chi2 / threshold", "detectable rot deg / pos mm / ms"))
     for v in res.verdicts:
-        p, i = v.pose, v.intrinsics
+        p, i, m = v.pose, v.intrinsics, v.imu
+        if m is not None:
+            tm.add_row(v.name, _axes(m.rotation_deg, 4), _sig(m.rotation_sigma_deg, 4), _axes(m.translation_mm, 3),
+                       _sig(m.translation_sigma_mm, 3), f"{m.pose_test.statistic:.1f} / {m.pose_test.threshold:.1f}",
+                       f"{m.offset_ms:+.3f}", f"{m.offset_sigma_ms:.3f}",
+                       f"{m.offset_test.statistic:.1f} / {m.offset_test.threshold:.1f}",
+                       f"{np.max(m.detectable_rotation_deg):.4f} / {np.max(m.detectable_translation_mm):.3f} / "
+                       f"{m.detectable_offset_ms:.3f}")
         t.add_row(v.name, v.status, f"{p.test.statistic:.1f} / {p.test.threshold:.1f}" if p else "-",
                   f"{i.test.statistic:.1f} / {i.test.threshold:.1f}" if i else "-",
                   f"{np.max(p.detectable_rotation_deg):.4f}" if p else "-",
@@ -130,11 +155,13 @@ def console_table(res: CheckResult) -> Group:
     head = (f"level {res.level:g} for the whole check: {res.n_tests} tests at {res.level_each:.3g} each (Sidak); "
             f"rig aligned by {', '.join(res.aligned_by) or '-'}; detectable: the smallest change flagged in "
             f"{100 * decide.DETECT_POWER:.0f} % of recordings like this one (worst axis or parameter)")
-    lines = [t, tp, ti, head]
+    lines = [t] + ([tp] if any(v.pose for v in res.verdicts) else []) + [ti] + (
+        [tm] if any(v.imu for v in res.verdicts) else []) + [head]
     lines += [f"note: {n}" for v in res.verdicts for n in v.notes] + [f"note: {n}" for n in res.notes]
+    lines += [f"--update: {n}: {what}" for n, what in res.updated.items() if what != "kept"]
     if res.changed:
         lines.append("changed: " + ", ".join(f"{v.name} ({v.status})" for v in res.verdicts
-                                             if v.status in (MOVED, INTRINSICS)))
+                                             if v.status in CHANGED))
     else:
         lines.append("all cameras ok" if all(v.status == OK for v in res.verdicts)
                      else "no camera changed; some could not be checked (undetermined)")
@@ -144,29 +171,43 @@ def console_table(res: CheckResult) -> Group:
 # ----------------------------------------------------------------------------- --update
 
 
-def updated_rig(rig: Rig, est: NewEstimate, res: CheckResult, dataset: str) -> Rig:
-    """The rig with each changed camera re-estimated from the new recording, the rest held:
-    a moved camera's pose is the new one placed by the unchanged cameras (its sigma the new
-    estimate's and the alignment's); a camera whose intrinsics changed takes the new
-    intrinsics (distortion too) and sigmas. Unchanged cameras keep pose, intrinsics, sigmas."""
+def updated_rig(rig: Rig, est: NewEstimate, res: CheckResult, dataset: str, imu_est=None) -> tuple[Rig, dict]:
+    """(the rig with each changed camera re-estimated from the new recording, the rest held;
+    per camera what was done with it, for the output). A moved camera's pose is the new one
+    placed by the unchanged cameras (its sigma the new estimate's and the alignment's), or,
+    checked against the IMU (imu_est: rigcal.check.imu.ImuEstimate), the new T_imu_cam placed
+    by the rig's T_body_imu with the new estimate's sigma; a changed clock offset takes the
+    new one and its sigma; a camera whose intrinsics changed takes the new intrinsics
+    (distortion too) and sigmas. Unchanged cameras keep pose, intrinsics, sigmas; a changed
+    camera the new recording could not estimate with the others is left as it was (said so)."""
     names = list(est.names)
     T_new = est.T_body_cam
     T_old = np.array([rig.camera(n).T_body_cam for n in names])
     keep = [names.index(n) for n in res.aligned_by]
-    var_old = pose_variances(rig, names)
-    cams = []
+    var_old = relative_pose_variances(rig, names)
+    cams, actions = [], {}
     for cam in rig.cameras:
         v = next(x for x in res.verdicts if x.name == cam.name)
-        if v.status not in (MOVED, INTRINSICS) or cam.name not in names:
+        if v.status not in CHANGED:
             cams.append(cam)
+            actions[cam.name] = "kept" if v.status == OK else (
+                "left as it was: the new recording cannot tell whether it changed (undetermined)")
+            continue
+        if cam.name not in names:
+            cams.append(cam)
+            actions[cam.name] = (f"left as it was although it changed ({v.status}): the new recording cannot connect "
+                                 f"it to the other cameras, so its calibration cannot be re-estimated in the rig "
+                                 f"(record the boards in view of it and of another camera)")
             continue
         c = names.index(cam.name)
         block = dict(cam.calibration)
         sigma = dict(block["sigma"])
+        done = []
         if v.status == INTRINSICS:
             cam = replace(cam, intrinsics=est.model(c, cam.intrinsics))
             sd = np.sqrt(np.clip(np.diag(est.cov_intrinsics[c]), 0, None))
             sigma["intrinsics"] = {k: float(np.round(sd[j], 4)) for j, k in enumerate(("fx", "fy", "cx", "cy"))}
+            done.append("intrinsics")
         if v.pose is not None and v.pose.test.failed:
             others = [j for j in keep if j != c] or [j for j in range(len(names)) if j != c]
             T_align = geo.fit_rigid_to(T_new[others], T_old[others])
@@ -175,7 +216,21 @@ def updated_rig(rig: Rig, est: NewEstimate, res: CheckResult, dataset: str) -> R
             cam = replace(cam, T_body_cam=T_align @ T_new[c])
             sigma["rotation_deg"] = [float(np.round(np.degrees(x), 5)) for x in sd[:3]]
             sigma["position_mm"] = [float(np.round(1000 * x, 4)) for x in sd[3:]]
+            done.append("pose")
+        if v.imu is not None and imu_est is not None and cam.name in imu_est.names:
+            k = imu_est.names.index(cam.name)
+            if v.imu.pose_test.failed:
+                cam = replace(cam, T_body_cam=rig.imu(imu_est.imu).T_body_imu @ imu_est.T_imu_cam[k])
+                sp = imu_est.sigma_pose[k]
+                sigma["rotation_deg"] = [float(np.round(np.degrees(x), 5)) for x in sp[:3]]
+                sigma["position_mm"] = [float(np.round(1000 * x, 4)) for x in sp[3:]]
+                done.append(f"pose relative to {imu_est.imu}")
+            if v.imu.offset_test.failed:
+                cam = replace(cam, time_offset_s=float(imu_est.time_offset_s[k]))
+                sigma["time_offset_ms"] = float(np.round(1000 * imu_est.sigma_offset[k], 5))
+                done.append("clock offset")
         block["sigma"] = sigma
         block["updated"] = {"tool": f"rigcal {__version__} check", "dataset": dataset, "status": v.status}
         cams.append(replace(cam, calibration=block))
-    return rig.with_cameras(cams)
+        actions[cam.name] = "re-estimated from the new recording: " + ", ".join(done)
+    return rig.with_cameras(cams), actions

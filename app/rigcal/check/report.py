@@ -58,6 +58,28 @@ def summary_table(res) -> str:
     return "<table>" + "".join(rows) + "</table>"
 
 
+def imu_table(res) -> str:
+    """Per camera checked against the IMU: its pose change relative to the IMU and clock
+    offset change with 1-sigma, both tests and the smallest changes they detect; '' when none."""
+    rows = [_row(["camera", "IMU", "rotation deg F L U", "1-sigma", "position mm F L U", "1-sigma",
+                  "pose chi2 / threshold", "clock offset change ms (1-sigma)", "clock chi2 / threshold",
+                  "detectable rotation deg", "detectable position mm", "detectable clock ms"], header=True)]
+    for v in res.verdicts:
+        m = v.imu
+        if m is None:
+            continue
+        rows.append(_row([
+            _e(v.name), _e(m.imu), " ".join(f"{x:+.4f}" for x in m.rotation_deg),
+            " ".join(f"{x:.4f}" for x in m.rotation_sigma_deg), " ".join(f"{x:+.3f}" for x in m.translation_mm),
+            " ".join(f"{x:.3f}" for x in m.translation_sigma_mm),
+            f"{m.pose_test.statistic:.2f} / {m.pose_test.threshold:.2f}",
+            f"{m.offset_ms:+.3f} ({m.offset_sigma_ms:.3f})",
+            f"{m.offset_test.statistic:.2f} / {m.offset_test.threshold:.2f}",
+            " ".join(f"{x:.4f}" for x in m.detectable_rotation_deg),
+            " ".join(f"{x:.3f}" for x in m.detectable_translation_mm), f"{m.detectable_offset_ms:.3f}"]))
+    return "<table>" + "".join(rows) + "</table>" if len(rows) > 1 else ""
+
+
 def residual_figure(rig: Rig, est: NewEstimate, r_old: np.ndarray, c: int) -> go.Figure:
     """Camera c's corners in the image, coloured by the distance px between where the new
     views show them and where the rig's calibration puts them, with the miss as an arrow
@@ -94,7 +116,9 @@ def build_report(res, rig: Rig, est: NewEstimate | None, r_old: np.ndarray | Non
             f"beside it. Detectable: the smallest change along one axis or parameter that this recording "
             f"flags in 80 % of recordings like it.</p>",
             "<h2>Cameras</h2>", summary_table(res)]
-    notes = [n for v in res.verdicts for n in v.notes]
+    if any(v.imu is not None for v in res.verdicts):
+        body += ["<h2>Cameras against the IMU (pose relative to it, clock offset)</h2>", imu_table(res)]
+    notes = [n for v in res.verdicts for n in v.notes] + list(res.notes)
     if notes:
         body += ["<h2>Notes</h2>", "<ul>" + "".join(f"<li>{_e(n)}</li>" for n in notes) + "</ul>"]
     if est is not None and r_old is not None:

@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from rigcal.check import inputs
+from rigcal.check.imu import reference_imu, try_estimate
 from rigcal.check.estimate import determined, estimate_rig, residuals_under, structure, with_subset
 from rigcal.check.outputs import CheckResult, console_table, to_json, updated_rig
 from rigcal.check.verdict import verdicts
@@ -45,15 +47,21 @@ def run(rig_path: Path, dataset: Path, report_path: Path | None = None, level: f
             missing[n] = "not in this recording (no images/ folder or corners/ file)"
     est, names, solo = _estimate(rec, rig, names, missing)
     t_est = time.perf_counter()
+    imu_est, imu_notes = _imu_estimate(rig, dataset, rec, names)
+    t_imu = time.perf_counter()
     vs, n_tests, level_each, keep = verdicts(rig, est, {n: structure(rig.camera(n).calibration) for n in rig.names},
-                                             missing, level, solo)
+                                             missing, level, solo, imu_est)
     timings = {"detection_s": rec.detection_s, "estimate_s": t_est - t_det, "total_s": time.perf_counter() - t0}
+    if imu_est is not None:
+        timings["camera_imu_s"] = t_imu - t_est
     res = CheckResult(rig_path=str(rig_path), dataset=str(dataset), verdicts=vs, level=level, n_tests=n_tests,
                       level_each=level_each, aligned_by=tuple(names[i] for i in keep) if est else (),
-                      timings=timings, notes=tuple(_imu_note(rig, dataset)))
+                      timings=timings, notes=tuple(imu_notes))
     writes = []
     if update_path is not None and est is not None:
-        writes.append((update_path, dump_rig(updated_rig(rig, est, res, str(dataset)))))
+        new_rig, actions = updated_rig(rig, est, res, str(dataset), imu_est)
+        res = replace(res, updated=actions)
+        writes.append((update_path, dump_rig(new_rig)))
     if report_path is not None:
         from rigcal.check.report import build_report
 
@@ -77,11 +85,25 @@ def old_residuals(rig, est, keep: list[int]) -> np.ndarray | None:
     return residuals_under(est, T_old_new, T_old, [rig.camera(n).intrinsics for n in names])
 
 
-def _imu_note(rig, dataset: Path) -> list[str]:
-    """What the check leaves out on a camera-IMU rig."""
-    if rig.imus and (dataset / "imu").is_dir():
-        return ["the recording has imu/: the cameras are checked, the camera-IMU transform and clock offsets are not"]
-    return []
+def _imu_estimate(rig, dataset: Path, rec, names: list[str]):
+    """(the camera-IMU estimate of the cameras `names` or None, notes): made when the recording
+    has imu/ and the rig is a camera-IMU calibration (imu.reference_imu); a recording that
+    cannot determine it leaves the IMU part out, with a note saying why."""
+    if not (dataset / "imu").is_dir() or not rig.imus:
+        return None, []
+    imu_name = reference_imu(rig)
+    if imu_name is None:
+        return None, ["the recording has imu/ but the rig is not a camera-IMU calibration (its cameras carry no "
+                      "time_offset_s with calibration.sigma.time_offset_ms): the cameras are checked against each "
+                      "other only; calibrate the rig on a recording with imu/ to check them against the IMU"]
+    est, why = try_estimate(dataset, rig, imu_name, rec.views, names, rec.corners, rec.faces)
+    if est is None:
+        return None, [f"the camera-IMU calibration could not be estimated from this recording ({why}): the cameras "
+                      f"are checked against each other only (with clock offsets between them, their relative poses "
+                      f"carry the motion between their instants)"]
+    return est, [f"cameras checked against {imu_name} (pose relative to the IMU and clock offset, the intrinsics held "
+                 f"at the rig's in the camera-IMU estimate), not against each other: the camera-only estimate takes "
+                 f"images with equal stems as one instant, which the cameras' clock offsets bias on a moving rig"]
 
 
 def _estimate(rec, rig, names: list[str], missing: dict[str, str]):

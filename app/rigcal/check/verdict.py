@@ -7,7 +7,11 @@ false-alarm rate `level` (decide.sidak_level over every test made):
   tied focal, cx, cy) with covariance = the rig's variances + the new estimate's;
 * pose: the change of T_body_cam with the new rig placed onto the old by the other
   cameras (decide.aligned_delta), covariance propagated from both (decide.delta_covariance);
-  which camera moved is found by decide.locate_moved.
+  which camera moved is found by decide.locate_moved;
+* on a camera-IMU rig checked with a recording that has imu/ (rigcal.check.imu): the pose
+  relative to the IMU and the clock offset, in place of the pose relative to the other
+  cameras (the camera-only estimate takes images with equal stems as one instant, so the
+  cameras' clock offsets would bias their relative poses on a moving rig).
 """
 
 from __future__ import annotations
@@ -23,6 +27,8 @@ from rigcal.core.rig import Rig
 
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy")
 OK, MOVED, INTRINSICS, UNDETERMINED = "ok", "moved", "intrinsics changed", "undetermined"
+CLOCK = "clock changed"
+CHANGED = (MOVED, INTRINSICS, CLOCK)
 
 
 @dataclass(frozen=True)
@@ -71,14 +77,15 @@ class IntrinsicsCheck:
 
 @dataclass(frozen=True)
 class CameraVerdict:
-    """One camera's answer: status (OK, MOVED, INTRINSICS, UNDETERMINED), the reason when
-    undetermined or not tested, and the tests made."""
+    """One camera's answer: status (OK, MOVED, INTRINSICS, CLOCK, UNDETERMINED), the reason
+    when undetermined or not tested, and the tests made (imu: rigcal.check.imu.ImuCheck)."""
 
     name: str
     status: str
     pose: PoseCheck | None = None
     intrinsics: IntrinsicsCheck | None = None
     notes: tuple[str, ...] = field(default_factory=tuple)
+    imu: object | None = None
 
 
 def pose_variances(rig: Rig, names: list[str]) -> np.ndarray:
@@ -89,6 +96,19 @@ def pose_variances(rig: Rig, names: list[str]) -> np.ndarray:
         s = rig.camera(n).calibration["sigma"]
         out.append(np.concatenate([np.radians(s["rotation_deg"]) ** 2, (np.asarray(s["position_mm"]) / 1000.0) ** 2]))
     return np.array(out, float)
+
+
+def relative_pose_variances(rig: Rig, names: list[str]) -> np.ndarray:
+    """(C, 6) the variances of the cameras `names` to propagate into their relative poses:
+    the rig's own (pose_variances) when its body frame is one camera's, and when it is fitted
+    to every camera (`aligned-to-declared`, rigcal calibrate's default) the independent
+    errors behind them (decide.gauge_free_variances over all the rig's cameras)."""
+    var = pose_variances(rig, names)
+    if not str((rig.calibration or {}).get("reference", "")).startswith("aligned"):
+        return var
+    T = np.array([c.T_body_cam for c in rig.cameras])
+    free = decide.gauge_free_variances(T, pose_variances(rig, list(rig.names)))
+    return free[[list(rig.names).index(n) for n in names]]
 
 
 def intrinsics_to_test(tie_focal: bool, hold_centre: bool, held: bool) -> list[int]:
@@ -169,29 +189,35 @@ def check_poses(est: NewEstimate, T_old: np.ndarray, var_old: np.ndarray, level_
     return out, keep
 
 
-def count_tests(n_pose: int, intrinsics_idx: list[list[int]]) -> int:
+def count_tests(n_pose: int, intrinsics_idx: list[list[int]], n_imu: int = 0) -> int:
     """How many tests the check makes: one pose test per estimated camera when there are
-    at least two, one intrinsics test per camera with a parameter to test."""
-    return (n_pose if n_pose >= 2 else 0) + sum(1 for idx in intrinsics_idx if idx)
+    at least two, one intrinsics test per camera with a parameter to test, two (pose
+    relative to the IMU, clock offset) per camera of the camera-IMU estimate."""
+    return (n_pose if n_pose >= 2 else 0) + sum(1 for idx in intrinsics_idx if idx) + 2 * n_imu
 
 
 def verdicts(rig: Rig, est: NewEstimate | None, structures: dict[str, tuple], missing: dict[str, str],
-             level: float, solo: dict[str, NewEstimate] | None = None
+             level: float, solo: dict[str, NewEstimate] | None = None, imu_est=None
              ) -> tuple[list[CameraVerdict], int, float, list[int]]:
     """Every camera of the rig judged (rig order). structures: name -> (tie, hold, held)
     (estimate.structure); missing: name -> what its views lack (not estimated with the
     rest); solo: name -> the estimate of a camera from its own views alone (its views
-    could not be connected to the others'): its intrinsics are tested, its pose not.
-    Returns (verdicts, number of tests, per-test level, the aligning set's indices in est)."""
+    could not be connected to the others'): its intrinsics are tested, its pose not;
+    imu_est: the camera-IMU estimate (rigcal.check.imu.ImuEstimate) whose cameras are
+    tested against the IMU instead of against each other (module text). Returns (verdicts,
+    number of tests, per-test level, the aligning set's indices in est)."""
     solo = solo or {}
     names = list(est.names) if est is not None else []
-    idx = {n: intrinsics_to_test(*structures[n]) for n in [*names, *solo]}
-    n_tests = count_tests(len(names), list(idx.values()))
+    # on a moving recording the camera-only estimate's intrinsics carry the clock offsets'
+    # bias too (measured: cx off by 1.7-5 px): not tested against the IMU's check
+    idx = {n: [] if imu_est is not None else intrinsics_to_test(*structures[n]) for n in [*names, *solo]}
+    imu_names = list(imu_est.names) if imu_est is not None else []
+    n_tests = count_tests(0 if imu_est is not None else len(names), list(idx.values()), len(imu_names))
     level_each = decide.sidak_level(level, n_tests)
     poses, keep = {}, []
-    if est is not None:
+    if est is not None and imu_est is None:
         T_old = np.array([rig.camera(n).T_body_cam for n in names])
-        poses, keep = check_poses(est, T_old, pose_variances(rig, names), level_each)
+        poses, keep = check_poses(est, T_old, relative_pose_variances(rig, names), level_each)
     out = []
     for n in rig.names:
         why = f"{n}: {missing.get(n, 'not estimated')}"
@@ -213,18 +239,30 @@ def verdicts(rig: Rig, est: NewEstimate | None, structures: dict[str, tuple], mi
                                 est.state.intrinsics[c].values, est.cov_intrinsics[c], idx[n], level_each, level_each)
         pose = poses.get(c)
         notes = []
-        if pose is None:
+        imu = None
+        if n in imu_names:
+            from rigcal.check.imu import check_camera
+
+            imu = check_camera(rig, imu_est, n, level_each)
+        elif imu_est is not None:
+            notes.append(f"{n}: not in the camera-IMU estimate of this recording; its pose is not tested")
+        if pose is None and imu_est is None:
             notes.append(f"{n}: pose not tested (no other camera estimated from this recording to compare it with)")
-        if intr is None:
+        if intr is None and imu_est is not None:
+            notes.append(f"{n}: intrinsics not tested (on a moving recording the camera-only estimate of them carries "
+                         f"the cameras' clock offsets; the camera-IMU estimate holds them at the rig's)")
+        elif intr is None:
             notes.append(f"{n}: intrinsics not tested (the rig's calibration held them)")
         if intr is not None and intr.test.failed:
             status = INTRINSICS
-        elif pose is not None and pose.test.failed:
+        elif (pose is not None and pose.test.failed) or (imu is not None and imu.pose_test.failed):
             status = MOVED
+        elif imu is not None and imu.offset_test.failed:
+            status = CLOCK
         else:
             status = OK
-        if status == MOVED and len(keep) == 0:
+        if status == MOVED and len(keep) == 0 and imu_est is None:
             notes.append(f"{n}: the cameras disagree in pairs, so which of them moved cannot be told from the "
                          f"cameras alone; each is reported against the others")
-        out.append(CameraVerdict(n, status, pose, intr, tuple(notes)))
+        out.append(CameraVerdict(n, status, pose, intr, tuple(notes), imu))
     return out, n_tests, level_each, keep

@@ -14,15 +14,14 @@ from typing import TYPE_CHECKING
 
 from rich.console import Console, Group
 
-from rigcal.camcal.pipeline import MIN_FRAMES, calibrate_views
 from rigcal.errors import CalibrationError, DatasetError, InputError, OutputError, TargetFileError
 from rigcal.core.io import atomic_write_texts, output_target
 from rigcal.core.observations import BoardView
-from rigcal.results.outputs import calibrated_rig, console_summary, warnings_for
 from rigcal.core.rig import Rig, dump_rig, load_rig
-from rigcal.imucal.step import Options
 
-if TYPE_CHECKING:  # annotations only: detection and the dataset readers load when run() needs them
+if TYPE_CHECKING:  # annotations only: detection, the camera pipeline (cv2), the camera-IMU step (scipy.stats)
+    # and the dataset readers load when run() needs them, so an imu/ + mag/ dataset never imports them
+    from rigcal.imucal.step import Options
     from rigcal.data.dataset import DatasetImages
     from rigcal.detect.detect import DetectionResult
     from rigcal.data.imu_csv import MotionCheck
@@ -114,6 +113,8 @@ class CalibrateOptions:
     def imu_step(self, imu: str, intrinsics_from_rig: bool = False) -> Options:
         """The camera-IMU step's options against `imu` (--fix-intrinsics holds the declared
         intrinsics there too)."""
+        from rigcal.imucal.step import Options
+
         return Options(imu, gravity=self.gravity, offset_window=self.offset_window,
                        rolling_shutter=True if self.rolling_shutter else None, knot_spacing=self.knot_spacing,
                        imu_model=self.imu_model, imu_intrinsics="held" if self.fix_intrinsics else self.imu_intrinsics,
@@ -132,6 +133,9 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     if calibrate_mag.mag_only_dataset(dataset):  # imu/ + mag/, no images: magnetometers only
         _check_arguments(dataset, out_path, o.report, o.jobs)
         return calibrate_mag.run_mag_only(dataset, out_path, o.rig, o.report, _err(), check_output_path)
+    from rigcal.camcal.pipeline import calibrate_views
+    from rigcal.results.outputs import calibrated_rig, console_summary, warnings_for
+
     imu_options = o.imu_step("")  # the IMU options' values checked before any work
     # --camera-only does not use the IMU: its overlap with the images is not checked
     inp = _read_inputs(dataset, out_path, o.report, o.rig, o.target, o.jobs, None if o.camera_only else imu_options)
@@ -188,10 +192,12 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
         from rigcal.commands.calibrate_imu import calibrate_with_imu
 
         imu_res, out_rig = calibrate_with_imu(cal, out_rig, inp.motion, reference, inp.target, imu_options)
-    out_rig, mag_tables = calibrate_mag.with_magnetometers(out_rig, dataset, inp.motion.imus, console)
+    before_mag = out_rig
+    out_rig, mag_tables, mag_step = calibrate_mag.with_magnetometers(out_rig, dataset, inp.motion.imus, console)
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
     _write_outputs(out_path, o.report, out_rig, cal, found.det, pairs, timings,
-                   imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]))
+                   imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]),
+                   mag=None if mag_step is None or not mag_step.results else (mag_step, before_mag))
     start_warnings = warnings_for(cal)
     if free_running:  # the written poses' sigmas are the continuous-time estimate's, not the start's
         from rigcal.results.visual_outputs import is_start_pose_warning, pose_warnings
@@ -341,9 +347,10 @@ def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_r
 
 
 def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, det, pairs: dict,
-                   timings: dict, imu: tuple | None = None) -> None:
+                   timings: dict, imu: tuple | None = None, mag: tuple | None = None) -> None:
     """The calibrated rig YAML and the HTML report (when asked for), written together or not
-    at all. `imu`: (camera-IMU result, its IMU's samples) for the report's IMU part."""
+    at all. `imu`: (camera-IMU result, its IMU's samples) for the report's IMU part; `mag`:
+    (the magnetometer step, the rig it was given) for its magnetometer part."""
     text = dump_rig(out_rig)
     report_html = None
     if report_path is not None:
@@ -354,6 +361,12 @@ def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, 
             from rigcal.results.report_imu import with_imu_section
 
             report_html = with_imu_section(report_html, out_rig, *imu)
+        if mag is not None:
+            from rigcal.results.report_mag import with_mag_section
+
+            step, declared = mag
+            report_html = with_mag_section(report_html, out_rig, declared, dict(step.results),
+                                           {k: v.m for k, v in step.inputs.items()})
     atomic_write_texts([(out_path, text)] + ([(report_path, report_html)] if report_html is not None else []))
 
 
@@ -374,6 +387,8 @@ def _check_detections(rig: Rig, det, views: list[BoardView], images, target, tar
                       ) -> list[str]:
     """CalibrationError when a camera's images show (almost) no board, with a diagnosis of
     target.yaml; else the warnings for boards of a multi-board target never detected."""
+    from rigcal.camcal.pipeline import MIN_FRAMES
+
     for cam in rig.names:
         n_img = det.n_images.get(cam, 0)
         seen = {v.frame for v in views if v.camera == cam}

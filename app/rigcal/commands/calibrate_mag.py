@@ -16,7 +16,7 @@ from rigcal.core.rig import Rig, dump_rig, load_rig
 from rigcal.data.imu_csv import ImuSamples
 from rigcal.data.mag_csv import check_mag_dataset
 from rigcal.errors import DatasetError
-from rigcal.mag.step import calibrate_magnetometers, console_table
+from rigcal.mag.step import MagStep, calibrate_magnetometers, console_table
 
 
 def mag_only_dataset(dataset: Path) -> bool:
@@ -27,17 +27,18 @@ def mag_only_dataset(dataset: Path) -> bool:
 
 
 def with_magnetometers(rig: Rig, dataset: Path, imus: Mapping[str, ImuSamples], console: Console,
-                       refuse: bool = False) -> tuple[Rig, list]:
+                       refuse: bool = False) -> tuple[Rig, list, MagStep | None]:
     """The calibrated rig with its magnetometers calibrated too (when the dataset has mag/),
-    and the console tables to print after the others; notes go to `console`. After a camera
+    the console tables to print after the others, and the step (None without magnetometers:
+    the report's section needs its results); notes go to `console`. After a camera
     calibration (refuse=False) a magnetometer whose recording is refused is carried through
     with a warning rather than failing the whole run."""
     if not rig.magnetometers and not (Path(dataset) / "mag").exists():
-        return rig, []
+        return rig, [], None
     step = calibrate_magnetometers(rig, dataset, imus, refuse=refuse)
     for n in step.notes:
         console.print(n if n.startswith("warning: ") else f"note: {n}")
-    return step.rig, [console_table(step)] if step.results else []
+    return step.rig, [console_table(step)] if step.results else [], step
 
 
 def run_mag_only(dataset: Path, out_path: Path, rig_path: Path | None, report_path: Path | None, console: Console,
@@ -53,12 +54,12 @@ def run_mag_only(dataset: Path, out_path: Path, rig_path: Path | None, report_pa
     if not rig.magnetometers:
         raise DatasetError(f"{Path(dataset) / 'mag'}: the rig declares no magnetometer (add `magnetometers:`)")
     motion = check_motion_dataset(dataset, rig, DatasetImages(Path(dataset), (), MappingProxyType({})))
-    check_mag_dataset(dataset, rig, motion.imus)  # every bad input refused before anything is printed
+    samples = check_mag_dataset(dataset, rig, motion.imus)  # every bad input refused before anything is printed
     for n in motion.notes:
         console.print(f"note: {n}")
     console.print(f"note: no images: {len(rig.cameras)} camera(s) carried through unchanged; the IMUs keep their "
                   f"declared poses; magnetometers calibrated against them")
-    step = calibrate_magnetometers(rig, dataset, motion.imus, refuse=True)
+    step = calibrate_magnetometers(rig, dataset, motion.imus, refuse=True, samples=samples)
     for n in step.notes:
         console.print(n if n.startswith("warning: ") else f"note: {n}")
     files = [(out_path, dump_rig(step.rig))]

@@ -21,7 +21,7 @@ import numpy as np
 
 from rigcal.core.rig import Rig
 from rigcal.core.validate import parses_as_float
-from rigcal.data.imu_csv import ImuSamples, declared_csv_files
+from rigcal.data.imu_csv import ImuSamples, _plain, declared_csv_files
 from rigcal.errors import DatasetError
 
 MAG_HEADER = "#timestamp [ns],m_x [uT],m_y [uT],m_z [uT]"
@@ -40,43 +40,42 @@ class MagSamples:
 
 
 def read_mag_csv(path: str | Path) -> MagSamples:
-    """Parse and check one mag/<mag>.csv (lines starting with '#' are comments): numpy's
-    reader first; any file it refuses or that fails a check is read again row by row, which
-    names the first bad row."""
+    """Parse and check one mag/<mag>.csv (lines starting with '#' are comments), as
+    imu_csv.read_imu_csv does: a file that imu_csv's byte scan passes (no signed stamp, no
+    indented line, no '#' inside a row) is parsed by numpy's C reader in one pass; any file it
+    does not take, or that fails a check after it, is read again row by row, which names the
+    first bad row. Both give the same arrays."""
     path = Path(path)
+    fast = _read_fast(path)
+    if fast is not None:
+        return MagSamples(path, *fast)
     try:
         text = path.read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError) as e:
         raise DatasetError(f"{path}: cannot read ({e.__class__.__name__}: {e})") from None
-    fast = _read_fast(text)
-    if fast is not None:
-        return MagSamples(path, *fast)
     return _read_rows(path, text)
 
 
-_SIGNED_STAMP = re.compile(r"(?m)^\s*[+-]")
-_ROW = np.dtype([("t", np.int64), ("x", np.float64), ("y", np.float64), ("z", np.float64)])
+_ROW = np.dtype([("t", np.int64), ("m", np.float64, (3,))])
 
 
-def _read_fast(text: str) -> tuple[np.ndarray, np.ndarray] | None:
+def _read_fast(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     """(t_ns, m_uT) when every row is well formed (numpy's reader refuses a row of another
     width or a timestamp that is not an integer), else None."""
-    import io
     import warnings
 
-    if _SIGNED_STAMP.search(text):  # numpy reads "+16" as 16; the contract's stamps are digits only
-        return None
     try:
+        if not _plain(path):
+            return None
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # an empty file's warning, too, sends it the slow way
-            rows = np.loadtxt(io.StringIO(text), delimiter=",", comments="#", dtype=_ROW, ndmin=1)
-    except (ValueError, UserWarning):
+            rows = np.loadtxt(path, delimiter=",", comments="#", dtype=_ROW, encoding="utf-8-sig", ndmin=1)
+    except (OSError, UnicodeDecodeError, ValueError, OverflowError, UserWarning):
         return None
-    t = rows["t"]
-    m = np.column_stack([rows["x"], rows["y"], rows["z"]])
+    t, m = rows["t"], rows["m"]
     if len(t) < MIN_SAMPLES or (t < 0).any() or (np.diff(t) <= 0).any() or not np.isfinite(m).all():
         return None
-    return t, m
+    return np.ascontiguousarray(t), np.ascontiguousarray(m)
 
 
 def _read_rows(path: Path, text: str) -> MagSamples:

@@ -72,7 +72,7 @@ MAP_DEGREE = 4
 # (0.157 -> 0.192 px): the tag edges are not where the junction's symmetry puts them (ink
 # spread or loss moves an edge, not a point-symmetric junction's centre), and that bias does
 # not average out. On larger rendered tags (45-150 px) they were worse than the box too
-# (0.0087 -> 0.0117 px noise-free). README, AprilGrid targets; bench/aprilgrid_excess.py.
+# (0.0087 -> 0.0117 px noise-free). docs/accuracy.md, AprilGrid; bench/aprilgrid_excess.py.
 LONG_ARMS_BELOW_PX = 0.0
 # The long arms fit, per view, how far the printed edges lie from the junctions (towards
 # each own tag; ink spread is the print's): the edges alone place the corners, the median
@@ -100,7 +100,7 @@ THRESH_CONSTANTS = (7.0, 10.0)
 # UPSAMPLE times (bicubic), only while some tag is still missing and only around the missing
 # tags the found ones predict (upsampled_regions). There the blur of the corner squares' tips
 # joins more tag outlines, so both passes threshold stricter than at full size. Fisheye room,
-# third frame (13-16 px tags): 6 of 36 tags at full size, 31 / 35 with this pass (README).
+# third frame (13-16 px tags): 6 of 36 tags at full size, 31 / 35 with this pass.
 UPSAMPLE = 2
 UPSAMPLED_THRESH_CONSTANTS = (10.0, 14.0)
 # How far past the missing tags an upsampled region reaches, in tag pitches: the map of a
@@ -124,7 +124,7 @@ def spacing_warnings(boards: Sequence[Board]) -> list[str]:
     """One warning per AprilGrid whose tag_spacing is under MIN_RELIABLE_SPACING."""
     return [f"board {b.name}: tag_spacing {b.tag_spacing:g} is under {MIN_RELIABLE_SPACING:g}: the gaps "
             f"between tags and corner squares close under blur, and some corners may be found on the corner "
-            f"squares' centres, pixels off (README, AprilGrid targets)"
+            f"squares' centres, pixels off (docs/accuracy.md, AprilGrid)"
             for b in boards if b.type == "aprilgrid" and b.tag_spacing < MIN_RELIABLE_SPACING]
 
 

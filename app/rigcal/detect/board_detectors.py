@@ -49,8 +49,9 @@ class CharucoGroup:
     def __init__(self, dictionary: str, boards: Sequence[Board]):
         full = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, dictionary))
         # Identification tests every candidate against every code of the dictionary: a
-        # dictionary of only the boards' ids is much faster on DICT_*_1000 (README) and finds the
-        # same markers (codes of the full dictionary are further apart than the correction).
+        # dictionary of only the boards' ids is much faster on DICT_*_1000 (docs/accuracy.md,
+        # Board detection) and finds the same markers (codes of the full dictionary are further
+        # apart than the correction).
         self.ids = np.unique(np.concatenate([b.marker_ids for b in boards])).astype(np.int64)
         sub = cv2.aruco.Dictionary(np.ascontiguousarray(full.bytesList[self.ids]), full.markerSize,
                                    full.maxCorrectionBits)
@@ -99,7 +100,7 @@ def find_chessboard(gray: np.ndarray, board: Board) -> np.ndarray | None:
     """(N, 2) inner corners in OpenCV's order, or None.
 
     The classic detector first: on the real sets it finds as many boards as the SB one
-    or more, many times faster (README, Board detection); SB only where it fails. Both
+    or more, many times faster (docs/accuracy.md, Board detection); SB only where it fails. Both
     only seed the refinement, so their accuracy does not matter."""
     pattern = board.inner_corners
     ok, c = cv2.findChessboardCorners(gray, pattern, flags=CLASSIC_FLAGS)

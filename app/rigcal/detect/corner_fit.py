@@ -27,7 +27,7 @@ ARM_SQUARES = 0.6
 # (lens and the pixel's area). Closer, the markers' blurred edges reach into the cross;
 # that cancels between the two sides of a frontal corner, but on a board seen at an
 # angle the far side's gap is narrower, which biases corners towards the board's near
-# side and so scales a whole rig (README, "Corner bias on oblique boards"). The price is
+# side and so scales a whole rig (docs/decisions.md, "Corners are refined by point symmetry"). The price is
 # a little more corner noise on frontal views (a narrower cross). Where the gap is too
 # narrow for that, the margin shrinks to MIN_MARGIN_PX so the cross keeps CROSS_KEEP_PX
 # (as many corners are refined as with a 1 px margin).

@@ -83,7 +83,7 @@ def cross_samples(model: CameraModel, bc: BoardCorners, arm: float = ARM_SQUARES
     where the board's scale changes, and blur acts in pixels. Equalising them (feet on the
     edge, the same offset across it) made the corners cleaner (0.0064 against 0.0108 px on
     the independent renderer's fisheye scenes) but the pair's rotation worse (0.00089
-    against 0.00068 deg, 12 seeds; README, the guided pass), so the exact images stay."""
+    against 0.00068 deg, 12 seeds; docs/accuracy.md, The guided pass), so the exact images stay."""
     P, s, n = bc.p_board, bc.square, len(bc.p_board)
     # The cross's size depends on the local scale, its samples on the size: two projections.
     c0, du, dv = _project(model, bc.T_cam_board, np.concatenate(
@@ -228,7 +228,7 @@ GUIDED_MODES = ("auto", "on", "off")
 
 def guided_cameras(rig, mode: str) -> list[str]:
     """The cameras whose corners the guided pass re-measures: `on` every camera, `off`
-    none, `auto` the fisheye cameras. Measured (README, Accuracy): on fisheye pairs it
+    none, `auto` the fisheye cameras. Measured (docs/accuracy.md): on fisheye pairs it
     cuts the relative-rotation error 2-2.5x, on rigcal's renders and on independently
     rendered images alike; on pinhole cameras it helped rigcal's renders and the real
     chessboard sets (reprojection RMS 8-27 % lower) but not independently rendered

@@ -1,6 +1,6 @@
 """The rig in the formats other tools read, and Kalibr's camchain read back.
 
-Formats (README "Exports"):
+Formats (docs/exports.md):
 
 * ``kalibr`` — a camchain.yaml. Kalibr's reader (kalibr_common/ConfigReader.py,
   CameraChainParameters) counts cameras as ``len(top-level mapping)``, so the file

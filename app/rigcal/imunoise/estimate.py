@@ -6,7 +6,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
-from rigcal.imunoise.allan import allan_deviation
+from rigcal.imunoise.allan import pooled_allan_deviation
 from rigcal.imunoise.recording import Checked
 from rigcal.imunoise.terms import AxisNoise, TermFit, TooShort, combine, fit_axis
 
@@ -54,8 +54,8 @@ class ImuNoise:
 
 
 def _fit(args) -> AxisNoise:
-    x, rate_hz, what = args
-    return fit_axis(allan_deviation(x, rate_hz), what)
+    parts, rate_hz, what = args
+    return fit_axis(pooled_allan_deviation(parts, rate_hz), what)
 
 
 def _combined(sensor: str, axes: list[AxisNoise]) -> SensorNoise:
@@ -67,8 +67,9 @@ def _combined(sensor: str, axes: list[AxisNoise]) -> SensorNoise:
 def estimate(name: str, checked: Checked) -> ImuNoise:
     """Both sensors' three axes (THREADS at a time); TooShort naming the source and axis."""
     rec = checked.recording
-    jobs = [(data[:, k], checked.rate_hz, f"{sensor} {ax}") for sensor, data in zip(SENSORS, (rec.gyro, rec.accel))
-            for k, ax in enumerate(AXES)]
+    runs = checked.segments or (slice(None),)
+    jobs = [([data[r, k] for r in runs], checked.rate_hz, f"{sensor} {ax}")
+            for sensor, data in zip(SENSORS, (rec.gyro, rec.accel)) for k, ax in enumerate(AXES)]
     try:
         with ThreadPoolExecutor(max_workers=THREADS) as pool:
             axes = list(pool.map(_fit, jobs))

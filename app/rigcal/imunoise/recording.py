@@ -7,8 +7,9 @@ that fails is it scanned line by line to name the first bad row.
 
 Checks (each refusal an InputError naming the file and, where there is one, the row):
 - timestamps strictly increase (a repeated or backward stamp is refused);
-- the sample rate is the median interval's; a gap is an interval over GAP_SAMPLES periods,
-  and only the longest stretch between gaps is used (said in a note);
+- the sample rate is the median interval's; a gap is an interval over GAP_SAMPLES periods;
+  the stretches between gaps are all used, their Allan variances pooled with no cluster
+  spanning a gap (rigcal.imunoise.allan.pooled_allan_deviation; said in a note);
 - the recording is still: consecutive one-second means of the accelerometer (gyroscope)
   differ by at most MOVING_ACCEL m/s^2 (MOVING_GYRO rad/s) plus MOTION_SIGMAS standard
   deviations of what the sensor's white noise alone moves them by (a noisy consumer part
@@ -50,7 +51,7 @@ class ImuRecording:
 
 @dataclass(frozen=True)
 class Checked:
-    """A recording after the checks: the stretch used, its rate, the whole recording's span
+    """A recording after the checks: the recording, the stretches between its gaps, its rate, the whole recording's span
     and gaps, the stillness figures (largest change between consecutive one-second means,
     accelerometer m/s^2 and gyroscope rad/s) and notes."""
 
@@ -63,6 +64,7 @@ class Checked:
     gyro_motion: float
     temp_change_c: float | None
     notes: tuple[str, ...]
+    segments: tuple[slice, ...] = ()  # the stretches between gaps, into `recording`; () = all of it
 
 
 def _columns(path: Path, text_head: str) -> tuple[int, int]:
@@ -144,15 +146,15 @@ def samples_recording(source: str, t_ns: np.ndarray, gyro: np.ndarray, accel: np
     return ImuRecording(source, t_ns, np.asarray(gyro, float), np.asarray(accel, float))
 
 
-def longest_stretch(t_ns: np.ndarray) -> tuple[slice, float, int, float]:
-    """(the longest run between gaps, rate Hz from the median interval, number of gaps,
-    longest gap s). A gap: an interval over GAP_SAMPLES median intervals."""
+def stretches(t_ns: np.ndarray) -> tuple[list[slice], float, int, float]:
+    """(the runs between gaps, rate Hz from the median interval, number of gaps, longest gap
+    s). A gap: an interval over GAP_SAMPLES median intervals."""
     dt = np.diff(t_ns).astype(np.float64) * 1e-9
     period = float(np.median(dt))
     gap = np.flatnonzero(dt > GAP_SAMPLES * period)
     edges = np.concatenate([[0], gap + 1, [len(t_ns)]])
-    k = int(np.argmax(np.diff(edges)))
-    return slice(int(edges[k]), int(edges[k + 1])), 1.0 / period, len(gap), float(dt[gap].max()) if len(gap) else 0.0
+    runs = [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    return runs, 1.0 / period, len(gap), float(dt[gap].max()) if len(gap) else 0.0
 
 
 def motion(x: np.ndarray, rate_hz: float) -> tuple[float, float, float]:
@@ -174,23 +176,31 @@ def motion(x: np.ndarray, rate_hz: float) -> tuple[float, float, float]:
 
 def check(rec: ImuRecording) -> Checked:
     """The checks of the module docstring; InputError for a moving recording."""
-    sl, rate, n_gaps, longest = longest_stretch(rec.t_ns)
+    runs, rate, n_gaps, longest = stretches(rec.t_ns)
     notes = []
     span = (rec.t_ns[-1] - rec.t_ns[0]) * 1e-9
     if n_gaps:
-        used = (rec.t_ns[sl.stop - 1] - rec.t_ns[sl.start]) * 1e-9
-        notes.append(f"{rec.source}: {n_gaps} gap(s) over {GAP_SAMPLES} samples (longest {longest:.3f} s); using the "
-                     f"longest stretch between them: samples {sl.start + 1}-{sl.stop}, {used:.0f} of {span:.0f} s")
-    part = ImuRecording(rec.source, rec.t_ns[sl], rec.gyro[sl], rec.accel[sl],
-                        None if rec.temp_c is None else rec.temp_c[sl])
-    (acc_m, acc_t, acc_n), (gyr_m, gyr_t, gyr_n) = motion(part.accel, rate), motion(part.gyro, rate)
-    acc_lim, gyr_lim = MOVING_ACCEL + acc_n, MOVING_GYRO + gyr_n
+        used = sum((rec.t_ns[r.stop - 1] - rec.t_ns[r.start]) * 1e-9 for r in runs)
+        notes.append(f"{rec.source}: {n_gaps} gap(s) over {GAP_SAMPLES} samples (longest {longest:.3f} s); the Allan "
+                     f"variance pools the {len(runs)} stretches between them, no cluster spanning a gap: {used:.0f} of "
+                     f"{span:.0f} s (the longest stretch: samples {max(runs, key=lambda r: r.stop - r.start).start + 1}"
+                     f"-{max(runs, key=lambda r: r.stop - r.start).stop})")
+    worst = None
+    for r in runs:
+        (acc_m, acc_t, acc_n), (gyr_m, gyr_t, gyr_n) = motion(rec.accel[r], rate), motion(rec.gyro[r], rate)
+        acc_lim, gyr_lim = MOVING_ACCEL + acc_n, MOVING_GYRO + gyr_n
+        score = max(acc_m / acc_lim, gyr_m / gyr_lim)
+        if worst is None or score > worst[0]:
+            t0 = (rec.t_ns[r.start] - rec.t_ns[0]) * 1e-9
+            at = t0 + (acc_t if acc_m / acc_lim >= gyr_m / gyr_lim else gyr_t)
+            worst = (score, acc_m, gyr_m, acc_lim, gyr_lim, at)
+    _, acc_m, gyr_m, acc_lim, gyr_lim, at = worst
     if acc_m > acc_lim or gyr_m > gyr_lim:
-        at = acc_t if acc_m / acc_lim >= gyr_m / gyr_lim else gyr_t
         raise InputError(f"{rec.source}: not a static recording: consecutive one-second means of the accelerometer "
                          f"differ by up to {acc_m:.3g} m/s^2 (gyroscope {gyr_m:.3g} rad/s; worst {at:.0f} s into "
-                         f"the stretch used), over the {acc_lim:.2g} m/s^2 ({gyr_lim:.2g} rad/s) of a still "
+                         f"the recording), over the {acc_lim:.2g} m/s^2 ({gyr_lim:.2g} rad/s) of a still "
                          f"IMU with this noise; record it resting on a firm support, untouched")
+    part = rec
     change = None
     if part.temp_c is not None:
         t = (part.t_ns - part.t_ns[0]) * 1e-9
@@ -199,4 +209,5 @@ def check(rec: ImuRecording) -> Checked:
         if abs(change) > TEMP_DRIFT_C:
             notes.append(f"{rec.source}: the temperature trend changes by {change:+.1f} deg C over the recording; the "
                          f"random walk and bias instability include the thermal drift (warm the IMU up first)")
-    return Checked(part, rate, float(span), n_gaps, longest, acc_m, gyr_m, change, tuple(notes))
+    return Checked(part, rate, float(span), n_gaps, longest, acc_m, gyr_m, change, tuple(notes),
+                   tuple(runs) if n_gaps else ())

@@ -20,17 +20,18 @@ How each is read:
 2. A term *dominates* a tau when it is more than half of the model's variance there; its
    tau range is those taus. The term is then re-fitted on its range alone (a line of fixed
    slope through the measured variance less the other terms' share there), each tau
-   weighted by what it knows of the term: edf(tau) * share(tau)^2 (a term that is a share
-   s of the variance is known to relative variance 2 / (edf s^2)).
-3. Its confidence interval is chi-square with the equivalent degrees of freedom of the
-   best-determined tau in its range, edf * share^2. Octave taus of one recording overlap,
-   so their degrees of freedom are not added. When the taus of the range disagree more than
-   their edf allows (the four-term model misses the curve's shape there, e.g. a bias
-   instability that is not flat), those degrees of freedom are divided by the excess
-   (Birge ratio), widening the interval to cover it. And the other terms subtracted count
-   as a systematic error of SHAPE_DOUBT of their size (their shape under this term's range
-   is the model's assumption: a real flicker floor rolls off at the shortest taus, where a
-   white-noise fit from millions of samples would otherwise claim 0.1 %).
+   weighted by the inverse variance of what it says of the term.
+3. Its confidence interval is chi-square with the degrees of freedom of that weighted
+   mean's variance (2 value^2 / variance; `fit_term`). The variance counts that octave taus
+   of one recording are correlated -- overlapping clusters share samples, so the taus are
+   neither independent (adding their edf: too narrow) nor one (the best tau's edf alone:
+   too wide for white noise, too narrow for the random walk); the correlation is derived
+   from the Allan estimator's filters (rigcal.imunoise.allan.correlation). White noise and
+   random walk have exact Allan shapes, so subtracting them adds no error beyond their own;
+   the flat term's shape holds only over its flicker's band (a real bias instability rolls
+   off at short taus), so its part is a systematic error of SHAPE_DOUBT of its size. Taus
+   that disagree more than their errors allow (Birge ratio R^2 > 1: the model misses the
+   curve there) widen the interval by R.
 4. Bias instability: the flat minimum of the deviation / 0.664, its interval chi-square
    with the flicker-noise edf at that tau; `dominant` says whether a flat range exists
    (otherwise the figure is an upper bound set by the white noise and random walk).
@@ -49,7 +50,7 @@ from scipy.optimize import nnls
 from scipy.stats import chi2
 
 from rigcal.errors import InputError
-from rigcal.imunoise.allan import ALPHA, MAX_TAU_FRACTION, AllanCurve, edf
+from rigcal.imunoise.allan import ALPHA, MAX_TAU_FRACTION, AllanCurve, correlation, curve_edf
 
 TERMS = ("quantisation", "white", "flicker", "random_walk")
 FLAT = 2.0 * math.log(2.0) / math.pi  # bias instability's variance factor: sigma = sqrt(FLAT) B = 0.664 B
@@ -57,7 +58,7 @@ DOMINANT_SHARE = 0.5
 CONFIDENCE = 0.95
 TARGET_PRECISION = 0.10  # `needed_s`: the recording for a 1-sigma relative error of 10 %
 REWEIGHTS = 3
-SHAPE_DOUBT = 0.5  # the other terms' share under a term's range, as a systematic error (fraction of it)
+SHAPE_DOUBT = 0.5  # the flat term's level under another term's range, as a systematic error (fraction of it)
 FITTED = (1, 2, 3)  # the columns of `design` fitted: N, B, K (Q held at zero, see above)
 
 
@@ -110,7 +111,7 @@ def _edf_by_term(curve: AllanCurve, alpha: np.ndarray) -> np.ndarray:
     out = np.empty(len(curve.m))
     for a in np.unique(alpha):
         sel = alpha == a
-        out[sel] = edf(int(a), curve.m[sel], curve.n)
+        out[sel] = curve_edf(int(a), curve, curve.m[sel])
     return out
 
 
@@ -148,11 +149,20 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
     """Term k (1 white, 3 random walk) re-fitted on the taus it dominates; None if none.
 
     Each tau i in range gives the squared figure p_i = (measured variance less the other
-    terms) / the term's shape, known to relative variance 2 / (edf_i share_i^2); they are
-    averaged with those weights. When they scatter more than that allows (chi-square per
-    degree of freedom R^2 > 1: the model's shape misses the data there), the degrees of
-    freedom behind the interval are divided by R^2 (the Birge ratio), so the interval
-    covers the misfit too."""
+    terms) / the term's shape. Its error has two parts:
+    - statistical: the variance estimate's, sd_i = model variance * sqrt(2 / edf_i) / shape,
+      and the estimates at octave taus of one recording are correlated (overlapping clusters
+      share samples): rigcal.imunoise.allan.correlation derives rho_ij for the white noise
+      and random walk fitted;
+    - the bias instability subtracted: white noise and random walk have exact Allan shapes,
+      but the flat term is flat only over the band its flicker spans (a real one rolls off at
+      short taus, and is then over-subtracted there): its share f_i is counted as a
+      systematic error of SHAPE_DOUBT of its size, the same sign at every tau.
+    The p_i are averaged with weights 1 / (sd_i^2 + (SHAPE_DOUBT f_i)^2), and the variance of
+    that mean is w' (rho sd sd' + SHAPE_DOUBT^2 f f') w / (sum w)^2; the interval is the
+    chi-square one with the degrees of freedom of that variance, 2 value^2 / variance. When
+    the p_i scatter more than their own errors allow (the Birge ratio R^2 > 1, counted as if
+    independent), the variance is multiplied by R^2."""
     A = design(curve.tau)
     parts = A * p
     total = parts.sum(axis=1)
@@ -161,17 +171,16 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
     if not sel.any():
         return None
     p_i = (curve.adev[sel] ** 2 - (total[sel] - parts[sel, k])) / A[sel, k]
-    w = nu[sel] * share[sel] ** 2
+    sd = total[sel] * np.sqrt(2.0 / nu[sel]) / A[sel, k]
+    flat = SHAPE_DOUBT * parts[sel, 2] / A[sel, k]
+    w = 1.0 / (sd ** 2 + flat ** 2)
     value_sq = max(float(np.sum(w * p_i) / np.sum(w)), 1e-300)
     birge = 1.0
     if sel.sum() > 1:
-        birge = max(1.0, float(np.sum(w * (p_i - value_sq) ** 2) / (2.0 * value_sq ** 2)) / (sel.sum() - 1))
-    # the other terms subtracted are known only as well as the model's shapes hold where this
-    # term dominates (flicker rolls off at the shortest taus, anti-alias filters bend them):
-    # counted as a systematic error of SHAPE_DOUBT of their size, the same sign at every tau
-    sys_rel = SHAPE_DOUBT * float(np.sum(w * (total[sel] - parts[sel, k]) / A[sel, k]) / np.sum(w)) / value_sq
-    nu_stat = float(np.max(w)) / birge
-    nu_term = 2.0 / (2.0 / nu_stat + sys_rel ** 2)
+        birge = max(1.0, float(np.sum(w * (p_i - value_sq) ** 2)) / (sel.sum() - 1))
+    rho = correlation(curve.m[sel], p[1] * curve.rate_hz, p[3] / curve.rate_hz)
+    var = (float(w @ (rho * np.outer(sd, sd)) @ w) + float(w @ flat) ** 2) / float(np.sum(w)) ** 2 * birge
+    nu_term = 2.0 * value_sq ** 2 / var
     lo, hi = _interval(value_sq, nu_term)
     duration = curve.n / curve.rate_hz
     return TermFit(math.sqrt(value_sq), lo, hi, float(curve.tau[sel].min()), float(curve.tau[sel].max()), nu_term,
@@ -182,7 +191,7 @@ def fit_bias_instability(curve: AllanCurve, p: np.ndarray) -> TermFit:
     """The flat minimum of the measured deviation / 0.664, chi-square interval with the
     flicker edf at that tau; `dominant` False when the flat term dominates no tau."""
     i = int(np.argmin(curve.adev))
-    nu = float(edf(ALPHA["flicker"], curve.m[i:i + 1], curve.n)[0])
+    nu = float(curve_edf(ALPHA["flicker"], curve, curve.m[i:i + 1])[0])
     scale = 1.0 / math.sqrt(FLAT)
     lo, hi = _interval(curve.adev[i] ** 2, nu)
     parts = design(curve.tau) * p

@@ -21,7 +21,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from rigcal.core import geometry as geo
 
@@ -47,6 +46,15 @@ def integrate_windows(t_imu: np.ndarray, gyro: np.ndarray, t_query: np.ndarray, 
                       bias: np.ndarray | None = None) -> Windows:
     """Integrate the gyroscope (t_imu (M,) s, gyro (M, 3) rad/s) within windows of window_s from
     t_imu[0] and evaluate at t_query (N,) (inside the IMU stream), vectorised over windows."""
+    return integrate_windows_at(t_imu, gyro, (t_query,), window_s, bias)[0]
+
+
+def integrate_windows_at(t_imu: np.ndarray, gyro: np.ndarray, queries: tuple[np.ndarray, ...], window_s: float,
+                         bias: np.ndarray | None = None) -> tuple[Windows, ...]:
+    """integrate_windows at several sets of query times from one integration of the stream
+    (the estimator queries it at the magnetometer's and the accelerometer rows' times). The
+    loop runs over the sample index inside a window (window_s times the IMU rate, 400 at 200 Hz
+    and 2 s), every window at once; a log-depth scan over all samples measured 4x slower."""
     bias = np.zeros(3) if bias is None else np.asarray(bias, float)
     t0 = t_imu[0]
     n_win = max(int(np.floor((t_imu[-1] - t0) / window_s)), 1)
@@ -68,15 +76,18 @@ def integrate_windows(t_imu: np.ndarray, gyro: np.ndarray, t_query: np.ndarray, 
         j = j[ok]
         R[j + 1] = R[j] @ step[j]
         J[j + 1] = np.transpose(step[j], (0, 2, 1)) @ J[j] - dt[j, None, None] * np.eye(3)
-    # query times: from the preceding IMU sample of the same window, at its rate
-    idx = np.clip(np.searchsorted(t_imu, t_query, side="right") - 1, 0, M - 2)
-    win = np.minimum(np.floor((t_query - t0) / window_s).astype(int), n_win - 1)
-    idx = np.maximum(idx, first[win])
-    tau = t_query - t_imu[idx]
-    e = geo.R_from_rotvec(w[idx] * tau[:, None])
-    dR = R[idx] @ e
-    Jq = np.transpose(e, (0, 2, 1)) @ J[idx] - tau[:, None, None] * np.eye(3)
-    return Windows(win, dR, Jq, bias, start)
+    out = []
+    for t_query in queries:
+        # query times: from the preceding IMU sample of the same window, at its rate
+        idx = np.clip(np.searchsorted(t_imu, t_query, side="right") - 1, 0, M - 2)
+        win = np.minimum(np.floor((t_query - t0) / window_s).astype(int), n_win - 1)
+        idx = np.maximum(idx, first[win])
+        tau = t_query - t_imu[idx]
+        e = geo.R_from_rotvec(w[idx] * tau[:, None])
+        dR = R[idx] @ e
+        Jq = np.transpose(e, (0, 2, 1)) @ J[idx] - tau[:, None, None] * np.eye(3)
+        out.append(Windows(win, dR, Jq, bias, start))
+    return tuple(out)
 
 
 def corrected(w: Windows, db: np.ndarray) -> np.ndarray:
@@ -91,9 +102,9 @@ def rate_alignment(t: np.ndarray, c: np.ndarray, omega_imu: np.ndarray, smooth_s
     signals are smoothed (Savitzky-Golay, smooth_s) before c is differentiated."""
     dt = float(np.median(np.diff(t)))
     n = max(int(round(smooth_s / dt)) | 1, 5)
-    cs = savgol_filter(c, n, 3, axis=0)
-    dc = savgol_filter(c, n, 3, deriv=1, delta=dt, axis=0)
-    ws = savgol_filter(omega_imu, n, 3, axis=0)
+    cs = savgol(c, n, 3)
+    dc = savgol(c, n, 3, deriv=1, delta=dt)
+    ws = savgol(omega_imu, n, 3)
     # c x (X w) = -skew(X w) c = skew(c) X w ... written as rows acting on X's 9 entries (row-major)
     K = geo.skew(cs)  # (N, 3, 3)
     # (X w)_i = sum_j X_ij w_j: d(Xw)/dX_ij = e_i w_j
@@ -101,3 +112,25 @@ def rate_alignment(t: np.ndarray, c: np.ndarray, omega_imu: np.ndarray, smooth_s
     Xv = np.linalg.lstsq(A.reshape(-1, 9), dc.reshape(-1), rcond=None)[0]
     # dc = c x (X w) = skew(c) X w -> X = R_imu_mag.T
     return geo.nearest_rotation(Xv.reshape(3, 3)).T
+
+
+def savgol(x: np.ndarray, n: int, order: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    """Savitzky-Golay smoothing (or its deriv-th derivative) of x (N, D) along axis 0 over odd
+    windows of n samples, the first and last n // 2 samples from the polynomial fitted to the
+    first and last n: scipy.signal.savgol_filter's default (mode "interp"), in numpy alone
+    (importing scipy.signal costs more than a 10-minute recording's whole fit)."""
+    x = np.asarray(x, float)
+    half = n // 2
+    z = np.arange(n, dtype=float) - half
+    fit = np.linalg.pinv(z[:, None] ** np.arange(order + 1))  # (order + 1, n): polynomial coefficients
+    # the deriv-th derivative at z of the fitted polynomial, as weights on the n samples
+    powers = np.arange(deriv, order + 1)
+    scale = np.array([np.prod(np.arange(k - deriv + 1, k + 1)) for k in powers], float) / delta ** deriv
+    at = (z[:, None] ** (powers - deriv)) * scale  # (n, order + 1 - deriv)
+    weights = at @ fit[deriv:]  # (n, n): row i gives the value at sample i of the window
+    out = np.empty_like(x)
+    windows = np.lib.stride_tricks.sliding_window_view(x, n, axis=0)  # (N - n + 1, D, n)
+    out[half:len(x) - half] = windows @ weights[half]
+    out[:half] = weights[:half] @ x[:n]
+    out[len(x) - half:] = weights[n - half:] @ x[len(x) - n:]
+    return out

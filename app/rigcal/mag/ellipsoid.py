@@ -13,7 +13,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import sqrtm
 
 from rigcal.errors import CalibrationError
 
@@ -54,7 +53,8 @@ def fit_ellipsoid(m: np.ndarray, field_uT: float | None = None, label: str = "ma
     if c is None or ev.min() <= 0:
         missing = missing_directions(m, 0.5 * (m.min(axis=0) + m.max(axis=0)), np.eye(3))
         raise CalibrationError(f"{label}: the readings do not lie on an ellipsoid" + _coverage_hint(missing))
-    S = np.real(sqrtm(M)) / s  # |S (m - h)| = 1 in raw units
+    lam, V = np.linalg.eigh(0.5 * (M + M.T))
+    S = (V * np.sqrt(lam)) @ V.T / s  # the symmetric square root of M; |S (m - h)| = 1 in raw units
     S = 0.5 * (S + S.T)
     h = mu + s * c
     if field_uT is not None:

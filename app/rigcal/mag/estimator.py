@@ -32,12 +32,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
 from rigcal.core import geometry as geo
 from rigcal.mag import model
-from rigcal.mag.attitude import Windows, corrected, integrate_windows, rate_alignment
+from rigcal.mag.attitude import Windows, corrected, integrate_windows_at, rate_alignment
 from rigcal.mag.ellipsoid import EllipsoidFit, check_coverage, fit_ellipsoid
 
 GRAVITY = 9.80665
@@ -120,21 +119,42 @@ def _unpack(p: _Problem, x: np.ndarray):
 
 def _field_imu(p: _Problem, x: np.ndarray, Rk: np.ndarray, bg: np.ndarray, incl: float):
     """The field in IMU axes at each reading's instant shifted by the clock offset x[OFFSET]:
-    (b' (N, 3), b_imu (N, 3) unshifted, E (N, 3, 3) = Exp((omega - b_g) dt), R_wm (N, 3, 3))."""
-    b_w = model.field_world(p.F, incl)
-    R_wm = Rk[p.wm.window] @ corrected(p.wm, bg - p.wm.bias)
-    b_imu = np.einsum("nji,j->ni", R_wm, b_w)
+    (b' (N, 3), b_imu (N, 3) unshifted, E (N, 3, 3) = Exp((omega - b_g) dt) or None where the
+    offset is 0 (E = I), Dm (N, 3, 3) the gyro integrals, u (N, 3) the field in each reading's
+    window frame). R_world_imu = Rk[window] @ Dm is never formed: b_imu = Dm.T @ u."""
+    u = (Rk.transpose(0, 2, 1) @ model.field_world(p.F, incl))[p.wm.window]
+    Dm = corrected(p.wm, bg - p.wm.bias)
+    b_imu = _mat_T_vec(Dm, u)
+    if x[OFFSET] == 0.0:
+        return b_imu, b_imu, None, Dm, u
     E = geo.R_from_rotvec((p.omega_m - bg) * x[OFFSET])
-    return np.einsum("nji,nj->ni", E, b_imu), b_imu, E, R_wm
+    return _mat_T_vec(E, b_imu), b_imu, E, Dm, u
+
+
+def _mat_T_vec(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """R[n].T @ v[n] for R (N, 3, 3), v (N, 3)."""
+    return (v[:, None, :] @ R)[:, 0]
+
+
+def _cross_cols(v: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """skew(v[n]) @ B[n] for v (N, 3), B (N, 3, 3): v crossed with each column of B."""
+    return np.cross(v[:, :, None], B, axis=1)
 
 
 def _residuals(x: np.ndarray, p: _Problem) -> np.ndarray:
     h, A, R_im, incl, bg, ba, Rk = _unpack(p, x)
     b_shift = _field_imu(p, x, Rk, bg, incl)[0]
-    pred = b_shift @ (np.linalg.inv(A) @ R_im.T).T + h
-    R_wa = Rk[p.wa.window] @ corrected(p.wa, bg - p.wa.bias)
-    f = GRAVITY * R_wa[:, 2, :] + ba  # R.T [0, 0, g]
-    return np.concatenate([((pred - p.inp.m) / p.inp.sigma_uT).ravel(), ((f - p.accel) / p.sigma_a).ravel()])
+    n = len(b_shift)
+    out = np.empty(3 * (n + len(p.accel)))
+    rm, ra = out[:3 * n].reshape(n, 3), out[3 * n:].reshape(-1, 3)
+    np.matmul(b_shift, (np.linalg.inv(A) @ R_im.T).T, out=rm)
+    rm += h - p.inp.m
+    rm /= p.inp.sigma_uT
+    Da = corrected(p.wa, bg - p.wa.bias)
+    np.matmul((GRAVITY * Rk[:, 2, :])[p.wa.window][:, None, :], Da, out=ra[:, None, :])  # R.T [0, 0, g]
+    ra += ba - p.accel
+    ra /= p.sigma_a
+    return out
 
 
 _E = np.zeros((6, 3, 3))  # d A / d a_k for the 6 symmetric elements (model.SYM_INDEX)
@@ -143,43 +163,50 @@ for _k, (_i, _j) in enumerate(model.SYM_INDEX):
 
 
 def _jacobian_blocks(x: np.ndarray, p: _Problem) -> tuple[np.ndarray, np.ndarray]:
-    """d residuals / d x, analytic, as G (rows, 19) over the globals and W (rows, 3) over each
+    """d residuals / d x, analytic, as G (rows, 20) over the globals and W (rows, 3) over each
     row's window. Rotations are perturbed on the right (R Exp(d));
     the Jacobian is exact where the rotation parameters are zero (the estimate folds them into
     R0 and Rk0 before the covariance) and first-order accurate near it, which only slows the
-    iterations a little."""
+    iterations a little. Vectorised over the rows: 3x3 products batched, skew products as
+    cross products, the (rows, 3, 20) block filled in place."""
     h, A, R_im, incl, bg, ba, Rk = _unpack(p, x)
     Ainv = np.linalg.inv(A)
-    b_w = model.field_world(p.F, incl)
     db_w = p.F * np.array([0.0, -np.sin(incl), -np.cos(incl)])
-    b_sh, b_imu, E, R_wm = _field_imu(p, x, Rk, bg, incl)
-    Dm = corrected(p.wm, bg - p.wm.bias)
-    ET = E.transpose(0, 2, 1)
+    b_sh, b_imu, E, Dm, u = _field_imu(p, x, Rk, bg, incl)
     w = b_sh @ R_im
     y = w @ Ainv.T
     M = Ainv @ R_im.T  # (3, 3)
-    n = len(b_imu)
-    Gm = np.zeros((n, 3, N_GLOBAL))
+    n, na = len(b_imu), len(p.accel)
+    G = np.zeros((n + na, 3, N_GLOBAL))
+    W = np.empty((n + na, 3, 3))
+    Gm, Ga = G[:n], G[n:]
     Gm[:, :, 0:3] = np.eye(3)
-    Gm[:, :, 3:9] = -np.einsum("ij,kjl,nl->nik", Ainv, _E, y)
+    Gm[:, :, 3:9] = -np.tensordot(y, np.einsum("ij,kjl->kil", Ainv, _E), axes=([1], [2])).transpose(0, 2, 1)
     Gm[:, :, 9:12] = Ainv @ geo.skew(w)
-    Gm[:, :, 12] = np.einsum("ij,njk,nlk,l->ni", M, ET, R_wm, db_w)
-    Gm[:, :, 13:16] = M @ (ET @ geo.skew(b_imu) @ _bias_jacobian(p.wm, bg) - x[OFFSET] * geo.skew(b_sh))
+    d_incl = _mat_T_vec(Dm, (Rk.transpose(0, 2, 1) @ db_w)[p.wm.window])  # d b_imu / d incl
+    gyro = _cross_cols(b_imu, _bias_jacobian(p.wm, bg))  # d b_imu / d b_g, up to sign
+    wins = -_cross_cols(u, Dm).transpose(0, 2, 1)  # Dm.T skew(u)
+    if E is not None:
+        ET = E.transpose(0, 2, 1)
+        d_incl = (ET @ d_incl[:, :, None])[:, :, 0]
+        gyro = ET @ gyro - x[OFFSET] * geo.skew(b_sh)
+        wins = ET @ wins
+    Gm[:, :, 12] = d_incl @ M.T
+    Gm[:, :, 13:16] = M @ gyro
     if p.inp.estimate_offset:
         Gm[:, :, OFFSET] = np.cross(b_sh, p.omega_m - bg) @ M.T
-    u = Rk[p.wm.window].transpose(0, 2, 1) @ b_w
-    Wm = M @ ET @ Dm.transpose(0, 2, 1) @ geo.skew(u)
+    np.matmul(M, wins, out=W[:n])
     Da = corrected(p.wa, bg - p.wa.bias)
-    Rka = Rk[p.wa.window]
-    f0 = GRAVITY * (Rka @ Da)[:, 2, :]
-    na = len(f0)
-    Ga = np.zeros((na, 3, N_GLOBAL))
-    Ga[:, :, 13:16] = geo.skew(f0) @ _bias_jacobian(p.wa, bg)
+    ga = (GRAVITY * Rk[:, 2, :])[p.wa.window]
+    f0 = (ga[:, None, :] @ Da)[:, 0]
+    Ga[:, :, 13:16] = _cross_cols(f0, _bias_jacobian(p.wa, bg))
     Ga[:, :, 16:19] = np.eye(3)
-    Wa = Da.transpose(0, 2, 1) @ geo.skew(GRAVITY * Rka[:, 2, :])
-    G = np.concatenate([Gm / p.inp.sigma_uT, Ga / p.sigma_a]).reshape(-1, N_GLOBAL)
-    W = np.concatenate([Wm / p.inp.sigma_uT, Wa / p.sigma_a]).reshape(-1, 3)
-    return G, W
+    W[n:] = -_cross_cols(ga, Da).transpose(0, 2, 1)  # Da.T skew(ga)
+    G[:n] /= p.inp.sigma_uT
+    G[n:] /= p.sigma_a
+    W[:n] /= p.inp.sigma_uT
+    W[n:] /= p.sigma_a
+    return G.reshape(-1, N_GLOBAL), W.reshape(-1, 3)
 
 
 def _row_windows(p: _Problem) -> np.ndarray:
@@ -268,12 +295,14 @@ def _bias_jacobian(w: Windows, bg: np.ndarray) -> np.ndarray:
     """(N, 3, 3) d(rotation vector on the right of corrected(w, db)) / d b_g: w.J through the
     right Jacobian of Exp at phi = J db, to second order (I - skew(phi) / 2)."""
     phi = w.J @ (bg - w.bias)
-    return (np.eye(3) - 0.5 * geo.skew(phi)) @ w.J
+    return w.J - 0.5 * _cross_cols(phi, w.J)
 
 
 def least_squares_solve(p: _Problem, x: np.ndarray, tol: float) -> np.ndarray:
     """scipy's least_squares (trf, lsmr) on the same residuals and Jacobian: the reference the
     tests hold _gauss_newton to (5-10x slower on long recordings)."""
+    from scipy.optimize import least_squares  # the tests' reference only: its import is not the CLI's to pay
+
     # one BLAS thread: lsmr's many vector products slow down several-fold when BLAS threads
     # compete for 2 cores (measured: 14 s -> 7 s for a 60 s recording under load)
     with threadpool_limits(1, user_api="blas"):
@@ -338,9 +367,16 @@ def _fold(p: _Problem, x: np.ndarray) -> tuple[_Problem, np.ndarray]:
 def estimate(inp: MagInput, window_s: float = WINDOW_S, solve=None) -> MagResult:
     """The joint estimate of one magnetometer against its IMU (module docstring). `solve(p, x,
     tol) -> x`: the least-squares solver (default the Schur-complement Levenberg-Marquardt;
-    the tests pass scipy's least_squares, the slow reference)."""
+    the tests pass scipy's least_squares, the slow reference). BLAS runs on one thread: its
+    products here are small ((N, 3) by (3, 3), (rows, 20) by (20, 20)), and more threads only
+    spin against each other (measured on a 10-minute recording: 7.6 s wall, 3.9 s CPU with
+    the default threads; 3.0 s wall, 2.0 s CPU with one)."""
+    with threadpool_limits(1, user_api="blas"):
+        return _estimate(inp, window_s, _gauss_newton if solve is None else solve)
+
+
+def _estimate(inp: MagInput, window_s: float, solve) -> MagResult:
     t0 = time.perf_counter()
-    solve = _gauss_newton if solve is None else solve
     fit, c, R_im = _start(inp)
     step = max(1, int(round(len(inp.t_imu) / (inp.t_imu[-1] - inp.t_imu[0]) / 50.0)))  # accel rows at ~50 Hz
     ia = np.arange(0, len(inp.t_imu), step)
@@ -349,8 +385,7 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S, solve=None) -> MagResult
     inp = MagInput(**{**inp.__dict__, "t_mag": inp.t_mag[keep], "m": inp.m[keep]})
     c = c[keep]
     bias = np.zeros(3)
-    wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, bias)
-    wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, bias)
+    wm, wa = integrate_windows_at(inp.t_imu, inp.gyro, (inp.t_mag, inp.t_imu[ia]), window_s, bias)
     K = wm.n
     u = _window_means(wm, c @ R_im.T, K)
     f = _window_means(wa, inp.accel[ia], K)
@@ -368,8 +403,7 @@ def estimate(inp: MagInput, window_s: float = WINDOW_S, solve=None) -> MagResult
     sigma_a = float(np.sqrt((ra ** 2).mean()) * np.sqrt(_autocorr_time(ra)))
     for tol in (1e-10, 0.0):  # then once more from the folded rotations: the Jacobian there is exact
         p, x = _fold(p, x)
-        wm = integrate_windows(inp.t_imu, inp.gyro, inp.t_mag, window_s, x[13:16])
-        wa = integrate_windows(inp.t_imu, inp.gyro, inp.t_imu[ia], window_s, x[13:16])
+        wm, wa = integrate_windows_at(inp.t_imu, inp.gyro, (inp.t_mag, inp.t_imu[ia]), window_s, x[13:16])
         p = _Problem(inp, wm, wa, inp.accel[ia], fit.field_uT, p.R0, p.Rk0, sigma_a, omega_m)
         if tol:
             x = solve(p, x, tol)
@@ -416,7 +450,7 @@ def _result(p: _Problem, x: np.ndarray, fit: EllipsoidFit, c: np.ndarray, t0: fl
         sigma_inclination_deg=float(np.degrees(np.sqrt(C[12, 12]))), heading_sigma_deg=heading,
         sigma_basis=basis, gyro_bias=bg, accel_bias=ba, accel_residual_rms=p.sigma_a, windows=len(p.Rk0),
         start=fit, R_imu_mag_start=p.R0, seconds=time.perf_counter() - t0, residuals_uT=rm,
-        R_world_imu=_field_imu(p, x, _unpack(p, x)[6], bg, incl)[3], t_mag=inp.t_mag,
+        R_world_imu=_unpack(p, x)[6][p.wm.window] @ _field_imu(p, x, _unpack(p, x)[6], bg, incl)[3], t_mag=inp.t_mag,
         time_offset_s=float(x[OFFSET]), sigma_time_offset_s=offset_sigma)
 
 

@@ -68,17 +68,18 @@ def read_dataflash(path: str | Path) -> DataflashLog:
     except Exception as e:  # pymavlink raises bare errors on files that are not logs
         raise InputError(f"{path}: not a readable DataFlash log ({e.__class__.__name__}: {e})") from None
     imu, mag, params, seen = [], [], {}, set()
+    rows = {"IMU": imu, "MAG": mag}
+    fields: dict[str, list] = {}
     while True:
         msg = reader.recv_msg()
         if msg is None:
             break
         kind = msg.get_type()
         seen.add(kind)
-        if kind == "IMU" and getattr(msg, "I", 0) == 0:
-            imu.append((msg.TimeUS, msg.GyrX, msg.GyrY, msg.GyrZ, msg.AccX, msg.AccY, msg.AccZ))
-        elif kind == "MAG" and getattr(msg, "I", 0) == 0:
-            mag.append((msg.TimeUS, msg.MagX, msg.MagY, msg.MagZ, msg.OfsX, msg.OfsY, msg.OfsZ, msg.MOX, msg.MOY,
-                        msg.MOZ))
+        if kind in rows and getattr(msg, "I", 0) == 0:
+            if kind not in fields:
+                fields[kind] = _fields(msg, kind, path)
+            rows[kind].append(tuple(getattr(msg, name) * k if name else 0.0 for name, k in fields[kind]))
         elif kind == "PARM":
             params[str(msg.Name)] = float(msg.Value)
     if reader.offset < reader.data_len:
@@ -91,6 +92,31 @@ def read_dataflash(path: str | Path) -> DataflashLog:
     a, b = np.array(imu, float), np.array(mag, float)
     return DataflashLog(a[:, 0].astype(np.int64), a[:, 1:4], a[:, 4:7], b[:, 0].astype(np.int64), b[:, 1:4],
                         b[:, 4:7], b[:, 7:10], params)
+
+
+# the columns read, in order, each with the names ArduPilot's versions log it under (the time
+# in microseconds: TimeUS, or TimeMS times 1000 in older logs such as ArduCopter 3.3-dev's)
+# and None where a log may lack it (the motor compensation: MOX.., or MOfsX.. as ArduCopter
+# 3.3 and 3.4 log it; 0 without either)
+_COLUMNS = {
+    "IMU": [("TimeUS", "TimeMS"), ("GyrX",), ("GyrY",), ("GyrZ",), ("AccX",), ("AccY",), ("AccZ",)],
+    "MAG": [("TimeUS", "TimeMS"), ("MagX",), ("MagY",), ("MagZ",), ("OfsX",), ("OfsY",), ("OfsZ",),
+            ("MOX", "MOfsX", None), ("MOY", "MOfsY", None), ("MOZ", "MOfsZ", None)],
+}
+
+
+def _fields(msg, kind: str, path: Path) -> list[tuple[str | None, float]]:
+    """(field name or None for 0, scale) per column of _COLUMNS[kind], from a message's own
+    format; InputError naming the fields the log has where a needed one is missing."""
+    have = list(msg.get_fieldnames())
+    out = []
+    for names in _COLUMNS[kind]:
+        name = next((n for n in names if n is None or n in have), "")
+        if name == "":
+            raise InputError(f"{path}: {kind} messages have no {' or '.join(n for n in names if n)} field (they have "
+                             f"{', '.join(have)})")
+        out.append((name, 1000.0 if name == "TimeMS" else 1.0))
+    return out
 
 
 def _enum_rotation(value: float, params: dict[str, float], key: str, path: Path) -> np.ndarray:

@@ -16,13 +16,14 @@ from typing import Any, Mapping
 
 import numpy as np
 from rich.table import Table
+from threadpoolctl import threadpool_limits
 
 from rigcal.core import geometry as geo
 from rigcal.core.rig import Magnetometer, Rig
 from rigcal.data.imu_csv import ImuSamples
 from rigcal.data.mag_csv import MagSamples, check_mag_dataset
 from rigcal.errors import CalibrationError
-from rigcal.mag.ellipsoid import check_coverage, fit_ellipsoid
+from rigcal.mag.ellipsoid import AXIS_NAMES, COVERAGE_DEG, check_coverage, fit_ellipsoid, missing_directions
 from rigcal.mag.estimator import MagInput, MagResult, estimate
 
 DISTURBANCE_SHARE = 0.03  # a 1 s mean field magnitude this far (plus 5 sigma of noise) from the median is refused
@@ -57,10 +58,14 @@ def mag_input(rig: Rig, mag: Magnetometer, samples: MagSamples, imu: ImuSamples,
 
 
 def check_recording(inp: MagInput) -> None:
-    """CalibrationError naming the directions a recording lacks (ellipsoid.check_coverage),
-    else naming when the field magnitude leaves what noise explains."""
-    fit = fit_ellipsoid(inp.m, inp.earth_field_uT, inp.label)
-    check_coverage(inp.m, fit, inp.label)
+    """CalibrationError naming the directions a recording lacks (ellipsoid.check_coverage,
+    with how far the IMU turned: motion_summary), else naming when the field magnitude leaves
+    what noise explains."""
+    try:
+        fit = fit_ellipsoid(inp.m, inp.earth_field_uT, inp.label)
+        check_coverage(inp.m, fit, inp.label)
+    except CalibrationError as e:
+        raise CalibrationError(f"{e}; {motion_summary(inp)}") from None
     mag = np.linalg.norm((inp.m - fit.hard_iron) @ fit.soft_iron.T, axis=1)
     gain = np.linalg.det(fit.soft_iron) ** (1.0 / 3.0)
     b = np.floor((inp.t_mag - inp.t_mag[0]) / BIN_S).astype(int)
@@ -75,6 +80,22 @@ def check_recording(inp: MagInput) -> None:
         raise CalibrationError(f"{inp.label}: magnetic disturbance at {_spans(np.flatnonzero(ok)[bad])} of the "
                                f"recording: the field magnitude reads up to {worst:.1f} uT there against {ref:.1f} uT "
                                f"elsewhere (beyond noise and {DISTURBANCE_SHARE:.0%}); " + ADVICE)
+
+
+def motion_summary(inp: MagInput) -> str:
+    """How much the recording turned, from the IMU alone (no magnetometer calibration needed):
+    the gyroscope's total rotation, the largest tilt of the specific force from its median
+    direction, and the IMU axes the vertical came within COVERAGE_DEG of (all six for a compass
+    dance; one for a level flight)."""
+    f = inp.accel / np.linalg.norm(inp.accel, axis=1, keepdims=True)
+    med = np.median(f, axis=0)
+    tilt = np.degrees(np.arccos(np.clip(f @ (med / np.linalg.norm(med)), -1.0, 1.0))).max()
+    turned = np.degrees(np.sum(np.linalg.norm(inp.gyro[1:], axis=1) * np.diff(inp.t_imu)))
+    missing = missing_directions(inp.accel, np.zeros(3), np.eye(3))
+    seen = [a for a in AXIS_NAMES if a not in missing]
+    return (f"the IMU turned {turned:.0f} deg in all and tilted at most {tilt:.0f} deg from its median attitude; "
+            f"up (the accelerometer's specific force) came within {COVERAGE_DEG:g} deg of its {', '.join(seen) or 'no'} axis "
+            f"({len(seen)} of 6 directions)")
 
 
 def check_residuals(inp: MagInput, r: MagResult) -> None:
@@ -133,13 +154,14 @@ def calibration_block(r: MagResult, mag: Magnetometer) -> dict[str, Any]:
     }
 
 
-def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, ImuSamples], refuse: bool = True
-                            ) -> MagStep:
+def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, ImuSamples], refuse: bool = True,
+                            samples: Mapping[str, MagSamples] | None = None) -> MagStep:
     """Every magnetometer of `rig` calibrated against its IMU (whose T_body_imu, declared or
-    calibrated, `rig` holds) from DATASET/mag/; the rig unchanged when there is no mag/.
+    calibrated, `rig` holds) from DATASET/mag/ (or `samples`, check_mag_dataset's answer when
+    the caller has it already); the rig unchanged when there is no mag/.
     A recording refused (poor coverage, a disturbance) raises CalibrationError, or with
     refuse=False leaves that magnetometer's block unchanged with a warning note."""
-    samples = check_mag_dataset(dataset, rig, imus)
+    samples = check_mag_dataset(dataset, rig, imus) if samples is None else samples
     if not samples:
         note = (f"the rig declares magnetometer(s) {', '.join(m.name for m in rig.magnetometers)} but the dataset "
                 f"has no mag/ folder: their blocks are carried through unchanged",) if rig.magnetometers else ()
@@ -149,9 +171,10 @@ def calibrate_magnetometers(rig: Rig, dataset: str | Path, imus: Mapping[str, Im
         imu = rig.mag_imu(mag)
         inp = mag_input(rig, mag, samples[mag.name], imus[imu.name], imu.T_body_imu[:3, :3])
         try:
-            check_recording(inp)
-            r = estimate(inp)
-            check_residuals(inp, r)
+            with threadpool_limits(1, user_api="blas"):  # small products: more BLAS threads only spin (estimator.estimate)
+                check_recording(inp)
+                r = estimate(inp)
+                check_residuals(inp, r)
         except CalibrationError as e:
             if refuse:
                 raise

@@ -76,7 +76,7 @@ def model_selection_entry(res: ImuCalibration) -> dict:
 
 
 def _model_entries(res: ImuCalibration, block: dict) -> None:
-    """The spec addition (README): `imu_model`, `imu_model_selection` and, for the
+    """The additions to the rig format (docs/formats.md): `imu_model`, `imu_model_selection` and, for the
     scale-misalignment model, M of each sensor (3x3 rows, sensor reads M @ ideal + bias)
     with its 1-sigma (the upper triangle is held at 0)."""
     block["imu_model"] = res.imu_model

@@ -23,7 +23,7 @@ SIGMA_WARN_FOCAL = 0.01  # relative 1-sigma of fx, fy
 # sigma turns every ray, and the camera's T_body_cam with it, by that angle. Eight well
 # moved views of one board at f = 300 px give 0.13 deg (tests/commands/test_faults.py, degenerate
 # motion); caliscope's webcams 0.15-0.44 deg, where the set's principal points and
-# caliscope's differ by 10-30 px (README, Real image sets).
+# caliscope's differ by 10-30 px (docs/accuracy.md, Real image sets).
 SIGMA_WARN_PP_DEG = 0.25
 # a board must tilt this much (deg, from facing the camera) for its perspective to
 # separate the focal length and principal point from the board's distance and position

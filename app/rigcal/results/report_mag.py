@@ -1,6 +1,7 @@
-"""The magnetometer page of `rigcal calibrate --report` on a dataset of imu/ and mag/: per
-magnetometer, the raw and the calibrated readings on the sphere, and the heading error over
-the recording.
+"""The magnetometers in `rigcal calibrate --report`: per magnetometer, the raw and the
+calibrated readings on the sphere, and the heading error over the recording. A dataset of
+imu/ and mag/ alone gets a page of its own (mag_report); one with images too gets the same
+section at the end of the camera report (with_mag_section).
 
 Heading error: each reading's field carried into the world with the estimated orientation
 (the IMU's, from the joint fit) and, tilt-compensated, its angle from magnetic north. With
@@ -59,20 +60,37 @@ def heading_figure(name: str, r: MagResult, m: np.ndarray, R_imu_mag_declared: n
     return fig
 
 
-def mag_report(rig: Rig, declared: Rig, results: dict[str, MagResult], readings: dict[str, np.ndarray]) -> str:
-    """The whole page (self-contained HTML: plotly inlined once)."""
-    parts, first = [], True
+def mag_section(rig: Rig, declared: Rig, results: dict[str, MagResult], readings: dict[str, np.ndarray],
+                include_plotlyjs: bool = False) -> str:
+    """Per magnetometer a heading, its figures and the sphere and heading-error plots (HTML;
+    plotly.js inlined with the first figure when include_plotlyjs). `declared`: the rig the
+    magnetometer step was given (its declared mounts, the IMUs it calibrated against)."""
+    parts, first = [], include_plotlyjs
     for name, r in results.items():
         mag, imu = declared.magnetometer(name), declared.mag_imu(declared.magnetometer(name))
         R_decl = imu.T_body_imu[:3, :3].T @ mag.T_body_mag[:3, :3]
         cal = rig.magnetometer(name).calibration or {}
-        parts.append(f"<h2>{html.escape(name)}</h2><p>residual RMS {r.residual_rms_uT:.3f} uT (declared "
+        parts.append(f"<h2>Magnetometer {html.escape(name)}</h2><p>residual RMS {r.residual_rms_uT:.3f} uT (declared "
                      f"{r.residual_rms_declared_uT:.3f} uT); field {r.field_uT:.2f} uT, inclination "
                      f"{r.inclination_deg:.2f} deg; heading 1-sigma {cal.get('heading_sigma_deg', r.heading_sigma_deg):.3f} "
                      f"deg; 1-sigma {html.escape(r.sigma_basis)}</p>")
         for fig in (sphere_figure(name, r, readings[name]), heading_figure(name, r, readings[name], R_decl)):
             parts.append(fig.to_html(full_html=False, include_plotlyjs=first))
             first = False
+    return "".join(parts)
+
+
+def mag_report(rig: Rig, declared: Rig, results: dict[str, MagResult], readings: dict[str, np.ndarray]) -> str:
+    """The whole page (self-contained HTML: plotly inlined once)."""
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>rigcal: magnetometers "
             f"of {html.escape(str(rig.name))}</title></head><body><h1>Magnetometers of {html.escape(str(rig.name))}</h1>"
-            + "".join(parts) + "</body></html>\n")
+            + mag_section(rig, declared, results, readings, include_plotlyjs=True) + "</body></html>\n")
+
+
+def with_mag_section(page: str, rig: Rig, declared: Rig, results: dict[str, MagResult],
+                     readings: dict[str, np.ndarray]) -> str:
+    """The camera report `page` with the magnetometer section before its end; plotly.js is the
+    page's where it has a figure already, else the section's first figure inlines it."""
+    end = page.rindex("</body>")
+    section = mag_section(rig, declared, results, readings, include_plotlyjs="Plotly.newPlot" not in page)
+    return page[:end] + section + "\n" + page[end:]

@@ -1,7 +1,8 @@
 """`rigcal ingest`: a recording (EuRoC folder, ROS 1/2 bag, video files) -> a dataset folder.
 
 The dataset is the documented layout (docs/formats.md#dataset, #motion-datasets):
-`images/<camera>/<t_ns>.<ext>` named by integer-nanosecond capture times, `imu/<imu>.csv` in EuRoC's format, and rig.yaml /
+`images/<camera>/<t_ns>.<ext>` named by integer-nanosecond capture times, `imu/<imu>.csv` in EuRoC's format,
+`mag/<mag>.csv` (docs/magnetometer.md; from a bag's MagneticField topics), and rig.yaml /
 target.yaml when known. The source is only read; the dataset is built in a temporary
 folder and renamed into place at the end, so it is whole or absent.
 
@@ -15,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
@@ -45,6 +46,7 @@ class IngestOptions:
     end_s: float | None = None
     body_axes: tuple[str, str, str] = euroc.EUROC_BODY_AXES
     link: bool = True
+    mags: dict[str, str] = field(default_factory=dict)  # --mag NAME=TOPIC (bags)
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,7 @@ class IngestResult:
     target_from: str | None
     seconds: float
     warnings: tuple[str, ...]
+    mags: dict[str, ImuCounts] = field(default_factory=dict)
 
 
 def parse_pairs(values: list[str] | None, option: str, numeric: bool = False) -> dict:
@@ -99,6 +102,8 @@ def open_recording(source: Path, opts: IngestOptions, stack):
     if not source.exists():
         raise InputError(f"{source}: does not exist")
     mav0 = euroc.find_mav0(source) if source.is_dir() else None
+    if opts.mags and not is_bag(source):
+        raise InputError(f"--mag: only for ROS bags (sensor_msgs/MagneticField topics); {source} is not one")
     if opts.offsets and (mav0 is not None or is_bag(source)):
         raise InputError("--offset: only for video files (a bag's or EuRoC folder's header stamps are the capture "
                          "times)")
@@ -106,9 +111,10 @@ def open_recording(source: Path, opts: IngestOptions, stack):
         return "euroc", euroc.open_euroc(mav0, opts.cameras, opts.imus)
     if is_bag(source):
         reader = stack.enter_context(open_bag(source))
-        if not opts.cameras:
-            raise TopicListing(topic_table(source, topics(reader)) + "\nnothing written: name the cameras with --camera")
-        return "bag", BagRecording(reader, source, opts.cameras, opts.imus)
+        if not opts.cameras and not (opts.imus and opts.mags):  # IMU + magnetometer alone: a compass dance
+            raise TopicListing(topic_table(source, topics(reader)) + "\nnothing written: name the cameras with --camera "
+                               "(or the IMU and magnetometer with --imu and --mag)")
+        return "bag", BagRecording(reader, source, opts.cameras, opts.imus, opts.mags)
     if is_video(source) or source.is_dir():
         return "video", VideoRecording(_video_files(source, opts.cameras), opts.offsets)
     if source.suffix.lower() in (".bag", ".db3", ".mcap"):
@@ -157,11 +163,12 @@ def ingest(source: str | Path, out_dir: str | Path, opts: IngestOptions, rig_pat
             rig_from, rig_doc = _rig_from_camera_info(rec, source)
         if rig_text is None and rig_doc is not None:
             rig_text = _dump(rig_doc)
+        mag_src = rec.mag_sources if kind == "bag" else {}
         if rig_doc is not None:
-            _check_rig_names(rig_doc, list(cam_src), list(imu_src), str(rig_path or "the declared rig"))
+            _check_rig_names(rig_doc, list(cam_src), list(imu_src), str(rig_path or "the declared rig"), list(mag_src))
         window = Window(rec.first_stamp_ns(), opts.start_s, opts.end_s)
         with atomic_dir(out_dir, force=force) as tmp:
-            writer = DatasetWriter(tmp, cam_src, imu_src, window, opts.rate_hz, opts.link)
+            writer = DatasetWriter(tmp, cam_src, imu_src, window, opts.rate_hz, opts.link, mags=mag_src)
             try:
                 _copy(rec, writer, progress, warnings, rig_doc if kind == "euroc" and rig_path is None else None)
                 writer.finish()
@@ -177,7 +184,8 @@ def ingest(source: str | Path, out_dir: str | Path, opts: IngestOptions, rig_pat
         warnings.append("warning: --rate with an IMU: the camera-IMU terms want every frame; thinned frames weaken "
                         "the time offset and rotation estimates")
     return IngestResult(out_dir, kind, writer.cameras, writer.imus, rig_from,
-                        str(target_path) if target_path else None, time.perf_counter() - t_start, tuple(warnings))
+                        str(target_path) if target_path else None, time.perf_counter() - t_start, tuple(warnings),
+                        writer.mags)
 
 
 def _copy(rec, writer: DatasetWriter, progress: bool, warnings: list[str], euroc_rig: dict | None) -> None:
@@ -188,6 +196,8 @@ def _copy(rec, writer: DatasetWriter, progress: bool, warnings: list[str], euroc
                 writer.add_frame(name, item)
                 if bar:
                     bar.advance()
+            elif kind == "mag":
+                writer.add_mag(name, item)
             else:
                 writer.add_imu(name, item)
                 if euroc_rig is not None and name in euroc_rig.get("imus", {}):
@@ -202,8 +212,8 @@ def _rig_from_camera_info(rec: BagRecording, source: Path) -> tuple[str, dict | 
     """A rig of intrinsics only (no poses: calibrate finds them, the first camera being the
     body frame) from the bag's CameraInfo topics; none when a camera lacks one, or with an
     IMU (its noise figures are not in the bag)."""
-    if rec.imus:
-        return "not written: the bag does not give the IMU's noise figures (pass --rig)", None
+    if rec.imus or rec.mags:
+        return "not written: the bag does not give the IMU's or magnetometer's noise figures (pass --rig)", None
     cams, why = declared_cameras(rec.reader, {c: rec.topic_of[c] for c in rec.cameras})
     if cams is None:
         return f"not written: {why} (pass --rig)", None
@@ -246,15 +256,19 @@ def _rig_doc(text: str, path) -> dict:
     return doc
 
 
-def _check_rig_names(doc: dict, cameras: list[str], imus: list[str], label: str) -> None:
+def _check_rig_names(doc: dict, cameras: list[str], imus: list[str], label: str, mags: list[str] = ()) -> None:
     rig_from_dict(doc, label)  # the whole rig, imus included, as calibrate will read it
+    hints = {"cameras": "choose and name the cameras with --camera NAME=...",
+             "imus": "declare each IMU under `imus:` (docs/formats.md#imus) or leave out --imu",
+             "magnetometers": "declare each magnetometer under `magnetometers:` (docs/magnetometer.md) or leave out "
+                              "--mag"}
     for what, declared, got in (("cameras", list(doc["cameras"]), cameras),
-                                ("imus", list(doc.get("imus") or {}), imus)):
-        if what == "imus" and not got:
+                                ("imus", list(doc.get("imus") or {}), imus),
+                                ("magnetometers", list(doc.get("magnetometers") or {}), list(mags))):
+        if not got and (what != "cameras" or mags):  # no --imu / --mag; no --camera for a compass dance
             continue
         if sorted(declared) != sorted(got):
-            hint = ("declare each IMU under `imus:` (docs/formats.md#imus) or leave out --imu" if what == "imus" else
-                    "choose and name the cameras with --camera NAME=...")
+            hint = hints[what]
             raise InputError(f"{label}: {what}: declares {', '.join(declared) or 'none'} but the recording gives "
                              f"{', '.join(got) or 'none'} ({hint})")
 
@@ -268,7 +282,7 @@ def _check_written(writer: DatasetWriter) -> None:
 
 def _stamp_warnings(writer: DatasetWriter) -> list[str]:
     out = []
-    for name, n in {**writer.cameras, **writer.imus}.items():
+    for name, n in {**writer.cameras, **writer.imus, **writer.mags}.items():
         if n.duplicated or n.backwards:
             out.append(f"warning: {n.source}: {n.duplicated} duplicated and {n.backwards} backwards stamps dropped "
                        f"(the first of each kept)")
@@ -307,9 +321,10 @@ class _Progress:
 
 
 def run(source, out_dir, *, rig_path=None, target_path=None, cameras=None, imus=None, rate=None, start=None,
-        end=None, offsets=None, body_axes=None, copy=False, force=False) -> str:
+        end=None, offsets=None, body_axes=None, copy=False, force=False, mags=None) -> str:
     """`rigcal ingest`: returns the summary for stdout; warnings go to stderr."""
     opts = IngestOptions(cameras=parse_pairs(cameras, "--camera"), imus=parse_pairs(imus, "--imu"),
+                         mags=parse_pairs(mags, "--mag"),
                          offsets=parse_pairs(offsets, "--offset", numeric=True), rate_hz=rate, start_s=start,
                          end_s=end, body_axes=tuple(body_axes) if body_axes else euroc.EUROC_BODY_AXES,
                          link=not copy)
@@ -329,10 +344,11 @@ def summary(res: IngestResult) -> str:
                                            ("backwards", n.backwards), ("thinned", n.thinned)) if v]
         lines.append(f"  images/{c}/: {n.kept} of {n.read} frames from {n.source}, {span:.1f} s, ~{rate:.1f} Hz"
                      + (f" (dropped: {', '.join(dropped)})" if dropped else ""))
-    for name, n in res.imus.items():
-        span = ((n.last_ns or 0) - (n.first_ns or 0)) / 1e9
-        lines.append(f"  imu/{name}.csv: {n.written} of {n.read} samples from {n.source}, {span:.1f} s, "
-                     f"~{(n.written - 1) / span if span > 0 else 0.0:.1f} Hz")
+    for folder, counts in (("imu", res.imus), ("mag", res.mags)):
+        for name, n in counts.items():
+            span = ((n.last_ns or 0) - (n.first_ns or 0)) / 1e9
+            lines.append(f"  {folder}/{name}.csv: {n.written} of {n.read} samples from {n.source}, {span:.1f} s, "
+                         f"~{(n.written - 1) / span if span > 0 else 0.0:.1f} Hz")
     rig = res.rig_from or "not written (pass --rig)"
     lines.append(f"  rig.yaml: {rig if rig.startswith('not written') else 'from ' + rig}")
     lines.append(f"  target.yaml: {'from ' + res.target_from if res.target_from else 'not written (pass --target)'}")

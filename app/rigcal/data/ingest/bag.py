@@ -1,8 +1,10 @@
 """ROS 1 `.bag` and ROS 2 bags (sqlite3, mcap) through `rosbags` (pure Python, no ROS).
 
 Images are `sensor_msgs/Image` (encodings of images.ENCODINGS) or `CompressedImage`
-(png or jpeg bytes, written as they are); IMU samples are `sensor_msgs/Imu`. Times are
-the messages' header stamps (the capture time the driver set), never the record times.
+(png or jpeg bytes, written as they are); IMU samples are `sensor_msgs/Imu`; magnetometer
+readings are `sensor_msgs/MagneticField` (tesla, converted to microtesla for mag/<name>.csv; the
+raw readings the driver published, in the chip's axes). Times are the messages' header stamps
+(the capture time the driver set), never the record times.
 """
 
 from __future__ import annotations
@@ -16,10 +18,12 @@ import numpy as np
 
 from rigcal.errors import InputError
 from rigcal.data.ingest.images import EncodingError, compressed_suffix, decode, raw_pixels
-from rigcal.data.ingest.writer import Frame, ImuBlock
+from rigcal.data.ingest.writer import Frame, ImuBlock, MagBlock
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 IMU_TYPE = "sensor_msgs/msg/Imu"
+MAG_TYPE = "sensor_msgs/msg/MagneticField"
+TESLA_TO_UT = 1e6
 INFO_TYPE = "sensor_msgs/msg/CameraInfo"
 # CameraInfo distortion models -> rigcal camera model and the number of coefficients kept
 _INFO_MODELS = {"plumb_bob": ("pinhole", 5), "rational_polynomial": ("pinhole", 8), "equidistant": ("fisheye", 4)}
@@ -57,7 +61,8 @@ def open_bag(source: Path):
 
 @dataclass(frozen=True)
 class TopicInfo:
-    """One image or IMU topic of a bag: its message type, message count and mean rate (Hz)."""
+    """One image, IMU or magnetometer topic of a bag: its message type, message count and mean
+    rate (Hz)."""
 
     topic: str
     msgtype: str
@@ -66,9 +71,10 @@ class TopicInfo:
 
 
 def topics(reader, rates: bool = True) -> list[TopicInfo]:
-    """Image and IMU topics with their message counts, and (rates=True) each topic's mean rate
-    between its first and last record time (one pass over those topics' messages, undecoded)."""
-    infos = {t: i for t, i in sorted(reader.topics.items()) if i.msgtype in IMAGE_TYPES + (IMU_TYPE,)}
+    """Image, IMU and magnetometer topics with their message counts, and (rates=True) each
+    topic's mean rate between its first and last record time (one pass over those topics'
+    messages, undecoded)."""
+    infos = {t: i for t, i in sorted(reader.topics.items()) if i.msgtype in IMAGE_TYPES + (IMU_TYPE, MAG_TYPE)}
     span: dict[str, list[int]] = {}
     if rates and infos:
         conns = [c for c in reader.connections if c.topic in infos]
@@ -85,9 +91,10 @@ def topics(reader, rates: bool = True) -> list[TopicInfo]:
 
 def topic_table(source: Path, rows: list[TopicInfo]) -> str:
     if not rows:
-        return f"{source}: no sensor_msgs/Image, CompressedImage or Imu topic"
+        return f"{source}: no sensor_msgs/Image, CompressedImage, Imu or MagneticField topic"
     w = max(len(r.topic) for r in rows)
-    lines = [f"{source}: image and IMU topics (choose with --camera NAME=TOPIC, --imu NAME=TOPIC):"]
+    lines = [f"{source}: image, IMU and magnetometer topics (choose with --camera NAME=TOPIC, --imu NAME=TOPIC, "
+             f"--mag NAME=TOPIC):"]
     lines += [f"  {r.topic:<{w}}  {r.msgtype.split('/')[-1]:<15} {r.count:>7} msgs  {r.rate_hz:7.1f} Hz" for r in rows]
     return "\n".join(lines)
 
@@ -101,7 +108,8 @@ def _connections(reader, source: Path, chosen: dict[str, str], types: tuple[str,
         conns = by_topic.get(topic)
         if not conns:
             listed = ", ".join(f"{r.topic} ({r.msgtype.split('/')[-1]})" for r in topics(reader, rates=False))
-            raise InputError(f"{source}: no topic {topic!r} for {name} (image and IMU topics: {listed or 'none'})")
+            raise InputError(f"{source}: no topic {topic!r} for {name} (image, IMU and magnetometer topics: "
+                             f"{listed or 'none'})")
         if conns[0].msgtype not in types:
             raise InputError(f"{source}: topic {topic} is {conns[0].msgtype}, expected {' or '.join(types)}")
         out[name] = conns
@@ -111,35 +119,45 @@ def _connections(reader, source: Path, chosen: dict[str, str], types: tuple[str,
 class BagRecording:
     """The chosen topics of an opened bag, read in one pass."""
 
-    def __init__(self, reader, source: Path, cameras: dict[str, str], imus: dict[str, str]):
+    def __init__(self, reader, source: Path, cameras: dict[str, str], imus: dict[str, str],
+                 mags: dict[str, str] | None = None):
         self.reader, self.source = reader, source
         self.cameras = _connections(reader, source, cameras, IMAGE_TYPES)
         self.imus = _connections(reader, source, imus, (IMU_TYPE,))
-        self.topic_of = {**cameras, **imus}
+        self.mags = _connections(reader, source, mags or {}, (MAG_TYPE,))
+        self.topic_of = {**cameras, **imus, **(mags or {})}
 
     @property
     def sources(self) -> tuple[dict[str, str], dict[str, str]]:
         return ({c: f"{self.source}:{self.topic_of[c]}" for c in self.cameras},
                 {n: f"{self.source}:{self.topic_of[n]}" for n in self.imus})
 
+    @property
+    def mag_sources(self) -> dict[str, str]:
+        return {n: f"{self.source}:{self.topic_of[n]}" for n in self.mags}
+
     def total_frames(self) -> int:
         return sum(c.msgcount for conns in self.cameras.values() for c in conns)
 
     def first_stamp_ns(self) -> int:
-        """The earliest header stamp among the first message of each camera topic."""
+        """The earliest header stamp among the first message of each camera topic (of each IMU
+        and magnetometer topic for a recording without cameras: a compass dance)."""
         firsts = []
-        for name, conns in self.cameras.items():
+        streams = self.cameras or {**self.imus, **self.mags}
+        for name, conns in streams.items():
             for conn, _, raw in self.reader.messages(connections=conns):
                 firsts.append(_stamp(self.reader.deserialize(raw, conn.msgtype), conn.topic, 1))
                 break
         if not firsts:
-            raise InputError(f"{self.source}: the chosen camera topics hold no message")
+            what = "camera" if self.cameras else "IMU and magnetometer"
+            raise InputError(f"{self.source}: the chosen {what} topics hold no message")
         return min(firsts)
 
     def items(self) -> Iterator[tuple[str, str, Frame | ImuBlock]]:
         name_of = {id(c): ("camera", n) for n, cs in self.cameras.items() for c in cs}
         name_of.update({id(c): ("imu", n) for n, cs in self.imus.items() for c in cs})
-        conns = [c for cs in list(self.cameras.values()) + list(self.imus.values()) for c in cs]
+        name_of.update({id(c): ("mag", n) for n, cs in self.mags.items() for c in cs})
+        conns = [c for cs in [*self.cameras.values(), *self.imus.values(), *self.mags.values()] for c in cs]
         index = {id(c): 0 for c in conns}
         try:
             for conn, _, raw in self.reader.messages(connections=conns):
@@ -150,6 +168,8 @@ class BagRecording:
                 t = _stamp(msg, conn.topic, index[id(conn)])
                 if kind == "imu":
                     yield kind, name, _imu_block(msg, t)
+                elif kind == "mag":
+                    yield kind, name, _mag_block(msg, t)
                 else:
                     yield kind, name, _frame(msg, conn.msgtype, t, where)
         except InputError:
@@ -229,3 +249,8 @@ def _imu_block(msg, t: int) -> ImuBlock:
     w, a = msg.angular_velocity, msg.linear_acceleration
     return ImuBlock(np.array([t], np.int64), np.array([[w.x, w.y, w.z]], np.float64),
                     np.array([[a.x, a.y, a.z]], np.float64))
+
+
+def _mag_block(msg, t: int) -> MagBlock:
+    f = msg.magnetic_field
+    return MagBlock(np.array([t], np.int64), np.array([[f.x, f.y, f.z]], np.float64) * TESLA_TO_UT)

@@ -23,6 +23,7 @@ import numpy as np
 from rigcal.data.dataset import IMAGE_EXTENSIONS
 from rigcal.errors import InputError
 from rigcal.data.imu_csv import imu_csv
+from rigcal.data.mag_csv import mag_csv
 from rigcal.data.ingest.images import decode, focus_measure
 
 # IMU samples are kept this far outside the image window: the IMU terms need samples
@@ -62,6 +63,14 @@ class ImuBlock:
     t_ns: np.ndarray
     gyro: np.ndarray
     accel: np.ndarray
+
+
+@dataclass(frozen=True)
+class MagBlock:
+    """Magnetometer readings: t_ns (N,) int64, m_uT (N, 3) microtesla, the chip's axes, raw."""
+
+    t_ns: np.ndarray
+    m_uT: np.ndarray
 
 
 @dataclass
@@ -116,7 +125,8 @@ class DatasetWriter:
     """Writes frames and IMU samples under `root` (see the module docstring)."""
 
     def __init__(self, root: Path, cameras: dict[str, str], imus: dict[str, str], window: Window,
-                 rate_hz: float | None = None, link: bool = True, threads: int | None = None):
+                 rate_hz: float | None = None, link: bool = True, threads: int | None = None,
+                 mags: dict[str, str] | None = None):
         self.root = root
         self.window = window
         self.rate_hz = rate_hz
@@ -124,6 +134,8 @@ class DatasetWriter:
         self.cameras = {c: CameraCounts(src) for c, src in cameras.items()}
         self.imus = {n: ImuCounts(src) for n, src in imus.items()}
         self._imu_blocks: dict[str, list[ImuBlock]] = {n: [] for n in imus}
+        self.mags = {n: ImuCounts(src) for n, src in (mags or {}).items()}
+        self._mag_blocks: dict[str, list[MagBlock]] = {n: [] for n in self.mags}
         self._written: dict[str, dict[int, Path]] = {c: {} for c in cameras}
         self._focus: dict[str, dict[int, float]] = {c: {} for c in cameras}
         for c in cameras:
@@ -203,6 +215,9 @@ class DatasetWriter:
     def add_imu(self, name: str, block: ImuBlock) -> None:
         self._imu_blocks[name].append(block)
 
+    def add_mag(self, name: str, block: MagBlock) -> None:
+        self._mag_blocks[name].append(block)
+
     def finish(self) -> None:
         """Wait for the frames in flight, write imu/*.csv and thin the frames (--rate)."""
         while self._pending:
@@ -210,6 +225,8 @@ class DatasetWriter:
         self.close()
         for name, blocks in self._imu_blocks.items():
             self._finish_imu(name, blocks)
+        for name, blocks in self._mag_blocks.items():
+            self._finish_mag(name, blocks)
         if self.rate_hz is not None:
             kept = thin_by_rate(self._focus, self.window.t0_ns, self.rate_hz)
             for camera, paths in self._written.items():
@@ -226,6 +243,27 @@ class DatasetWriter:
         t = np.concatenate([b.t_ns for b in blocks]).astype(np.int64)
         gyro = np.concatenate([b.gyro for b in blocks]).reshape(-1, 3)
         accel = np.concatenate([b.accel for b in blocks]).reshape(-1, 3)
+        keep = self._kept(n, t, "IMU sample")
+        t, gyro, accel = t[keep], gyro[keep], accel[keep]
+        n.written, n.first_ns, n.last_ns = len(t), int(t[0]), int(t[-1])
+        (self.root / "imu").mkdir(exist_ok=True)
+        (self.root / "imu" / f"{name}.csv").write_text(imu_csv(t, gyro, accel), encoding="utf-8")
+
+    def _finish_mag(self, name: str, blocks: list[MagBlock]) -> None:
+        n = self.mags[name]
+        if not blocks:
+            raise InputError(f"{n.source}: no magnetometer readings")
+        t = np.concatenate([b.t_ns for b in blocks]).astype(np.int64)
+        m = np.concatenate([b.m_uT for b in blocks]).reshape(-1, 3)
+        keep = self._kept(n, t, "magnetometer reading")
+        t, m = t[keep], m[keep]
+        n.written, n.first_ns, n.last_ns = len(t), int(t[0]), int(t[-1])
+        (self.root / "mag").mkdir(exist_ok=True)
+        (self.root / "mag" / f"{name}.csv").write_text(mag_csv(t, m), encoding="utf-8")
+
+    def _kept(self, n: StreamCounts, t: np.ndarray, what: str) -> np.ndarray:
+        """The samples kept (the first of each stamp, in order, inside the window padded by
+        IMU_PAD_NS), with n's counts filled in."""
         n.read = len(t)
         keep, dup, back = first_of_monotonic(t)
         n.duplicated, n.backwards = dup, back
@@ -234,11 +272,8 @@ class DatasetWriter:
         n.outside = int((keep & ~inside).sum())
         keep &= inside
         if not keep.any():
-            raise InputError(f"{n.source}: no IMU sample inside the chosen time window")
-        t, gyro, accel = t[keep], gyro[keep], accel[keep]
-        n.written, n.first_ns, n.last_ns = len(t), int(t[0]), int(t[-1])
-        (self.root / "imu").mkdir(exist_ok=True)
-        (self.root / "imu" / f"{name}.csv").write_text(imu_csv(t, gyro, accel), encoding="utf-8")
+            raise InputError(f"{n.source}: no {what} inside the chosen time window")
+        return keep
 
 
 def first_of_monotonic(t: np.ndarray) -> tuple[np.ndarray, int, int]:
