@@ -28,6 +28,9 @@ Sections (each also runs alone: python -m bench.<name>):
                and intrinsic parameter's error / its 1-sigma (target: 90-98 % within 2 sigma)
   imu_freerun  `rigcal calibrate` on free-running, mixed-rate and rolling-shutter free-running 30 s recordings
                vs a synchronised one: T_imu_cam, clock offset and line delay errors, share within 2 sigma
+  visual_freerun  `rigcal calibrate` without an IMU: free-running cameras (continuous-time trajectory from the
+               views alone) vs a synchronised camera-only recording of the same length, 10 s x 3 seeds:
+               relative poses (deg, mm), camera-camera clock offsets (ms), share within 2 sigma
   ingest       `rigcal ingest` wall time on a 60 s 2-camera 20 Hz + 200 Hz IMU bag (ROS 1, ROS 2 mcap)
   mag          magnetometer vs truth on 20 simulated 60 s compass dances (hard/soft iron, R_body_mag,
                inclination, share within 2 sigma) and the heading error beside an ellipsoid fit alone
@@ -68,7 +71,7 @@ from typing import Any, Callable
 
 from . import (accuracy, aprilgrid_excess, check, dome, imu_calib, imu_coverage, imu_euroc, imu_freerun, imu_noise,
                imu_speed, indie, indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo, noise_limit,
-               peer_opencv, real, scale, simulate_imu, solver_libraries, speed)
+               peer_opencv, real, scale, simulate_imu, solver_libraries, speed, visual_freerun)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -117,6 +120,8 @@ TABLE = (
     Section("imu_coverage", "imu_coverage", lambda q, d: imu_coverage.run(seeds=3 if q else 20), _only(imu_coverage)),
     Section("imu_freerun", "imu_freerun",
             lambda q, d: imu_freerun.run(seeds=1 if q else 3, duration=8.0 if q else 30.0), _only(imu_freerun)),
+    Section("visual_freerun", "visual_freerun",
+            lambda q, d: visual_freerun.run(seeds=1 if q else 3, duration=5.0 if q else 10.0), _only(visual_freerun)),
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),
             _only(solver_libraries)),
     Section("ingest", "ingest", lambda q, d: ingest.run(seconds=10.0 if q else 60.0), _only(ingest)),

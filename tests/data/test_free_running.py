@@ -1,7 +1,7 @@
 """Free-running and mixed-rate cameras in a motion dataset (imu.md: "Cameras need not share
 stems"): images grouped by time into shared frames for the camera-only start
 (rigcal.data.dataset.associate_by_time), and the refusals that name the camera and what
-is missing (an IMU, images taken together, overlap with the IMU, integer stems): exit 2,
+is missing (images taken together, overlap with the IMU, integer stems): exit 2,
 one line, nothing written. The datasets here are fabricated (tiny images, a synthetic
 IMU stream): every refusal comes before detection."""
 
@@ -120,15 +120,26 @@ def test_synchronised_stems_are_left_as_they_are(tmp_path):
 # ----------------------------------------------------------------------------- refusals (CLI)
 
 
-def test_free_running_cameras_without_an_imu_are_refused(tmp_path):
+def _read(ds: Path, camera_only: bool = False):
+    """calibrate's inputs as run() reads them (before detection)."""
+    from rigcal.commands.calibrate import CalibrateOptions, _read_inputs
+
+    o = CalibrateOptions()
+    return _read_inputs(ds, ds.parent / "out.yaml", None, None, None, 1, None if camera_only else o.imu_step(""))
+
+
+def test_free_running_cameras_without_an_imu_are_grouped_by_time(tmp_path):
+    # no IMU: the views alone shape the motion (imucal.visual_motion); the start groups by time
     stems = {"front_left": _grid(0.0, 50.0, 20), "front_right": _grid(7.3, 50.0, 20), "back": _grid(19.0, 50.0, 20)}
-    ds = _dataset(tmp_path / "ds", stems, imu=False)
-    _refused(ds, "camera front_left shares no stem", "free-running", "IMU", "synchronised stems")
+    inp = _read(_dataset(tmp_path / "ds", stems, imu=False))
+    assert inp.motion.frame_t_ns is not None
+    assert inp.motion.frame_t_ns["back"] and any("continuous-time step" in n for n in inp.motion_notes)
 
 
-def test_free_running_cameras_with_camera_only_are_refused(tmp_path):
+def test_free_running_cameras_with_camera_only_are_grouped_by_time(tmp_path):
     stems = {"front_left": _grid(0.0, 50.0, 40), "front_right": _grid(7.3, 50.0, 40), "back": _grid(3.0, 50.0, 40)}
-    _refused(_dataset(tmp_path / "ds", stems), "do not share stems", "--camera-only", extra=("--camera-only",))
+    inp = _read(_dataset(tmp_path / "ds", stems), camera_only=True)
+    assert inp.motion.frame_t_ns is not None and any("continuous-time step" in n for n in inp.motion_notes)
 
 
 def test_phases_a_third_of_a_period_apart_are_grouped_within_half_a_period(tmp_path):
@@ -143,6 +154,13 @@ def test_a_camera_never_taken_with_another_is_refused(tmp_path):
     front = _grid(0.0, 50.0, 21) + _grid(2300.0, 50.0, 21)
     stems = {"front_left": front, "front_right": front, "back": _grid(1060.0, 50.0, 24)}
     _refused(_dataset(tmp_path / "ds", stems), "camera back", "within 25.0 ms", "taken together")
+
+
+def test_a_camera_never_taken_with_another_without_an_imu_is_refused(tmp_path):
+    # no IMU either: nothing relates back's clock to the others'
+    front = _grid(0.0, 50.0, 21) + _grid(2300.0, 50.0, 21)
+    stems = {"front_left": front, "front_right": front, "back": _grid(1060.0, 50.0, 24)}
+    _refused(_dataset(tmp_path / "ds", stems, imu=False), "camera back", "within 25.0 ms", "taken together")
 
 
 def test_a_camera_overlapping_the_imu_too_briefly_is_refused(tmp_path):

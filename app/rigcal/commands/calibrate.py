@@ -140,12 +140,14 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     # --camera-only does not use the IMU: its overlap with the images is not checked
     inp = _read_inputs(dataset, out_path, o.report, o.rig, o.target, o.jobs, None if o.camera_only else imu_options)
     imu_name, reference, plan_notes = _imu_plan(inp, o.reference, o.camera_only)
-    if imu_name is None and inp.motion.frame_t_ns is not None:
-        # the camera-only answer would carry the motion between the cameras' instants
-        raise DatasetError(f"{dataset / 'images'}: the cameras do not share stems (free-running or mixed rates); "
-                           f"their relative poses need the camera-IMU calibration (drop --camera-only) or "
-                           f"synchronised stems")
+    # free-running cameras and no IMU used: the camera-only answer would carry the motion between
+    # the cameras' instants; the views alone shape a continuous-time trajectory (imucal.visual_motion)
+    free_running = imu_name is None and inp.motion.frame_t_ns is not None
     fix_intrinsics = o.fix_intrinsics
+    if free_running:
+        from rigcal.imucal.step import resolve_intrinsics
+
+        fix_intrinsics = fix_intrinsics or resolve_intrinsics("auto", inp.rig)[1]
     if imu_name is not None:  # --imu-intrinsics auto: a declared camera calibration's intrinsics are held
         from rigcal.imucal.step import resolve_intrinsics
 
@@ -178,6 +180,14 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")
     out_rig = calibrated_rig(cal, pairs, dataset=str(dataset))
     imu_res = None
+    if free_running:
+        from rigcal.imucal.visual_motion import calibrate_visual_motion
+        from rigcal.results.visual_outputs import summary_note, visual_motion_rig
+
+        vm = calibrate_visual_motion(cal, inp.motion.frame_t_ns, cal.reference, fix_intrinsics,
+                                     {c.name: c.time_offset_s or 0.0 for c in inp.rig.cameras})
+        out_rig = visual_motion_rig(out_rig, cal, vm)
+        plan_notes.append(summary_note(list(cal.cam_names), vm))
     if imu_name is not None:
         from rigcal.commands.calibrate_imu import calibrate_with_imu
 
@@ -188,12 +198,22 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     _write_outputs(out_path, o.report, out_rig, cal, found.det, pairs, timings,
                    imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]),
                    mag=None if mag_step is None or not mag_step.results else (mag_step, before_mag))
+    start_warnings = warnings_for(cal)
+    if free_running:  # the written poses' sigmas are the continuous-time estimate's, not the start's
+        from rigcal.results.visual_outputs import is_start_pose_warning, pose_warnings
+
+        start_warnings = ([w for w in start_warnings if not is_start_pose_warning(w)]
+                          + pose_warnings(list(cal.cam_names), vm))
     imu_warnings, imu_notes = (list(imu_res.warnings), list(imu_res.notes)) if imu_res else ([], [])
-    for w in found.warnings + warnings_for(cal) + imu_warnings:
+    for w in found.warnings + start_warnings + imu_warnings:
         console.print(f"warning: {w}")
     for n in list(cal.notes) + list(inp.motion_notes) + plan_notes + imu_notes:
         console.print(f"note: {n}")
     summary = console_summary(cal, out_rig, found.det, timings, out_path, o.report)
+    if free_running:
+        from rigcal.results.visual_outputs import console_table
+
+        summary = Group(summary, console_table(out_rig, vm, list(cal.cam_names)))
     if imu_res is None:
         return Group(summary, *mag_tables) if mag_tables else summary
     from rigcal.results.imu_outputs import console_tables
@@ -237,19 +257,35 @@ def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_pa
     images = list_dataset(dataset, rig)
     motion_notes, motion = _motion_notes(dataset, rig, images, _min_overlap_s(imu_options))
     if not motion.imus:
-        check_shared_stems(images)
-        return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
+        try:
+            check_shared_stems(images)
+            return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
+        except DatasetError:
+            if not _integer_stems(images):
+                raise  # files named per camera, not free-running cameras
     assoc = associate_by_time(images)
     check_shared_stems(assoc.images, assoc.tolerance_ns)
     if assoc.renamed:
         n = sum(len(f) for f in assoc.images.frames.values())
         motion_notes.append(f"the cameras do not share stems (free-running or mixed rates): for the camera-only start "
                             f"their {n} images are grouped into {assoc.shared_frames} frames shared by two cameras or "
-                            f"more (taken within {assoc.tolerance_ns * 1e-6:.1f} ms); the camera-IMU step places every "
-                            f"image at its own time")
+                            f"more (taken within {assoc.tolerance_ns * 1e-6:.1f} ms); the "
+                            f"{'camera-IMU' if imu_options is not None and motion.imus else 'continuous-time'} step "
+                            f"places every image at its own time")
         motion = replace(motion, frame_t_ns=assoc.image_t_ns)
         images = assoc.images
     return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
+
+
+def _integer_stems(images) -> bool:
+    """Every image's stem an integer (a capture time in ns) and every camera's images within
+    another camera's span: cameras that share no stem are then free-running, their images
+    grouped by time (dataset.associate_by_time); otherwise check_shared_stems' naming hint stands."""
+    frames = {c: f for c, f in images.frames.items() if c not in images.corners and f}
+    if not all(s.lstrip("-").isdigit() for f in frames.values() for s in f):
+        return False
+    span = {c: (min(int(s) for s in f), max(int(s) for s in f)) for c, f in frames.items()}
+    return all(any(span[c][0] < span[o][1] and span[o][0] < span[c][1] for o in span if o != c) for c in span)
 
 
 def _min_overlap_s(imu_options: Options | None) -> float:

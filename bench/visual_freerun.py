@@ -1,0 +1,274 @@
+"""Benchmark: free-running cameras without an IMU (rigcal.imucal.visual_motion) against a
+synchronised camera-only recording of the same length.
+
+Per seed, two recordings of drone-stereo-back-imu's three cameras (at 480x360 for render
+time), the images only (no imu/, the rig without its IMU):
+
+  synchronised   `simulate --scene imu --time-offset-ms 0`: every camera at 20 Hz on one stem
+                 grid and one clock, so equal stems are one instant: the camera-only
+                 calibration is exact there (the reference)
+  free-running   `simulate --scene imu --free-running`: own phase, period error, jitter,
+                 start and stop per camera, clocks offset by up to +-10 ms
+  mixed-rate     (--cases; not run by default) free-running with front_left at 20 Hz,
+                 front_right at 30 Hz and back at 15 Hz
+
+then `rigcal calibrate` with its defaults, and every camera's pose relative to the
+reference camera (the free-running estimate's clock camera; its pose put on the true one)
+against truth.yaml: rotation (deg) and position (mm) errors; for free-running also the
+camera-camera clock offsets (ms) and each component's error over its reported 1-sigma.
+Target: relative extrinsics no worse than 2x the synchronised recording's; offsets
+<= 0.1 ms.
+
+    python -m bench.visual_freerun [--seeds N] [--duration S] [--cases NAME ...] [--reuse]
+    python -m bench.visual_freerun --euroc SECONDS   (real motion: euroc())
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+
+from rigcal.core import geometry as geo
+from rigcal.core.rig import load_rig
+from rigcal.data.truth import load_truth
+
+from .common import JOBS, OUT, RIGS, Timer, md_table, say, write_json
+
+RIG = RIGS / "drone-stereo-back-imu.yaml"
+CASES = {"synchronised": ("--time-offset-ms", "0"), "free-running": ("--free-running",),
+         "mixed-rate": ("--free-running", "--camera-rate", "front_left=20", "--camera-rate", "front_right=30",
+                        "--camera-rate", "back=15")}
+DEFAULT_CASES = ("free-running", "synchronised")
+WORK = OUT / "visual_freerun"
+
+
+def _rigcal(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "rigcal", *args], capture_output=True, text=True,
+                          env={**os.environ, "COLUMNS": "250"})
+
+
+def _small_rig() -> str:
+    """drone-stereo-back-imu at 480x360 (renders about 2x faster than 640x480)."""
+    return RIG.read_text().replace("[640, 480]", "[480, 360]").replace(
+        "{fx: 300.0, fy: 300.0, cx: 320.0, cy: 240.0}", "{fx: 225.0, fy: 225.0, cx: 240.0, cy: 180.0}")
+
+
+def _without_imu(text: str) -> str:
+    return text[:text.index("imus:")] + text[text.index("cameras:"):]
+
+
+def relative_errors(est, truth, ref: str) -> dict:
+    """Per camera but `ref`: (rotation error deg (3,) about body axes, position error mm (3,),
+    clock offset error ms) relative to camera `ref`, the estimate's `ref` put on the true one."""
+    A = truth.camera(ref).T_body_cam @ geo.inv_T(est.camera(ref).T_body_cam)
+    out = {}
+    for c in est.cameras:
+        if c.name == ref:
+            continue
+        T, Tt = A @ c.T_body_cam, truth.camera(c.name).T_body_cam
+        true_off = truth.camera(c.name).time_offset_s - truth.camera(ref).time_offset_s
+        out[c.name] = (np.degrees(geo.rotvec_from_R(T[:3, :3] @ Tt[:3, :3].T)), 1000 * (T[:3, 3] - Tt[:3, 3]),
+                       1000 * ((c.time_offset_s or 0.0) - true_off))
+    return out
+
+
+def one(case: str, seed: int, duration: float, log=say, reuse: bool = False) -> dict:
+    """One case and seed: simulate (kept), strip the IMU, calibrate, score."""
+    tag = f"{case}_{duration:g}s_seed{seed}"
+    kept = WORK / f"scores_{tag}.json"
+    if reuse and kept.is_file():
+        return json.loads(kept.read_text())
+    sim, d = WORK / f"sim_{tag}", WORK / tag
+    WORK.mkdir(parents=True, exist_ok=True)
+    rig = WORK / "rig.yaml"
+    rig.write_text(_small_rig())
+    if not (sim / "truth.yaml").is_file():
+        with Timer() as t:
+            r = _rigcal("simulate", str(rig), "--out", str(sim), "--scene", "imu", "--duration", f"{duration:g}",
+                        "--seed", str(seed), "--jobs", str(JOBS), "--force", *CASES[case])
+        if r.returncode != 0:
+            raise RuntimeError(f"rigcal simulate failed: {r.stderr.strip()[-2000:]}")
+        log(f"  {case} seed {seed}: simulated in {t.wall:.0f} s")
+    shutil.rmtree(d, ignore_errors=True)
+    d.mkdir(parents=True)
+    shutil.copytree(sim / "images", d / "images")
+    shutil.copy(sim / "target.yaml", d / "target.yaml")
+    (d / "rig.yaml").write_text(_without_imu((sim / "rig.yaml").read_text()))
+    out = WORK / f"calibrated_{tag}.yaml"
+    with Timer() as t:
+        r = _rigcal("calibrate", str(d), "--out", str(out), "--jobs", str(JOBS))
+    if r.returncode != 0:
+        raise RuntimeError(f"rigcal calibrate failed ({r.returncode}): {r.stderr.strip()[-2000:]}")
+    est, truth = load_rig(out), load_truth(sim / "truth.yaml").rig
+    fr = (est.calibration or {}).get("free_running")
+    ref = fr["clock"].split(":", 1)[1] if fr else _reference_of(case, seed, duration)
+    errs = relative_errors(est, truth, ref)
+    res = {"case": case, "seed": seed, "wall_s": t.wall, "reference": ref, "cameras": {}}
+    for name, (dr, dp, do) in errs.items():
+        e = {"rot_deg": float(np.linalg.norm(dr)), "pos_mm": float(np.linalg.norm(dp)), "offset_ms": float(do)}
+        if fr:
+            s = est.camera(name).calibration["sigma"]
+            e["z"] = [*(dr / np.array(s["rotation_deg"])).tolist(), *(dp / np.array(s["position_mm"])).tolist(),
+                      do / s["time_offset_ms"]]
+        res["cameras"][name] = e
+    kept.write_text(json.dumps(res))
+    log(f"  {case} seed {seed}: calibrate {t.wall:.0f} s; relative to {ref}: "
+        + "; ".join(f"{n} {e['rot_deg']:.4f} deg {e['pos_mm']:.3f} mm"
+                    + (f" {e['offset_ms']:+.4f} ms" if fr else "") for n, e in res["cameras"].items()))
+    return res
+
+
+def _reference_of(case: str, seed: int, duration: float) -> str:
+    """The synchronised case scores relative to the free-running run's reference camera of
+    the same seed (run first), else the first camera."""
+    p = WORK / f"scores_free-running_{duration:g}s_seed{seed}.json"
+    return json.loads(p.read_text())["reference"] if p.is_file() else "front_left"
+
+
+def run(seeds: int = 3, duration: float = 10.0, log=say, reuse: bool = False, cases=DEFAULT_CASES) -> dict:
+    # free-running first: the synchronised case scores relative to its reference camera
+    cases = sorted(cases, key=lambda c: c == "synchronised")
+    return {"duration_s": duration, "seeds": seeds,
+            "runs": [one(c, s, duration, log, reuse) for s in range(seeds) for c in cases]}
+
+
+def summary(res: dict) -> dict:
+    out = {}
+    for case in [c for c in ("synchronised", *CASES) if any(r["case"] == c for r in res["runs"])]:
+        if case in out:
+            continue
+        e = [c for r in res["runs"] if r["case"] == case for c in r["cameras"].values()]
+        row = {"cameras": len(e), "rot_deg_rms": float(np.sqrt(np.mean([x["rot_deg"] ** 2 for x in e]))),
+               "rot_deg_max": max(x["rot_deg"] for x in e),
+               "pos_mm_rms": float(np.sqrt(np.mean([x["pos_mm"] ** 2 for x in e]))),
+               "pos_mm_max": max(x["pos_mm"] for x in e)}
+        if case != "synchronised":
+            z = np.abs(np.concatenate([x["z"] for x in e]))
+            row.update(offset_ms_max=max(abs(x["offset_ms"]) for x in e), within_2_sigma=float(np.mean(z <= 2)),
+                       components=int(z.size))
+        out[case] = row
+    return out
+
+
+def tables(res: dict) -> str:
+    s = summary(res)
+    rows = [[case, r["cameras"], f"{r['rot_deg_rms']:.4f} / {r['rot_deg_max']:.4f}",
+             f"{r['pos_mm_rms']:.3f} / {r['pos_mm_max']:.3f}",
+             f"{r['offset_ms_max']:.4f}" if "offset_ms_max" in r else "-",
+             f"{100 * r['within_2_sigma']:.0f} % of {r['components']}" if "components" in r else "-"]
+            for case, r in s.items()]
+    base = s.get("synchronised")
+    ratios = "; ".join(f"{case} / synchronised RMS: rotation {r['rot_deg_rms'] / base['rot_deg_rms']:.2f}x, "
+                       f"position {r['pos_mm_rms'] / base['pos_mm_rms']:.2f}x"
+                       for case, r in s.items() if case != "synchronised" and base)
+    return md_table(["case", "camera-seeds", "relative rot deg (RMS / max)", "relative pos mm (RMS / max)",
+                     "|clock offset| ms max", "within 2 sigma"], rows,
+                    title=f"`rigcal calibrate` without an IMU on {res['duration_s']:g} s rendered recordings of "
+                          f"drone-stereo-back-imu's cameras, {res['seeds']} seeds: poses relative to the reference "
+                          f"camera against truth.yaml ({ratios}; target <= 2x, offsets <= 0.1 ms)")
+
+
+def euroc(seconds: float = 30.0, log=say) -> dict | None:
+    """Real motion: EuRoC imu_april's stereo corners (hardware-synchronised, 20 Hz) made
+    free-running by keeping cam0's even frames and cam1's odd ones (10 Hz each, 50 ms
+    apart; the cameras' true clock offset is 0), the first `seconds`: the camera-only
+    calibration of all frames (synchronised), of the images grouped by time (the start),
+    and the continuous-time estimate, each camera pair against EuRoC's published cam0-cam1
+    pose (Kalibr's; baseline 110.07 mm). None when the shared data are absent."""
+    from rigcal.camcal.pipeline import calibrate_views
+    from rigcal.core.observations import BoardView
+    from rigcal.imucal.visual_motion import calibrate_visual_motion
+
+    from .imu_euroc import load
+
+    data = load(log)
+    if data is None:
+        return None
+    b = data.target.boards[0]
+    T_BS = {c: np.array(data.reference[c]["T_BS"], float).reshape(4, 4) for c in ("cam0", "cam1")}
+    ref = geo.inv_T(T_BS["cam0"]) @ T_BS["cam1"]
+    frames = sorted({v.frame for v in data.views}, key=int)
+    frames = [f for f in frames if (int(f) - int(frames[0])) * 1e-9 < seconds]
+    index = {f: i for i, f in enumerate(frames)}
+    sync = [v for v in data.views if v.frame in index]
+    free, own = [], {"cam0": {}, "cam1": {}}
+    for v in sync:
+        i = index[v.frame]
+        if v.camera == "cam0" and i % 2 == 0:
+            free.append(v)
+            own["cam0"][v.frame] = int(v.frame)
+        elif v.camera == "cam1" and i % 2 == 1:  # grouped with cam0's image 50 ms before
+            free.append(BoardView(v.camera, frames[i - 1], v.board, v.ids, v.uv))
+            own["cam1"][frames[i - 1]] = int(v.frame)
+
+    def score(T0, T1) -> dict:
+        T = geo.inv_T(T0) @ T1
+        return {"rot_deg": float(np.degrees(np.linalg.norm(geo.rotvec_from_R(T[:3, :3] @ ref[:3, :3].T)))),
+                "pos_mm": float(1000 * np.linalg.norm(T[:3, 3] - ref[:3, 3])),
+                "baseline_mm": float(1000 * np.linalg.norm(T[:3, 3]))}
+
+    out = {"seconds": seconds}
+    corners = {b.name: b.corners}
+    with Timer() as t:
+        cal_s = calibrate_views(sync, data.rig, corners, faces={b.name: b.print_face})
+    out["synchronised"] = {**score(*(cal_s.rig.camera(c).T_body_cam for c in ("cam0", "cam1"))), "wall_s": t.wall,
+                           "views": len(sync)}
+    with Timer() as t:
+        cal = calibrate_views(free, data.rig, corners, faces={b.name: b.print_face})
+    out["grouped start"] = {**score(*(cal.rig.camera(c).T_body_cam for c in ("cam0", "cam1"))), "wall_s": t.wall,
+                            "views": len(free)}
+    with Timer() as t:
+        vm = calibrate_visual_motion(cal, own)
+    k = 1 - vm.reference
+    out["free-running"] = {**score(*vm.T_body_cam), "wall_s": t.wall, "views": len(free),
+                           "offset_ms": float(1000 * vm.time_offset_s[k]),
+                           "offset_sigma_ms": float(1000 * vm.sigma[k, 6]),
+                           "knot_spacing_s": vm.knot_dt, "knots_tried": [list(x) for x in vm.knots_tried],
+                           "corner_rms_px": vm.corner_rms_px,
+                           "sigma_rot_deg": np.degrees(vm.sigma[k, :3]).tolist(),
+                           "sigma_pos_mm": (1000 * vm.sigma[k, 3:6]).tolist()}
+    log(f"  euroc {seconds:g} s: " + "; ".join(f"{n} {r['rot_deg']:.3f} deg {r['pos_mm']:.2f} mm"
+                                               for n, r in out.items() if n != "seconds"))
+    return out
+
+
+def euroc_table(res: dict) -> str:
+    rows = [[n, r["views"], f"{r['rot_deg']:.3f}", f"{r['pos_mm']:.2f}", f"{r['baseline_mm']:.2f}",
+             f"{r['offset_ms']:+.3f} +- {r['offset_sigma_ms']:.3f}" if "offset_ms" in r else "-", f"{r['wall_s']:.0f}"]
+            for n, r in res.items() if n != "seconds"]
+    return md_table(["case", "views", "cam0-cam1 rot deg from EuRoC", "pos mm from EuRoC", "baseline mm (EuRoC 110.07)",
+                     "clock offset ms (truth 0)", "wall s"], rows,
+                    title=f"EuRoC imu_april's first {res['seconds']:g} s, cam0's even and cam1's odd frames "
+                          f"(free-running, 10 Hz each), without the IMU")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=3)
+    ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--cases", nargs="+", choices=tuple(CASES), default=DEFAULT_CASES)
+    ap.add_argument("--reuse", action="store_true", help="reuse the scores of earlier runs (same case, seed, duration)")
+    ap.add_argument("--euroc", type=float, metavar="SECONDS", help="only the EuRoC case (euroc()) on its first SECONDS")
+    a = ap.parse_args(argv)
+    if a.euroc:
+        res = euroc(a.euroc)
+        if res is None:
+            print("EuRoC's shared data are absent")
+            return 1
+        write_json("visual_freerun_euroc", res)
+        print(euroc_table(res))
+        return 0
+    res = run(a.seeds, a.duration, reuse=a.reuse, cases=a.cases)
+    write_json("visual_freerun", res)
+    print(tables(res))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
