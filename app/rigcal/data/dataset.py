@@ -102,7 +102,7 @@ def check_shared_stems(dataset: DatasetImages, tolerance_ns: int | None = None) 
     never be placed in the rig (not even through the rig's motion, which needs its frames
     posed by the others): almost always files named per camera (left01.jpg, right01.jpg)
     where the stem must name the instant, or, with integer stems that interleave in time,
-    free-running cameras, whose clocks only an IMU can relate. A layout check for
+    free-running cameras, which calibrate groups by time before this check. A layout check for
     calibrate, not for listing. tolerance_ns: `dataset` is associate_by_time's (a motion
     dataset) and the refusal says no image lies within that of another camera's."""
     images = dataset.root / "images"
@@ -132,9 +132,9 @@ def check_shared_stems(dataset: DatasetImages, tolerance_ns: int | None = None) 
     if all(f.isdigit() for c in (cam, other) for f in frames[c]) and _interleave(frames[cam], frames[other]):
         raise DatasetError(
             f"{images / cam}: camera {cam} shares no stem with the other cameras and its images interleave in time "
-            f"with {other}'s ({show(cam)}; {show(other)}): free-running cameras, whose clocks rigcal can relate only "
-            f"through an IMU; add the IMU's samples (imu/<imu>.csv, the IMU declared in rig.yaml) or record with "
-            f"synchronised stems (equal stems for images taken together)")
+            f"with {other}'s ({show(cam)}; {show(other)}): free-running cameras, which rigcal places on the rig's "
+            f"motion only when every camera's images lie within another camera's span; trim the recording to the "
+            f"time all cameras ran, or record with synchronised stems (equal stems for images taken together)")
     raise DatasetError(
         f"{images}: camera {cam} shares no frame with the other cameras (its file stems: {show(cam)}; "
         f"{other}'s: {show(other)}); images taken at the same instant must have the same stem in every camera "
