@@ -23,10 +23,11 @@ State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
   sensor axes is a rotation of the IMU frame, which every camera's rotation (and the
   trajectory) absorbs, so it is not estimated.
 
-Jacobians: the IMU blocks take central differences over each row's own local parameters,
-vectorised over the rows (2 K evaluations of the block, each over all rows); the corner
-block differentiates the spline pose that way once per distinct time and chains the rest
-analytically. The spline derivatives with respect to control rotations have closed forms
+Jacobians: the spline's rotation, angular velocity and angular acceleration are
+differentiated by forward differences over each row's own four control rotations,
+vectorised over the rows (12 evaluations, each over all rows: motion_jacobian); everything
+else is chained analytically, and the corner block differentiates the spline once per
+distinct time. The spline derivatives with respect to control rotations have closed forms
 (Sommer et al. 2020) but long ones; local differences of an exact evaluation are accurate
 to ~1e-9 relative and cannot disagree with the residual they differentiate. Tests check
 every block against differences of the whole problem (global state perturbed through
@@ -47,6 +48,7 @@ from rigcal.core.spline import ORDER, Motion, Spline, basis, motion_from_control
 
 GRAVITY = 9.80665
 STEP = 1e-6  # central-difference step (radians, metres, seconds, bias units)
+MOTION_STEP = 1e-8  # motion_jacobian's forward-difference step (radians)
 EPS_GRAM = 1e-12  # normal_rows: relative jitter on each group's Gram diagonal
 CHUNK_CORNERS = 20_000  # reprojection_rows: corners per chunk (its arrays ~10 MB)
 # the 6 parameters of L in M = I + L, in this order: the scales (diagonal), then the
@@ -270,7 +272,7 @@ def _spline_cols(lay: Layout, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class MotionJacobian:
     """The motion at times t and its derivatives with respect to each time's local controls:
     J_rot (M, 9, 12) of [theta; omega_body; alpha_body] (theta: the world-side rotation
-    perturbation of R_world_body) by the 12 control-rotation perturbations (a local central
+    perturbation of R_world_body) by the 12 control-rotation perturbations (a local forward
     difference: 24 evaluations over all rows, each redoing only the one or two segment
     rotations the perturbed control enters), and the exact weights (M, 4) of
     the control positions in p_world (w_p) and a_world (w_a)."""
@@ -292,29 +294,30 @@ def motion_jacobian(state: State, t: np.ndarray) -> MotionJacobian:
     dt = state.spline.dt
     m0 = motion_from_controls(t, u, Rc, P, dt)
     b, db, ddb = basis(u, dt)
-    # central differences, one control rotation and axis at a time; a control enters only
-    # the one or two segment rotations next to it, so the others are reused unperturbed
-    # (the same numbers as perturbing every control by zero: half the work)
+    # forward differences, one control rotation and axis at a time (MOTION_STEP: truncation
+    # and rounding both ~1e-8 relative; central ones took twice the evaluations for accuracy
+    # no step of the estimate can use); a control enters only the one or two segment
+    # rotations next to it, so the others are reused unperturbed (the same numbers as
+    # perturbing every control by zero)
     phi, A = segment_rotations(Rc, b)
     R0t = np.swapaxes(m0.R_world_body, 1, 2)
+    base = np.concatenate([np.zeros((len(t), 3)), m0.omega_body, m0.alpha_body], axis=1)
     J = np.empty((len(t), 9, 3 * ORDER))
     for c in range(ORDER):
         near = [j for j in (c, c + 1) if 1 <= j < ORDER]
         for axis in range(3):
-            out = []
-            for h in (STEP, -STEP):
-                d = np.zeros((len(t), 3))
-                d[:, axis] = h
-                Rc_c = _turn(Rc[:, c], d)
-                ph, AA = list(phi), list(A)
-                for j in near:
-                    lo = Rc_c if j - 1 == c else Rc[:, j - 1]
-                    hi = Rc_c if j == c else Rc[:, j]
-                    ph[j - 1] = geo.rotvecs_from_R(np.swapaxes(lo, 1, 2) @ hi)
-                    AA[j - 1] = geo.R_from_rotvec(b[:, j, None] * ph[j - 1])
-                R, omega, alpha = rotation_chain(Rc_c if c == 0 else Rc[:, 0], ph, AA, db, ddb)
-                out.append(np.concatenate([geo.rotvecs_from_R(R @ R0t), omega, alpha], axis=1))
-            J[:, :, 3 * c + axis] = (out[0] - out[1]) / (2 * STEP)
+            d = np.zeros(3)
+            d[axis] = MOTION_STEP
+            Rc_c = geo.R_from_rotvec(d) @ Rc[:, c]
+            ph, AA = list(phi), list(A)
+            for j in near:
+                lo = Rc_c if j - 1 == c else Rc[:, j - 1]
+                hi = Rc_c if j == c else Rc[:, j]
+                ph[j - 1] = geo.rotvecs_from_R(np.swapaxes(lo, 1, 2) @ hi)
+                AA[j - 1] = geo.R_from_rotvec(b[:, j, None] * ph[j - 1])
+            R, omega, alpha = rotation_chain(Rc_c if c == 0 else Rc[:, 0], ph, AA, db, ddb)
+            out = np.concatenate([geo.rotvecs_from_R(R @ R0t), omega, alpha], axis=1)
+            J[:, :, 3 * c + axis] = (out - base) / MOTION_STEP
     return MotionJacobian(m0, i, J, _position_weights(b), _position_weights(ddb))
 
 
