@@ -327,3 +327,34 @@ def test_motion_jacobian_matches_central_differences_of_the_spline():
     # and no column outside a row's four controls moves it
     outside = np.abs(J).sum(axis=(1, 2)) - np.abs(local).sum(axis=(1, 2))
     assert np.all(outside < 1e-9 * np.abs(J).sum(axis=(1, 2)))
+
+
+@pytest.mark.parametrize("huber_k", [None, 1.5])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_image_rows_keep_the_normal_equations(monkeypatch, huber_k, threads):
+    """Without line delays reprojection_rows merges each image's corners in the pose's 6
+    columns and carries them to the 24 control columns afterwards (_image_rows): J^T J,
+    J^T r, the objective and the residual RMS are those of the whole corner block, with
+    and without the Huber loss, chunks split across images, boards and intrinsics
+    estimated, the chunks built in turn or on threads."""
+    rng = np.random.default_rng(13)
+    st = _with_intrinsics(_state(rng))
+    st = replace(st, line_delay_s=np.zeros(2))
+    obs = _corners(rng, st, m=300)
+    obs = ir.Corners(obs.cam, np.round(obs.t_cam, 2), obs.uv, obs.p_board)
+    st, obs = _on_boards(rng, st, obs)
+    lay = ir.layout_for(st, held=frozenset({"line_delay"}))
+    whole = ir.reprojection_block(st, lay, obs, CAMS, 0.5)
+    whole = whole if huber_k is None else ir.huber(whole, huber_k)
+    monkeypatch.setattr(ir, "CHUNK_CORNERS", 37)
+    monkeypatch.setattr(ir, "JOBS_THREADS", threads)
+    rows = ir.reprojection_rows(st, lay, obs, CAMS, 0.5, huber_k)
+    J, r = ir.assemble([whole], lay.size)
+    Jm, rm = ir.assemble([rows], lay.size)
+    H = (J.T @ J).toarray()
+    np.testing.assert_allclose((Jm.T @ Jm).toarray(), H, rtol=0, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-10 * np.abs(J.T @ r).max())
+    assert rows.objective == pytest.approx(whole.objective, rel=1e-12)
+    assert rows.residual_rms == pytest.approx(float(np.sqrt(np.mean(whole.r ** 2))), rel=1e-12)
+    # 6 pose + 6 camera + 1 offset + 6 board columns and the intrinsic ones merged: as many rows a view
+    assert rows.r.shape[1] == 6 + 6 + 1 + 6 + max(lay.n_intr)
