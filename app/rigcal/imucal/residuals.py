@@ -648,7 +648,11 @@ def _merge_groups(b: Block, always: bool = False) -> Block:
     A[which, slot, :, k] = b.r[order]
     # zero rows (groups with fewer rows) change neither the Gram matrix nor its factor
     X = A.reshape(len(starts), -1, k + 1)
-    G = np.swapaxes(X, 1, 2) @ X  # [J | r]^T [J | r] per group
+    # [J | r]^T [J | r] per group, the transpose made contiguous first: numpy's batched
+    # matmul of the strided view fell off its BLAS path at some widths (EuRoC, intrinsics
+    # estimated, 42 columns: 0.50 s a chunk, contiguous 0.005 s; 520 of the 720 s its
+    # solves took without a camera calibration)
+    G = np.ascontiguousarray(np.swapaxes(X, 1, 2)) @ X
     # its Cholesky factor R (R^T R = G) is what a QR of [J | r] gives up to row signs, by a
     # batched product instead of a batched QR: with the 9 intrinsic columns of a radtan5
     # camera (K 32 -> 41) the QR took 1.3 s an iteration on EuRoC, this ~0.3 s. Its
