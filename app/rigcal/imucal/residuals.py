@@ -537,7 +537,7 @@ def _image_rows(state: State, lay: Layout, obs: Corners, cameras: list[CameraMod
     the pose's rows carried to the 24 control columns through the motion Jacobian at that
     time. The same normal equations as merging the 24 control columns per corner: the pose
     Jacobian is one matrix per time, so J = J_pose E and J^T J = E^T (J_pose^T J_pose) E.
-    EuRoC's held-intrinsics rows: 13 a view instead of 38."""
+    EuRoC's held-intrinsics rows: 13 a view instead of 32."""
     cp = _corner_parts(state, lay, obs, cameras, sigma_px)
     live = _live_rest(lay, cp.cols_rest.shape[1])  # held groups' columns drop out (the same in every chunk)
     J = np.concatenate([cp.d_theta, cp.d_p, cp.J_rest[:, :, live]], axis=2)
