@@ -460,8 +460,8 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     c, b = obs.cam, obs.boards()
     # an image's corners of one board (one camera, one spline segment) share all their columns
     group = np.unique((seg * len(state.T_body_cam) + c) * len(state.T_world_board) + b, return_inverse=True)[1]
-    return Block(cp.r, np.concatenate([d_rot, d_pos, cp.J_rest], axis=2), np.concatenate([rot, pos, cp.cols_rest], axis=1),
-                 group=group)
+    return Block(cp.r, np.concatenate([d_rot, d_pos, cp.J_rest], axis=2),
+                 np.concatenate([rot, pos, cp.cols_rest], axis=1), group=group)
 
 
 @dataclass(frozen=True, eq=False)
@@ -586,7 +586,8 @@ def reprojection_rows(state: State, lay: Layout, obs: Corners, cameras: list[Cam
             return m, m.objective, m.rms ** 2 * 2 * len(sub.cam)
         b = reprojection_block(state, lay, sub, cameras, sigma_px)
         b = b if huber_k is None else huber(b, huber_k)
-        return _merge_groups(b, always=True), b.objective, float(np.sum(b.r ** 2))  # K rows a group, so the chunks stack
+        # K rows a group, so the chunks stack
+        return _merge_groups(b, always=True), b.objective, float(np.sum(b.r ** 2))
 
     starts = range(0, len(order), CHUNK_CORNERS)
     if JOBS_THREADS > 1 and len(starts) > 1:
