@@ -295,3 +295,66 @@ def test_reprojection_rows_in_chunks_keep_the_normal_equations(monkeypatch, hube
     assert rows.objective == pytest.approx(whole.objective, rel=1e-12)
     assert rows.residual_rms == pytest.approx(float(np.sqrt(np.mean(whole.r ** 2))), rel=1e-12)
     assert len(rows.r) < len(whole.r)
+
+
+def test_motion_jacobian_matches_central_differences_of_the_spline():
+    """J_rot (forward differences of each row's own controls) against central differences
+    of the whole spline (one control turned at a time, every row re-evaluated), to 1e-6 of
+    each output's largest entry: far tighter than any step of the estimate needs."""
+    rng = np.random.default_rng(5)
+    st = _state(rng)
+    sp_ = st.spline
+    t = rng.uniform(sp_.t0, sp_.t_end, 40)
+    mj = ir.motion_jacobian(st, t)
+    n, h = len(sp_.p), 1e-6
+    J = np.zeros((len(t), 9, 3 * n))
+    m0 = evaluate(sp_, t)
+    for k in range(n):
+        for axis in range(3):
+            outs = []
+            for s in (h, -h):
+                d = np.zeros((n, 3))
+                d[k, axis] = s
+                m = evaluate(replace(sp_, R=geo.R_from_rotvec(d) @ sp_.R), t)
+                theta = geo.rotvecs_from_R(m.R_world_body @ np.swapaxes(m0.R_world_body, 1, 2))
+                outs.append(np.concatenate([theta, m.omega_body, m.alpha_body], axis=1))
+            J[:, :, 3 * k + axis] = (outs[0] - outs[1]) / (2 * h)
+    cols = 3 * (mj.i[:, None] + np.arange(4))[:, :, None] + np.arange(3)
+    local = np.take_along_axis(J, cols.reshape(len(t), 1, 12), axis=2)
+    for rows in (slice(0, 3), slice(3, 6), slice(6, 9)):
+        np.testing.assert_allclose(mj.J_rot[:, rows], local[:, rows], rtol=0,
+                                   atol=1e-6 * np.abs(local[:, rows]).max())
+    # and no column outside a row's four controls moves it
+    outside = np.abs(J).sum(axis=(1, 2)) - np.abs(local).sum(axis=(1, 2))
+    assert np.all(outside < 1e-9 * np.abs(J).sum(axis=(1, 2)))
+
+
+@pytest.mark.parametrize("huber_k", [None, 1.5])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_image_rows_keep_the_normal_equations(monkeypatch, huber_k, threads):
+    """Without line delays reprojection_rows merges each image's corners in the pose's 6
+    columns and carries them to the 24 control columns afterwards (_image_rows): J^T J,
+    J^T r, the objective and the residual RMS are those of the whole corner block, with
+    and without the Huber loss, chunks split across images, boards and intrinsics
+    estimated, the chunks built in turn or on threads."""
+    rng = np.random.default_rng(13)
+    st = _with_intrinsics(_state(rng))
+    st = replace(st, line_delay_s=np.zeros(2))
+    obs = _corners(rng, st, m=300)
+    obs = ir.Corners(obs.cam, np.round(obs.t_cam, 2), obs.uv, obs.p_board)
+    st, obs = _on_boards(rng, st, obs)
+    lay = ir.layout_for(st, held=frozenset({"line_delay"}))
+    whole = ir.reprojection_block(st, lay, obs, CAMS, 0.5)
+    whole = whole if huber_k is None else ir.huber(whole, huber_k)
+    monkeypatch.setattr(ir, "CHUNK_CORNERS", 37)
+    monkeypatch.setattr(ir, "JOBS_THREADS", threads)
+    rows = ir.reprojection_rows(st, lay, obs, CAMS, 0.5, huber_k)
+    J, r = ir.assemble([whole], lay.size)
+    Jm, rm = ir.assemble([rows], lay.size)
+    H = (J.T @ J).toarray()
+    np.testing.assert_allclose((Jm.T @ Jm).toarray(), H, rtol=0, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-10 * np.abs(J.T @ r).max())
+    assert rows.objective == pytest.approx(whole.objective, rel=1e-12)
+    assert rows.residual_rms == pytest.approx(float(np.sqrt(np.mean(whole.r ** 2))), rel=1e-12)
+    # 6 pose + 6 camera + 1 offset + 6 board columns and the intrinsic ones merged: as many rows a view
+    assert rows.r.shape[1] == 6 + 6 + 1 + 6 + max(lay.n_intr)

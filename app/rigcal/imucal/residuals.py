@@ -23,10 +23,11 @@ State and perturbations (all rotations perturbed on the left, R <- Exp(d) R):
   sensor axes is a rotation of the IMU frame, which every camera's rotation (and the
   trajectory) absorbs, so it is not estimated.
 
-Jacobians: the IMU blocks take central differences over each row's own local parameters,
-vectorised over the rows (2 K evaluations of the block, each over all rows); the corner
-block differentiates the spline pose that way once per distinct time and chains the rest
-analytically. The spline derivatives with respect to control rotations have closed forms
+Jacobians: the spline's rotation, angular velocity and angular acceleration are
+differentiated by forward differences over each row's own four control rotations,
+vectorised over the rows (12 evaluations, each over all rows: motion_jacobian); everything
+else is chained analytically, and the corner block differentiates the spline once per
+distinct time. The spline derivatives with respect to control rotations have closed forms
 (Sommer et al. 2020) but long ones; local differences of an exact evaluation are accurate
 to ~1e-9 relative and cannot disagree with the residual they differentiate. Tests check
 every block against differences of the whole problem (global state perturbed through
@@ -47,8 +48,10 @@ from rigcal.core.spline import ORDER, Motion, Spline, basis, motion_from_control
 
 GRAVITY = 9.80665
 STEP = 1e-6  # central-difference step (radians, metres, seconds, bias units)
+MOTION_STEP = 1e-8  # motion_jacobian's forward-difference step (radians)
 EPS_GRAM = 1e-12  # normal_rows: relative jitter on each group's Gram diagonal
 CHUNK_CORNERS = 20_000  # reprojection_rows: corners per chunk (its arrays ~10 MB)
+JOBS_THREADS = 2  # reprojection_rows: threads building the chunks (1: in turn)
 # the 6 parameters of L in M = I + L, in this order: the scales (diagonal), then the
 # misalignments below it ((1, 0), (2, 0), (2, 1))
 SCALE_ROWS = np.array([0, 1, 2, 1, 2, 2])
@@ -270,7 +273,7 @@ def _spline_cols(lay: Layout, i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class MotionJacobian:
     """The motion at times t and its derivatives with respect to each time's local controls:
     J_rot (M, 9, 12) of [theta; omega_body; alpha_body] (theta: the world-side rotation
-    perturbation of R_world_body) by the 12 control-rotation perturbations (a local central
+    perturbation of R_world_body) by the 12 control-rotation perturbations (a local forward
     difference: 24 evaluations over all rows, each redoing only the one or two segment
     rotations the perturbed control enters), and the exact weights (M, 4) of
     the control positions in p_world (w_p) and a_world (w_a)."""
@@ -292,29 +295,30 @@ def motion_jacobian(state: State, t: np.ndarray) -> MotionJacobian:
     dt = state.spline.dt
     m0 = motion_from_controls(t, u, Rc, P, dt)
     b, db, ddb = basis(u, dt)
-    # central differences, one control rotation and axis at a time; a control enters only
-    # the one or two segment rotations next to it, so the others are reused unperturbed
-    # (the same numbers as perturbing every control by zero: half the work)
+    # forward differences, one control rotation and axis at a time (MOTION_STEP: truncation
+    # and rounding both ~1e-8 relative; central ones took twice the evaluations for accuracy
+    # no step of the estimate can use); a control enters only the one or two segment
+    # rotations next to it, so the others are reused unperturbed (the same numbers as
+    # perturbing every control by zero)
     phi, A = segment_rotations(Rc, b)
     R0t = np.swapaxes(m0.R_world_body, 1, 2)
+    base = np.concatenate([np.zeros((len(t), 3)), m0.omega_body, m0.alpha_body], axis=1)
     J = np.empty((len(t), 9, 3 * ORDER))
     for c in range(ORDER):
         near = [j for j in (c, c + 1) if 1 <= j < ORDER]
         for axis in range(3):
-            out = []
-            for h in (STEP, -STEP):
-                d = np.zeros((len(t), 3))
-                d[:, axis] = h
-                Rc_c = _turn(Rc[:, c], d)
-                ph, AA = list(phi), list(A)
-                for j in near:
-                    lo = Rc_c if j - 1 == c else Rc[:, j - 1]
-                    hi = Rc_c if j == c else Rc[:, j]
-                    ph[j - 1] = geo.rotvecs_from_R(np.swapaxes(lo, 1, 2) @ hi)
-                    AA[j - 1] = geo.R_from_rotvec(b[:, j, None] * ph[j - 1])
-                R, omega, alpha = rotation_chain(Rc_c if c == 0 else Rc[:, 0], ph, AA, db, ddb)
-                out.append(np.concatenate([geo.rotvecs_from_R(R @ R0t), omega, alpha], axis=1))
-            J[:, :, 3 * c + axis] = (out[0] - out[1]) / (2 * STEP)
+            d = np.zeros(3)
+            d[axis] = MOTION_STEP
+            Rc_c = geo.R_from_rotvec(d) @ Rc[:, c]
+            ph, AA = list(phi), list(A)
+            for j in near:
+                lo = Rc_c if j - 1 == c else Rc[:, j - 1]
+                hi = Rc_c if j == c else Rc[:, j]
+                ph[j - 1] = geo.rotvecs_from_R(np.swapaxes(lo, 1, 2) @ hi)
+                AA[j - 1] = geo.R_from_rotvec(b[:, j, None] * ph[j - 1])
+            R, omega, alpha = rotation_chain(Rc_c if c == 0 else Rc[:, 0], ph, AA, db, ddb)
+            out = np.concatenate([geo.rotvecs_from_R(R @ R0t), omega, alpha], axis=1)
+            J[:, :, 3 * c + axis] = (out - base) / MOTION_STEP
     return MotionJacobian(m0, i, J, _position_weights(b), _position_weights(ddb))
 
 
@@ -444,6 +448,40 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     The spline is differentiated once per distinct time (an image's corners share it under
     a global shutter), the rest by the chain rule; d/d(offset) is the image motion from the
     spline's velocity and angular velocity."""
+    cp = _corner_parts(state, lay, obs, cameras, sigma_px)
+    mj, inv = cp.mj, cp.inv
+    # the controls' columns by their structure (12 rotation columns through the spline's
+    # rotation Jacobian, 12 position columns as the controls' weights times d r / d p_world)
+    # rather than one (M, 2, 6) x (M, 6, 24) product that is half zeros: 2.2 -> 1.2 s on EuRoC
+    d_rot = cp.d_theta @ mj.J_rot[inv, :3]
+    d_pos = np.einsum("mij,mk->mikj", cp.d_p, mj.w_p[inv]).reshape(len(inv), 2, 12)
+    seg = mj.i[inv]  # each corner's spline segment
+    rot, pos = _spline_cols(lay, seg)
+    c, b = obs.cam, obs.boards()
+    # an image's corners of one board (one camera, one spline segment) share all their columns
+    group = np.unique((seg * len(state.T_body_cam) + c) * len(state.T_world_board) + b, return_inverse=True)[1]
+    return Block(cp.r, np.concatenate([d_rot, d_pos, cp.J_rest], axis=2),
+                 np.concatenate([rot, pos, cp.cols_rest], axis=1), group=group)
+
+
+@dataclass(frozen=True, eq=False)
+class _CornerParts:
+    """The corner block before the spline's controls enter: residuals r (M, 2), d r / d theta
+    and d r / d p_world of the body pose at the corner's time (M, 2, 3 each), the other local
+    columns (M, 2, K) and their indices (M, K) (camera, offset, line delay, board, intrinsics),
+    the motion Jacobian at the distinct times and each corner's time index `inv`."""
+
+    r: np.ndarray
+    d_theta: np.ndarray
+    d_p: np.ndarray
+    J_rest: np.ndarray
+    cols_rest: np.ndarray
+    mj: MotionJacobian
+    inv: np.ndarray
+
+
+def _corner_parts(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float
+                  ) -> _CornerParts:
     t_all = corner_times(state, obs)
     t_u, inv = np.unique(t_all, return_inverse=True)
     mj = motion_jacobian(state, t_u)
@@ -471,22 +509,14 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
     omega_world = np.einsum("mij,mj->mi", R, m_u.omega_body[inv])
     d_body_dt = np.einsum("mij,mj->mi", Rt_skew_dw, omega_world) - np.einsum("mji,mj->mi", R, m_u.v_world[inv])
     d_dt = A @ d_body_dt[..., None]
-    # the controls' columns by their structure (12 rotation columns through the spline's
-    # rotation Jacobian, 12 position columns as the controls' weights times -A R^T) rather
-    # than one (M, 2, 6) x (M, 6, 24) product that is half zeros: 2.2 -> 1.2 s on EuRoC
-    d_rot = (A @ Rt_skew_dw) @ mj.J_rot[inv, :3]
-    d_pos = np.einsum("mij,mk->mikj", -(A @ Rt), mj.w_p[inv]).reshape(len(q), 2, 12)
-    parts = [d_rot, d_pos, (J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A,
-             d_dt, d_dt * obs.uv[:, 1, None, None]]
-    seg = mj.i[inv]  # each corner's spline segment
-    rot, pos = _spline_cols(lay, seg)
-    cols = [rot, pos, lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
+    A_Rt = A @ Rt
+    parts = [(J_uv @ (np.swapaxes(R_bc, 1, 2) @ geo.skew(q))) / sigma_px, -A, d_dt, d_dt * obs.uv[:, 1, None, None]]
+    cols = [lay.group("cam", lay.cam + 6 * c, 6), lay.group("offset", lay.offset + c, 1),
             lay.group("line_delay", lay.line_delay + c, 1)]
     b = obs.boards()
     if lay.n_board:
         # the board turned about its own origin (R <- Exp(d) R, as the cameras) and moved:
         # p_world changes by -skew(R_world_board p_board) d_rot + d_pos, r by A R^T times that
-        A_Rt = A @ Rt
         R_wb_p = p_world - state.T_world_board[b, :3, 3]
         parts.append(np.concatenate([-(A_Rt @ geo.skew(R_wb_p)), A_Rt], axis=2))
         free = np.where(b > 0, lay.board + 6 * (b - 1), -1)
@@ -495,9 +525,45 @@ def reprojection_block(state: State, lay: Layout, obs: Corners, cameras: list[Ca
         parts_i, cols_i = intrinsic_columns(state, lay, c, J_intr, sigma_px)
         parts.append(parts_i)
         cols.append(cols_i)
-    # an image's corners of one board (one camera, one spline segment) share all their columns
-    group = np.unique((seg * len(state.T_body_cam) + c) * len(state.T_world_board) + b, return_inverse=True)[1]
-    return Block((uv - obs.uv) / sigma_px, np.concatenate(parts, axis=2), np.concatenate(cols, axis=1), group=group)
+    return _CornerParts((uv - obs.uv) / sigma_px, A @ Rt_skew_dw, -A_Rt, np.concatenate(parts, axis=2),
+                        np.concatenate(cols, axis=1), mj, inv)
+
+
+def _image_rows(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float,
+                huber_k: float | None) -> Block:
+    """The corner rows of one chunk as reprojection_rows gives them, for corners that share
+    their time per image (no line delay): each image's corners of one board (one time, one
+    camera) merged in the pose's 6 columns (theta, p_world) and the other live columns, then
+    the pose's rows carried to the 24 control columns through the motion Jacobian at that
+    time. The same normal equations as merging the 24 control columns per corner: the pose
+    Jacobian is one matrix per time, so J = J_pose E and J^T J = E^T (J_pose^T J_pose) E.
+    EuRoC's held-intrinsics rows: 13 a view instead of 32."""
+    cp = _corner_parts(state, lay, obs, cameras, sigma_px)
+    live = _live_rest(lay, cp.cols_rest.shape[1])  # held groups' columns drop out (the same in every chunk)
+    J = np.concatenate([cp.d_theta, cp.d_p, cp.J_rest[:, :, live]], axis=2)
+    c, b = obs.cam, obs.boards()
+    group = np.unique((cp.inv * len(state.T_body_cam) + c) * len(state.T_world_board) + b, return_inverse=True)[1]
+    # the time index rides in the pose columns' indices through the merge (not columns yet)
+    pose_cols = np.broadcast_to(cp.inv[:, None], (len(c), 6))
+    blk = Block(cp.r, J, np.concatenate([pose_cols, cp.cols_rest[:, live]], axis=1), group=group)
+    blk = blk if huber_k is None else huber(blk, huber_k)
+    m = _merge_groups(blk, always=True)
+    ti = m.cols[:, 0]  # each merged view's time index
+    mj = cp.mj
+    n = len(ti)
+    d_rot = m.J[:, :, :3] @ mj.J_rot[ti, :3]
+    d_pos = np.einsum("gij,gk->gikj", m.J[:, :, 3:6], mj.w_p[ti]).reshape(n, m.J.shape[1], 12)
+    rot, pos = _spline_cols(lay, mj.i[ti])
+    return Block(m.r, np.concatenate([d_rot, d_pos, m.J[:, :, 6:]], axis=2),
+                 np.concatenate([rot, pos, m.cols[:, 6:]], axis=1), blk.objective, rms=m.rms)
+
+
+def _live_rest(lay: Layout, k: int) -> np.ndarray:
+    """The indices of _corner_parts' other columns (camera 6, offset 1, line delay 1, then
+    board 6 and intrinsics when present; k in all) whose groups the layout estimates."""
+    held = [("cam", 6), ("offset", 1), ("line_delay", 1)] + ([("board", 6)] if lay.n_board else [])
+    mask = np.concatenate([np.full(w, name not in lay.held) for name, w in held])
+    return np.flatnonzero(np.r_[mask, np.ones(k - len(mask), bool)])
 
 
 def reprojection_rows(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float,
@@ -506,15 +572,34 @@ def reprojection_rows(state: State, lay: Layout, obs: Corners, cameras: list[Cam
     given), built CHUNK_CORNERS corners at a time in time order: the same normal equations,
     objective and residual RMS. Whole, EuRoC's block is 350,000 x 2 x 41 values (230 MB) and
     as many temporaries, each fresh memory whose page faults took more time than the
-    arithmetic (1.1 of its 2.1 s); a chunk's arrays are reused from the heap."""
+    arithmetic (1.1 of its 2.1 s); a chunk's arrays are reused from the heap. Without line
+    delays (held, all zero) an image's corners share one time and merge in the pose's 6
+    columns (_image_rows); chunks of CHUNK_CORNERS run on JOBS_THREADS threads (numpy's heavy
+    parts release the GIL)."""
     order = np.argsort(corner_times(state, obs), kind="stable")  # a time's corners in one chunk
-    pieces, cost, sq = [], 0.0, 0.0
-    for lo in range(0, len(order), CHUNK_CORNERS):
-        b = reprojection_block(state, lay, obs.subset(order[lo:lo + CHUNK_CORNERS]), cameras, sigma_px)
+    shared_time = "line_delay" in lay.held and not np.any(state.line_delay_s)
+
+    def chunk(lo):
+        sub = obs.subset(order[lo:lo + CHUNK_CORNERS])
+        if shared_time:
+            m = _image_rows(state, lay, sub, cameras, sigma_px, huber_k)
+            return m, m.objective, m.rms ** 2 * 2 * len(sub.cam)
+        b = reprojection_block(state, lay, sub, cameras, sigma_px)
         b = b if huber_k is None else huber(b, huber_k)
-        cost += b.objective
-        sq += float(np.sum(b.r ** 2))
-        pieces.append(_merge_groups(b, always=True))  # K rows a group, so the chunks stack
+        # K rows a group, so the chunks stack
+        return _merge_groups(b, always=True), b.objective, float(np.sum(b.r ** 2))
+
+    starts = range(0, len(order), CHUNK_CORNERS)
+    if JOBS_THREADS > 1 and len(starts) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=JOBS_THREADS) as ex:
+            done = list(ex.map(chunk, starts))
+    else:
+        done = [chunk(lo) for lo in starts]
+    pieces = [d[0] for d in done]
+    cost = sum(d[1] for d in done)
+    sq = sum(d[2] for d in done)
     n_res = 2 * len(order)
     if not pieces:
         return Block(np.zeros((0, 2)), np.zeros((0, 2, 0)), np.zeros((0, 0), int), 0.0, rms=0.0)
@@ -564,7 +649,11 @@ def _merge_groups(b: Block, always: bool = False) -> Block:
     A[which, slot, :, k] = b.r[order]
     # zero rows (groups with fewer rows) change neither the Gram matrix nor its factor
     X = A.reshape(len(starts), -1, k + 1)
-    G = np.swapaxes(X, 1, 2) @ X  # [J | r]^T [J | r] per group
+    # [J | r]^T [J | r] per group, the transpose made contiguous first: numpy's batched
+    # matmul of the strided view fell off its BLAS path at some widths (EuRoC, intrinsics
+    # estimated, 42 columns: 0.50 s a chunk, contiguous 0.005 s; 520 of the 720 s its
+    # solves took without a camera calibration)
+    G = np.ascontiguousarray(np.swapaxes(X, 1, 2)) @ X
     # its Cholesky factor R (R^T R = G) is what a QR of [J | r] gives up to row signs, by a
     # batched product instead of a batched QR: with the 9 intrinsic columns of a radtan5
     # camera (K 32 -> 41) the QR took 1.3 s an iteration on EuRoC, this ~0.3 s. Its

@@ -777,7 +777,8 @@ def subset_check(res: ic.CameraImuResult, obs: ir.Corners, models: list, imu: ic
     def half(span):
         part = state_window(st, max(span[0], st.spline.t0), min(span[1], st.spline.t_end))
         try:
-            r = ic.solve_from(part, obs, models, imu, quick, sigmas=False, cost_tol=SUBSET_COST_TOL)
+            r = ic.solve_from(part, obs, models, imu, quick, sigmas=False, cost_tol=SUBSET_COST_TOL,
+                              lam0=ic.WARM_LAMBDA)
         except (CalibrationError, ValueError, np.linalg.LinAlgError):
             return None
         return r.state, np.bincount(obs.cam[r.corners_used], minlength=len(models))
