@@ -11,6 +11,7 @@ still averages about ten independent clusters.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import allantools
 import numpy as np
@@ -120,6 +121,23 @@ def _second_difference_filters(m: int) -> tuple[np.ndarray, np.ndarray]:
     return g, h
 
 
+@lru_cache(maxsize=4096)
+def _pair_sums(m1: int, m2: int) -> tuple[float, float, float]:
+    """(Sww, Swr, Srr): for cluster sizes m1, m2 the sums over lags of R_w^2, R_w R_r and R_r^2,
+    R_w and R_r the cross-covariances of their second differences under unit white noise and
+    a unit random walk (`correlation`). Filters longer than SCALED_M are scaled down by
+    c = min(m1, m2) // SCALED_M (octave sizes: exact): in the continuum limit R_w scales as c
+    and R_r as c^3 at lags scaled by c, so the sums scale as c^3, c^5 and c^7."""
+    c = max(1, min(m1, m2) // SCALED_M)
+    (g1, h1), (g2, h2) = _second_difference_filters(m1 // c), _second_difference_filters(m2 // c)
+    rw, rr = fftconvolve(g1, g2[::-1]), fftconvolve(h1, h2[::-1])
+    n = max(len(rw), len(rr))
+    w, r = np.zeros(n), np.zeros(n)
+    w[(n - len(rw)) // 2:(n - len(rw)) // 2 + len(rw)] = rw
+    r[(n - len(rr)) // 2:(n - len(rr)) // 2 + len(rr)] = rr
+    return float(c ** 3 * np.sum(w * w)), float(c ** 5 * np.sum(w * r)), float(c ** 7 * np.sum(r * r))
+
+
 def correlation(m: np.ndarray, white_var: float, walk_var: float) -> np.ndarray:
     """(K, K) correlation of the overlapping Allan variance estimates at cluster sizes m (K,)
     of one recording, for white frequency noise of variance white_var per sample plus a
@@ -130,23 +148,16 @@ def correlation(m: np.ndarray, white_var: float, walk_var: float) -> np.ndarray:
     cov(D1(j)^2, D2(k)^2) = 2 R12(k - j)^2, R12 the filters' cross-covariance, so over M >> m
     shifts cov(est1, est2) ~ 2 / (4 m1^2 m2^2 M) sum_h R12(h)^2 and
     corr = sum R12^2 / sqrt(sum R11^2 sum R22^2); white and random-walk parts add in R
-    (independent). Their variances come from Greenhall's edf (rigcal.imunoise.allan.edf),
-    exact for few clusters; only the correlation is taken from this many-cluster form.
-    Long filters are scaled down by c = m_min / SCALED_M (octave sizes: exact): in the
-    continuum limit R_white scales as c and R_walk as c^3 at lags scaled by c."""
+    (independent): R12 = white_var R_w + walk_var R_r, so sum R12^2 is a quadratic form in
+    (white_var, walk_var) of the pair's three sums (`_pair_sums`, cached per pair of sizes).
+    Their variances come from Greenhall's edf (rigcal.imunoise.allan.edf), exact for few
+    clusters; only the correlation is taken from this many-cluster form."""
     m = np.asarray(m, np.int64)
-    c = max(1, int(m.min()) // SCALED_M)
-    filt = [_second_difference_filters(int(k) // c) for k in m]
     K = len(m)
     S = np.empty((K, K))
     for i in range(K):
         for j in range(i, K):
-            rw = fftconvolve(filt[i][0], filt[j][0][::-1])
-            rr = fftconvolve(filt[i][1], filt[j][1][::-1])
-            n = max(len(rw), len(rr))
-            r = np.zeros(n)
-            r[(n - len(rw)) // 2:(n - len(rw)) // 2 + len(rw)] += white_var * c * rw
-            r[(n - len(rr)) // 2:(n - len(rr)) // 2 + len(rr)] += walk_var * c ** 3 * rr
-            S[i, j] = S[j, i] = float(np.sum(r * r))
+            ww, wr, rr = _pair_sums(int(m[i]), int(m[j]))
+            S[i, j] = S[j, i] = white_var ** 2 * ww + 2.0 * white_var * walk_var * wr + walk_var ** 2 * rr
     d = np.sqrt(np.diag(S))
     return np.clip(S / np.outer(d, d), 0.0, 1.0)
