@@ -184,12 +184,12 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     imu_res = None
     if free_running:
         from rigcal.imucal.visual_motion import calibrate_visual_motion
-        from rigcal.results.visual_outputs import summary_note, visual_motion_rig
+        from rigcal.results.visual_outputs import subsets_note, summary_note, visual_motion_rig
 
         vm = calibrate_visual_motion(cal, inp.motion.frame_t_ns, cal.reference, fix_intrinsics,
                                      {c.name: c.time_offset_s or 0.0 for c in inp.rig.cameras})
         out_rig = visual_motion_rig(out_rig, cal, vm)
-        plan_notes.append(summary_note(list(cal.cam_names), vm))
+        plan_notes += [summary_note(list(cal.cam_names), vm), subsets_note(list(cal.cam_names), vm)]
     if imu_name is not None:
         from rigcal.commands.calibrate_imu import calibrate_with_imu
 
@@ -199,7 +199,8 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
     _write_outputs(out_path, o.report, out_rig, cal, found.det, pairs, timings,
                    imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]),
-                   mag=None if mag_step is None or not mag_step.results else (mag_step, before_mag))
+                   mag=None if mag_step is None or not mag_step.results else (mag_step, before_mag),
+                   visual=(vm, list(cal.cam_names)) if free_running else None)
     start_warnings = warnings_for(cal)
     if free_running:  # the written poses' sigmas are the continuous-time estimate's, not the start's
         from rigcal.results.visual_outputs import is_start_pose_warning, pose_warnings
@@ -371,10 +372,12 @@ def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_r
 
 
 def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, det, pairs: dict,
-                   timings: dict, imu: tuple | None = None, mag: tuple | None = None) -> None:
+                   timings: dict, imu: tuple | None = None, mag: tuple | None = None, visual: tuple | None = None
+                   ) -> None:
     """The calibrated rig YAML and the HTML report (when asked for), written together or not
     at all. `imu`: (camera-IMU result, its IMU's samples) for the report's IMU part; `mag`:
-    (the magnetometer step, the rig it was given) for its magnetometer part."""
+    (the magnetometer step, the rig it was given) for its magnetometer part; `visual`: (the
+    free-running cameras' continuous-time estimate, camera names) for its part."""
     text = dump_rig(out_rig)
     report_html = None
     if report_path is not None:
@@ -385,6 +388,10 @@ def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, 
             from rigcal.results.report_imu import with_imu_section
 
             report_html = with_imu_section(report_html, out_rig, *imu)
+        if visual is not None:
+            from rigcal.results.report_visual import with_visual_section
+
+            report_html = with_visual_section(report_html, out_rig, *visual)
         if mag is not None:
             from rigcal.results.report_mag import with_mag_section
 
