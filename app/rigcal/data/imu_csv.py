@@ -8,6 +8,7 @@ the file's line numbers (the header is line 1), as an editor shows them.
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping
@@ -83,8 +84,10 @@ def _read_fast(path: Path) -> ImuSamples | None:
     try:
         if not _plain(path):
             return None
-        data = np.loadtxt(path, delimiter=",", comments="#", dtype=[("t", "i8"), ("v", "f8", (COLUMNS - 1,))],
-                          encoding="utf-8-sig", ndmin=1)
+        with warnings.catch_warnings():  # an empty file is refused by _read_rows, in one line
+            warnings.simplefilter("ignore", UserWarning)
+            data = np.loadtxt(path, delimiter=",", comments="#", dtype=[("t", "i8"), ("v", "f8", (COLUMNS - 1,))],
+                              encoding="utf-8-sig", ndmin=1)
     except (OSError, UnicodeDecodeError, ValueError, OverflowError):
         return None
     t, v = data["t"], data["v"]
