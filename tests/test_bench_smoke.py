@@ -367,10 +367,12 @@ def test_imu_freerun_tables_summarise_each_case():
                              for c in ("a", "b")}
     res = {"duration_s": 8.0, "seeds": 1, "runs": [
         {"case": "synchronised", "cameras": cams(0.002, 0.01), "z": {"rotation": [[0.5, 3.0]]}},
-        {"case": "free-running", "cameras": cams(0.004, -0.03), "z": {"rotation": [[1.0, 1.5]]}}]}
+        {"case": "free-running", "cameras": cams(0.004, -0.03), "z": {"rotation": [[1.0, 1.5]]},
+         "z_formal": {"rotation": [[1.0, 3.0]]}}]}
     s = imu_freerun.summary(res)
     assert s["synchronised"]["within_2_sigma"] == 0.5 and s["free-running"]["within_2_sigma"] == 1.0
     assert s["free-running"]["offset_ms_max"] == 0.03 and s["synchronised"]["rot_deg_max"] == 0.002
+    assert s["free-running"]["within_2_formal"] == 0.5 and "within_2_formal" not in s["synchronised"]
     assert "free-running" in imu_freerun.tables(res)
 
 

@@ -116,7 +116,7 @@ def test_joint_intrinsics_agree_with_the_truth_within_their_sigma_and_held_keeps
 def test_the_output_says_how_the_defaults_were_chosen(run):
     """The knot spacing chosen from the IMU (the simulator's motion: the coarsest, 0.05 s) and
     the halves' check behind the sigmas: every reported pose and offset sigma is at least
-    half the halves' difference."""
+    half the halves' difference and at least the formal one it records."""
     _, out, text = run
     doc = yaml.safe_load(out.read_text())
     ci = doc["calibration"]["camera_imu"]
@@ -130,6 +130,10 @@ def test_the_output_says_how_the_defaults_were_chosen(run):
         for key in ("rotation_deg", "position_mm"):
             assert all(abs(x) <= 2 * s + 1e-4 for x, s in zip(d[key], sig[key])), (name, key, d[key], sig[key])
         assert abs(d["time_offset_ms"]) <= 2 * sig["time_offset_ms"] + 1e-4
+        formal = chk["formal_sigma"][name]  # what the halves raised from
+        for key in ("rotation_deg", "position_mm"):
+            assert all(s >= f > 0 for s, f in zip(sig[key], formal[key])), (name, key, sig[key], formal[key])
+        assert sig["time_offset_ms"] >= formal["time_offset_ms"] > 0
 
 
 def test_a_camera_calibration_as_rig_holds_its_intrinsics_by_default(run, tmp_path):

@@ -223,3 +223,20 @@ def test_intrinsics_prior_block_known_answer():
     assert np.allclose(b2.r[0] - b.r[0], b.J[0] @ [0.1, -0.2, 0.3, 0.05])
     held = ir.layout_for(st, frozenset({"imu_rot", "imu_pos", "line_delay", "scale", "intrinsics"}))
     assert np.all(ir.intrinsics_prior_block(st, held, prior).cols == -1)
+
+
+def test_the_structure_is_freed_only_where_the_camera_only_step_left_motion_unmodelled():
+    """Free-running images grouped as one instant, or a rolling shutter (declared or
+    estimated): fx, fy, cx, cy each a parameter; a synchronised global-shutter recording
+    keeps the camera-only step's tested structure."""
+    from rigcal.camcal.solve import Intrinsics
+
+    assert not step.motion_unmodelled({"a": 0.0, "b": 0.0}, False, None)
+    assert not step.motion_unmodelled({"a": 0.0}, False, {})
+    assert step.motion_unmodelled({"a": 0.0, "b": 3e-5}, False, None)  # declared, held
+    assert step.motion_unmodelled({"a": 0.0}, True, None)  # --rolling-shutter
+    assert step.motion_unmodelled({"a": 0.0}, False, {"a": {"1": 2}})  # grouped stems
+    tied = Intrinsics("pinhole", np.array([300.0, 300.0, 320.0, 240.0, 0.01, -0.02, 0.0, 0.0]), True, True)
+    free = step.free_structure((tied,))[0]
+    assert not free.tie_focal and not free.hold_centre and np.array_equal(free.values, tied.values)
+    assert free.basis().shape == (8, 8) and tied.basis().shape == (8, 5)

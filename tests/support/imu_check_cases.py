@@ -65,19 +65,23 @@ def _views(cam, T_world_body: np.ndarray, T_world_board: np.ndarray, boards, rng
 
 
 def record(truth: Rig, out: Path, duration: float = 6.0, camera_rate: float = 10.0, seed: int = 0,
-           sigma_px: float = 0.3, declared: Rig | None = None) -> Path:
+           sigma_px: float = 0.3, declared: Rig | None = None, free_running: bool = False, with_imu: bool = True
+           ) -> Path:
     """A motion recording of exactly `truth`: imu/<imu>.csv, corners/<camera>.csv (stems = each
-    camera's own clock, ns), target.yaml and rig.yaml (`declared`, default the truth)."""
+    camera's own clock, ns), target.yaml and rig.yaml (`declared`, default the truth).
+    free_running: each camera on its own phase and rate (simulate --free-running's schedule);
+    with_imu False: no imu/ and a rig.yaml without IMUs."""
     traj = imu_model.hand_held_trajectory(np.random.default_rng([seed, 2]))
     centre = geo.make_T(geo.R_from_rotvec(np.array([0.0, 0.0, traj.ypr0[0]])), traj.p0)
     target, T_world_board = isc.plan_boards(truth, centre)
-    timing = isc.frame_timing(truth, duration, camera_rate, seed=seed)
+    timing = isc.frame_timing(truth, duration, camera_rate, free_running=free_running, seed=seed)
     t_end = duration + 2 * isc.MARGIN_S
     rng = np.random.default_rng([seed, 7])
     with atomic_dir(Path(out), force=True) as tmp:
-        (tmp / "imu").mkdir()
+        if with_imu:
+            (tmp / "imu").mkdir()
         (tmp / "corners").mkdir()
-        for ii, imu in enumerate(truth.imus):
+        for ii, imu in enumerate(truth.imus if with_imu else ()):
             t = np.arange(int(np.floor(t_end * imu.update_rate)) + 1) / imu.update_rate
             s = imu_model.synthesize(traj.at(t), imu, np.random.default_rng([seed, 4, ii]), noise=True)
             t_ns = isc.EPOCH_NS + np.rint(s.t * 1e9).astype(np.int64)
@@ -89,7 +93,8 @@ def record(truth: Rig, out: Path, duration: float = 6.0, camera_rate: float = 10
                 lines += [f"{stem},{b},{k},{u:.4f},{v:.4f}"
                           for b, k, u, v in _views(cam, T, T_world_board, target.boards, rng, sigma_px)]
             (tmp / "corners" / f"{cam.name}.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
-        (tmp / "rig.yaml").write_text(dump_rig(declared or truth), encoding="utf-8")
+        written = declared or truth
+        (tmp / "rig.yaml").write_text(dump_rig(written if with_imu else replace(written, imus=())), encoding="utf-8")
         (tmp / "target.yaml").write_text(dump_target(target), encoding="utf-8")
     return Path(out)
 

@@ -10,7 +10,7 @@ import os
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Mapping
 
 from rich.console import Console, Group
 
@@ -56,9 +56,10 @@ def _diagnosis(paths: list[Path], target) -> str:
     return f": {hint}" if hint else ""
 
 
-def _corner_views(images, target, console) -> tuple[list[BoardView], object]:
+def _corner_views(images, target, console, renamed=None) -> tuple[list[BoardView], object]:
     """Views of the cameras given as corners/<camera>.csv, and the dataset's images without
-    those cameras' (the corners are used instead, and calibrate says so)."""
+    those cameras' (the corners are used instead, and calibrate says so). renamed: camera ->
+    csv frame -> frame, where free-running cameras' frames were grouped by time."""
     from types import MappingProxyType
 
     from rigcal.data.corners import read_corners
@@ -66,7 +67,8 @@ def _corner_views(images, target, console) -> tuple[list[BoardView], object]:
     views = []
     for cam, path in images.corners.items():
         got = read_corners(path, target)
-        views += [BoardView(cam, frame, board, ids, uv, False, None) for frame, board, ids, uv in got]
+        names = (renamed or {}).get(cam, {})
+        views += [BoardView(cam, names.get(frame, frame), board, ids, uv, False, None) for frame, board, ids, uv in got]
         both = f"; its {len(images.frames[cam])} images in images/{cam}/ are not used" if images.frames[cam] else ""
         console.print(f"{cam}: {len(got)} board views from {path} (corners detected elsewhere){both}")
     if not images.corners:
@@ -182,12 +184,12 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     imu_res = None
     if free_running:
         from rigcal.imucal.visual_motion import calibrate_visual_motion
-        from rigcal.results.visual_outputs import summary_note, visual_motion_rig
+        from rigcal.results.visual_outputs import subsets_note, summary_note, visual_motion_rig
 
         vm = calibrate_visual_motion(cal, inp.motion.frame_t_ns, cal.reference, fix_intrinsics,
                                      {c.name: c.time_offset_s or 0.0 for c in inp.rig.cameras})
         out_rig = visual_motion_rig(out_rig, cal, vm)
-        plan_notes.append(summary_note(list(cal.cam_names), vm))
+        plan_notes += [summary_note(list(cal.cam_names), vm), subsets_note(list(cal.cam_names), vm)]
     if imu_name is not None:
         from rigcal.commands.calibrate_imu import calibrate_with_imu
 
@@ -197,7 +199,8 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     timings = dict(cal.timings, detection_s=found.det.seconds, total_s=time.perf_counter() - t0)
     _write_outputs(out_path, o.report, out_rig, cal, found.det, pairs, timings,
                    imu=None if imu_res is None else (imu_res, inp.motion.imus[imu_name]),
-                   mag=None if mag_step is None or not mag_step.results else (mag_step, before_mag))
+                   mag=None if mag_step is None or not mag_step.results else (mag_step, before_mag),
+                   visual=(vm, list(cal.cam_names)) if free_running else None)
     start_warnings = warnings_for(cal)
     if free_running:  # the written poses' sigmas are the continuous-time estimate's, not the start's
         from rigcal.results.visual_outputs import is_start_pose_warning, pose_warnings
@@ -233,6 +236,8 @@ class _Inputs:
     images: DatasetImages
     motion: MotionCheck
     motion_notes: tuple[str, ...]
+    # corners/<camera>.csv cameras grouped by time with the others: camera -> csv frame -> frame
+    corner_frames: Mapping[str, Mapping[str, str]] | None = None
 
 
 def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_path: Path | None,
@@ -256,17 +261,19 @@ def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_pa
     _refuse_square_chessboard(target, rig, target_file)
     images = list_dataset(dataset, rig)
     motion_notes, motion = _motion_notes(dataset, rig, images, _min_overlap_s(imu_options))
+    corner_stems = _corner_stems(images)
     if not motion.imus:
         try:
             check_shared_stems(images)
-            return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
+            if not _integer_stems(images, corner_stems) or not _lone(images, corner_stems):
+                return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
         except DatasetError:
-            if not _integer_stems(images):
+            if not _integer_stems(images, corner_stems):
                 raise  # files named per camera, not free-running cameras
-    assoc = associate_by_time(images)
+    assoc = associate_by_time(images, corner_stems=corner_stems)
     check_shared_stems(assoc.images, assoc.tolerance_ns)
     if assoc.renamed:
-        n = sum(len(f) for f in assoc.images.frames.values())
+        n = sum(len(f) for f in assoc.images.frames.values()) + sum(len(f) for f in assoc.corner_frames.values())
         motion_notes.append(f"the cameras do not share stems (free-running or mixed rates): for the camera-only start "
                             f"their {n} images are grouped into {assoc.shared_frames} frames shared by two cameras or "
                             f"more (taken within {assoc.tolerance_ns * 1e-6:.1f} ms); the "
@@ -274,14 +281,32 @@ def _read_inputs(dataset: Path, out_path: Path, report_path: Path | None, rig_pa
                             f"places every image at its own time")
         motion = replace(motion, frame_t_ns=assoc.image_t_ns)
         images = assoc.images
+        return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes), assoc.corner_frames)
     return _Inputs(rig, target, target_file, images, motion, tuple(motion_notes))
 
 
-def _integer_stems(images) -> bool:
-    """Every image's stem an integer (a capture time in ns) and every camera's images within
-    another camera's span: cameras that share no stem are then free-running, their images
-    grouped by time (dataset.associate_by_time); otherwise check_shared_stems' naming hint stands."""
+def _corner_stems(images) -> dict[str, list[str]]:
+    """The frames of each camera given as corners/<camera>.csv (their first column)."""
+    from rigcal.data.imu_csv import corner_frame_stems
+
+    return {c: list(corner_frame_stems(p)) for c, p in images.corners.items()}
+
+
+def _lone(images, corner_stems: dict[str, list[str]]) -> bool:
+    """Whether a camera given as a corners file shares no frame with any other camera (the
+    image cameras' stems are check_shared_stems')."""
+    stems = {c: set(f) for c, f in images.frames.items() if c not in images.corners}
+    stems.update({c: set(f) for c, f in corner_stems.items()})
+    return any(not any(stems[c] & stems[o] for o in stems if o != c) for c in corner_stems) and len(stems) > 1
+
+
+def _integer_stems(images, corner_stems: dict[str, list[str]] | None = None) -> bool:
+    """Every image's stem (and every corners file's frame) an integer (a capture time in ns)
+    and every camera's images within another camera's span: cameras that share no stem are
+    then free-running, their images grouped by time (dataset.associate_by_time); otherwise
+    check_shared_stems' naming hint stands."""
     frames = {c: f for c, f in images.frames.items() if c not in images.corners and f}
+    frames.update({c: f for c, f in (corner_stems or {}).items() if f})
     if not all(s.lstrip("-").isdigit() for f in frames.values() for s in f):
         return False
     span = {c: (min(int(s) for s in f), max(int(s) for s in f)) for c, f in frames.items()}
@@ -334,7 +359,7 @@ def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_r
     corner files; refuses cameras with (almost) no board (_check_detections)."""
     from rigcal.detect.detect import detect_dataset
 
-    given, images = _corner_views(inp.images, inp.target, console)
+    given, images = _corner_views(inp.images, inp.target, console, inp.corner_frames)
     det = detect_dataset(images, inp.target, rig=inp.rig, jobs=jobs, progress=True, scheduler=scheduler)
     for path, reason in det.unreadable:
         console.print(f"warning: {path}: skipped ({reason})")
@@ -347,10 +372,12 @@ def _detect_views(inp: _Inputs, jobs: int | None, scheduler: str | None, allow_r
 
 
 def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, det, pairs: dict,
-                   timings: dict, imu: tuple | None = None, mag: tuple | None = None) -> None:
+                   timings: dict, imu: tuple | None = None, mag: tuple | None = None, visual: tuple | None = None
+                   ) -> None:
     """The calibrated rig YAML and the HTML report (when asked for), written together or not
     at all. `imu`: (camera-IMU result, its IMU's samples) for the report's IMU part; `mag`:
-    (the magnetometer step, the rig it was given) for its magnetometer part."""
+    (the magnetometer step, the rig it was given) for its magnetometer part; `visual`: (the
+    free-running cameras' continuous-time estimate, camera names) for its part."""
     text = dump_rig(out_rig)
     report_html = None
     if report_path is not None:
@@ -361,6 +388,10 @@ def _write_outputs(out_path: Path, report_path: Path | None, out_rig: Rig, cal, 
             from rigcal.results.report_imu import with_imu_section
 
             report_html = with_imu_section(report_html, out_rig, *imu)
+        if visual is not None:
+            from rigcal.results.report_visual import with_visual_section
+
+            report_html = with_visual_section(report_html, out_rig, *visual)
         if mag is not None:
             from rigcal.results.report_mag import with_mag_section
 

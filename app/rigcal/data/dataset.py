@@ -162,13 +162,16 @@ class Association:
     """associate_by_time's outcome: `images` with each camera's frames renamed so that images
     taken together share a name (a group's name is its earliest stem), `image_t_ns`: camera
     -> frame (as renamed) -> the image's own stem in ns, the tolerance used (ns), the
-    number of frames shared by two cameras or more, and whether anything was renamed."""
+    number of frames shared by two cameras or more, and whether anything was renamed;
+    corner_frames: for the cameras given as corners/ files, camera -> the csv's frame -> its
+    frame as renamed (their views are renamed when calibrate reads them)."""
 
     images: DatasetImages
     image_t_ns: Mapping[str, Mapping[str, int]]
     tolerance_ns: int
     shared_frames: int
     renamed: bool
+    corner_frames: Mapping[str, Mapping[str, str]] = field(default_factory=lambda: MappingProxyType({}))
 
 
 def frame_period_ns(t_ns) -> float:
@@ -197,14 +200,18 @@ def time_groups(times: Mapping[str, Iterable[int]], tolerance_ns: int) -> list[d
     return groups
 
 
-def associate_by_time(dataset: DatasetImages, fractions: tuple[float, ...] = ASSOCIATE_FRACTIONS) -> Association:
+def associate_by_time(dataset: DatasetImages, fractions: tuple[float, ...] = ASSOCIATE_FRACTIONS,
+                      corner_stems: Mapping[str, Iterable[str]] | None = None) -> Association:
     """A motion dataset's images (integer-ns stems, checked before) grouped into shared frames
     by time (time_groups, within a fraction of the shortest camera's frame period: the first
     of `fractions` at which every camera shares a frame with another), for the camera-only
-    start of free-running or mixed-rate cameras. Cameras given as corners/ files keep their
-    frames. Where every camera shares its stems the frames are the dataset's own."""
-    cams = [c for c in dataset.cameras if c not in dataset.corners and dataset.frames[c]]
-    stems = {c: {int(f): f for f in dataset.frames[c]} for c in cams}
+    start of free-running or mixed-rate cameras. Cameras given as corners/ files take part
+    through `corner_stems` (camera -> the csv's frames, integer ns), their renaming returned
+    in Association.corner_frames; without it they keep their frames. Where every camera
+    shares its stems the frames are the dataset's own."""
+    corner_stems = {c: list(f) for c, f in (corner_stems or {}).items() if c in dataset.corners and f}
+    cams = [c for c in dataset.cameras if (c not in dataset.corners and dataset.frames[c]) or c in corner_stems]
+    stems = {c: {int(f): f for f in (corner_stems[c] if c in corner_stems else dataset.frames[c])} for c in cams}
     periods = [frame_period_ns(stems[c]) for c in cams]
     finite = [p for p in periods if p != float("inf")]
     for fraction in fractions:
@@ -213,20 +220,25 @@ def associate_by_time(dataset: DatasetImages, fractions: tuple[float, ...] = ASS
         linked = {c for g in groups if len(g) > 1 for c in g}
         if len(cams) < 2 or linked == set(cams):
             break
-    frames: dict[str, dict[str, Path]] = {c: {} for c in cams}
+    frames: dict[str, dict[str, Path]] = {c: {} for c in cams if c not in corner_stems}
+    renames: dict[str, dict[str, str]] = {c: {} for c in corner_stems}
     own: dict[str, dict[str, int]] = {c: {} for c in cams}
     renamed = False
     for g in groups:
         name = stems[min(g, key=lambda c: (g[c], cams.index(c)))][min(g.values())]
         for cam, t in g.items():
-            frames[cam][name] = dataset.frames[cam][stems[cam][t]]
+            if cam in renames:
+                renames[cam][stems[cam][t]] = name
+            else:
+                frames[cam][name] = dataset.frames[cam][stems[cam][t]]
             own[cam][name] = t
             renamed |= stems[cam][t] != name
     out = {c: (MappingProxyType({k: frames[c][k] for k in sorted(frames[c], key=frame_sort_key)}) if c in frames
                else dataset.frames[c]) for c in dataset.cameras}
     shared = sum(len(g) > 1 for g in groups)
     return Association(DatasetImages(dataset.root, dataset.cameras, MappingProxyType(out), dataset.corners),
-                       MappingProxyType({c: MappingProxyType(v) for c, v in own.items()}), tol, shared, renamed)
+                       MappingProxyType({c: MappingProxyType(v) for c, v in own.items()}), tol, shared, renamed,
+                       MappingProxyType({c: MappingProxyType(v) for c, v in renames.items()}))
 
 
 def _listdir(folder: Path) -> list[Path]:

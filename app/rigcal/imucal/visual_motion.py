@@ -80,6 +80,15 @@ class VisualMotionResult:
     seconds: float
     state: ir.State
     knots_tried: tuple = ()  # ((knot spacing s, corner RMS px of a first pass), ...): choose_knots
+    # the estimate repeated on each half of the recording (imucal.step.SubsetCheck): `sigma` and
+    # `sigma_intrinsics` are then its reported ones (the formal ones raised where the halves
+    # disagree by more), formal_sigma the Jacobian's; None when the halves were not estimated
+    subsets: object = None
+    formal_sigma: np.ndarray | None = None
+    # every image with a board: its time on the reference camera's clock (s, the spline's
+    # time base: the first image's stem + its offset) and its camera, for the report
+    image_t: np.ndarray | None = None
+    image_cam: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,11 +341,71 @@ def choose_knots(cal, views: Views, image_t_ns, pr: _Problem, base_dt: float) ->
     return best, tuple(tried)
 
 
+def _formal_dict(sigma: np.ndarray, sigma_intr: np.ndarray | None) -> dict:
+    """sigmas_of's arrays in imucal.step.parameter_sigmas' form (what subset_sigmas takes)."""
+    from rigcal.imucal.step import INTRINSIC_KEYS
+
+    return {"pose": sigma[:, :6].copy(), "offset": sigma[:, 6].copy(), "line_delay": None,
+            "intrinsics": None if sigma_intr is None else [dict(zip(INTRINSIC_KEYS, map(float, row)))
+                                                          for row in sigma_intr]}
+
+
+def subset_check(state: ir.State, pr: _Problem, prior: tuple, sigma_px: float, sigma: np.ndarray,
+                 sigma_intr: np.ndarray | None):
+    """The camera-IMU step's check of its formal sigmas (imucal.step.subset_check), on this
+    estimate: the estimate repeated on each half of the recording in time (its corners, the
+    trajectory windowed to them, imucal.step.state_window), each from the whole recording's
+    solution and stopped early (step.SUBSET_MAX_ITER, SUBSET_COST_TOL), and the sigmas the
+    halves' differences support (step.subset_sigmas: the larger of the formal one and
+    |difference| / 2, a group scaled where the halves disagree beyond its formal sigmas).
+    Cameras seen by fewer than step.MIN_SUBSET_CORNERS corners in a half, and the reference
+    camera (held), are not compared. Returns a step.SubsetCheck, or None when a half cannot
+    be estimated."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from rigcal.imucal import step
+
+    t0 = time.perf_counter()
+    C = len(pr.models)
+    t = ir.corner_times(state, pr.obs)
+    lo, hi = float(t.min()), float(t.max())
+    mid = 0.5 * (lo + hi)
+    dt = state.spline.dt
+
+    def half(span):
+        keep = np.flatnonzero((t >= span[0]) & (t < span[1]))
+        obs = pr.obs.subset(keep)
+        part = step.state_window(state, max(span[0] - dt, state.spline.t0), min(span[1] + dt, state.spline.t_end))
+        lay = ir.layout_for(part, pr.held)
+        ref = np.r_[lay.cam + 6 * pr.g + np.arange(6), lay.offset + pr.g]
+        try:
+            st, _, _ = ic.levenberg_marquardt(
+                part, lay, lambda s: _blocks(s, lay, obs, pr.models, sigma_px, ref, prior), step.SUBSET_MAX_ITER,
+                step.SUBSET_COST_TOL, lam0=ic.WARM_LAMBDA)
+        except (CalibrationError, ValueError, np.linalg.LinAlgError):
+            return None
+        return st, np.bincount(obs.cam, minlength=C)
+
+    with ThreadPoolExecutor(max_workers=2) as ex:
+        halves = list(ex.map(half, ((lo - 1.0, mid), (mid, hi + 1.0))))
+    if any(h is None for h in halves):
+        return None
+    compared = (halves[0][1] >= step.MIN_SUBSET_CORNERS) & (halves[1][1] >= step.MIN_SUBSET_CORNERS)
+    compared[pr.g] = False
+    if not compared.any():
+        return None
+    formal = _formal_dict(sigma, sigma_intr)
+    diffs = step.halves_differences(halves[0][0], halves[1][0], False, sigma_intr is not None)
+    reported, factor = step.subset_sigmas(formal, diffs, compared)
+    return step.SubsetCheck(*diffs, compared, formal, reported, factor, time.perf_counter() - t0, mid)
+
+
 def calibrate_visual_motion(cal, image_t_ns, reference: str = "aligned", hold_intrinsics: bool = False,
-                            offsets_declared: dict | None = None) -> VisualMotionResult:
+                            offsets_declared: dict | None = None, subsets: bool = True) -> VisualMotionResult:
     """The continuous-time estimate after the camera-only calibration `cal` of time-grouped
-    images (image_t_ns: camera -> frame -> the image's own stem, ns). Raises CalibrationError
-    with one line where the views cannot model the motion."""
+    images (image_t_ns: camera -> frame -> the image's own stem, ns), its formal sigmas
+    checked on the recording's halves (subset_check; `subsets` False: formal only). Raises
+    CalibrationError with one line where the views cannot model the motion."""
     t0 = time.perf_counter()
     names = list(cal.cam_names)
     views = views_of(cal, image_t_ns)
@@ -360,7 +429,16 @@ def calibrate_visual_motion(cal, image_t_ns, reference: str = "aligned", hold_in
             f"{1000 * sigma[names.index(bad[0]), 6]:.1f} ms, more than {MAX_OFFSET_SIGMA_KNOTS:g} of the "
             f"{1000 * dt:.0f} ms knot spacing): without an IMU the rig must move while both cameras see the boards")
     rms_px = blocks[0].residual_rms * sigma_px
+    sigma_intr = None if hold_intrinsics else sigma_intr
+    formal = sigma
+    check = subset_check(state, pr, prior, sigma_px, sigma, sigma_intr) if subsets else None
+    if check is not None:
+        from rigcal.imucal.step import INTRINSIC_KEYS
+
+        sigma = np.column_stack([check.sigma["pose"], check.sigma["offset"]])
+        if sigma_intr is not None:
+            sigma_intr = np.array([[i[k] for k in INTRINSIC_KEYS] for i in check.sigma["intrinsics"]])
     return VisualMotionResult(state.T_body_cam.copy(), state.time_offset_s.copy(), sigma,
-                              () if hold_intrinsics else tuple(state.intrinsics),
-                              None if hold_intrinsics else sigma_intr, g, dt, prior, float(rms_px), sigma_px, iters,
-                              time.perf_counter() - t0, state, tried)
+                              () if hold_intrinsics else tuple(state.intrinsics), sigma_intr, g, dt, prior,
+                              float(rms_px), sigma_px, iters, time.perf_counter() - t0, state, tried, check, formal,
+                              views.image_t + state.time_offset_s[views.image_cam], views.image_cam.copy())

@@ -152,8 +152,9 @@ def calibrated_imu_rig(out_rig: Rig, declared: Rig, res: ImuCalibration, referen
 def halves_entry(check, names: list[str]) -> dict:
     """`sigma_check`: where the recording was split, and per camera compared the halves'
     differences (first minus second) in the sigmas' units: rotation about body F, L, U
-    (deg), position (mm), time offset (ms), line delay (us), intrinsics (px)."""
-    cams = {}
+    (deg), position (mm), time offset (ms), line delay (us), intrinsics (px), and its
+    formal sigmas in the same units (`formal_sigma`)."""
+    cams, formal = {}, {}
     for k in np.flatnonzero(check.compared):
         e = {"rotation_deg": [rounded(np.degrees(x), 5) for x in check.d_rot[k]],
              "position_mm": [rounded(1000 * x, 4) for x in check.d_pos[k]],
@@ -163,8 +164,19 @@ def halves_entry(check, names: list[str]) -> dict:
         if check.d_intr is not None:
             e["intrinsics"] = {key: rounded(x, 4) for key, x in zip(("fx", "fy", "cx", "cy"), check.d_intr[k])}
         cams[names[k]] = e
+        # the formal sigmas beside the reported: what the halves changed, and coverage
+        # benchmarks can score both
+        f = check.formal
+        formal[names[k]] = g = {"rotation_deg": [rounded(np.degrees(x), 5) for x in f["pose"][k, :3]],
+                                "position_mm": [rounded(1000 * x, 4) for x in f["pose"][k, 3:]],
+                                "time_offset_ms": rounded(1000 * f["offset"][k], 5)}
+        if f.get("line_delay") is not None:
+            g["line_delay_us"] = rounded(1e6 * f["line_delay"][k], 5)
+        if f.get("intrinsics") is not None:
+            g["intrinsics"] = {key: rounded(f["intrinsics"][k][key], 4)
+                               for key in ("fx", "fy", "cx", "cy")}
     return {"method": "halves", "split_s": rounded(check.split_s, 3), "seconds": rounded(check.seconds, 2),
-            "halves_difference": cams}
+            "halves_difference": cams, "formal_sigma": formal}
 
 
 def _declared_sigma(declared: Rig, name: str, res: ImuCalibration) -> dict | None:

@@ -180,10 +180,11 @@ def _pm(value: float, sigma: dict | None, key: str, nd: int) -> str:
 
 
 def imu_step_sigma(out_rig: Rig, cam) -> dict | None:
-    """The camera's 1-sigma block when the rig came through the camera-IMU step (its poses,
-    and with --imu-intrinsics joint its intrinsics, are that step's, and so are their
-    sigmas), else None: the camera-only step's CameraStats hold them."""
-    if "camera_imu" not in (out_rig.calibration or {}):
+    """The camera's 1-sigma block when the rig came through the camera-IMU step or the
+    free-running cameras' continuous-time estimate (its poses, and intrinsics where that step
+    estimated them, are that step's, and so are their sigmas), else None: the camera-only
+    step's CameraStats hold them."""
+    if not {"camera_imu", "free_running"} & set(out_rig.calibration or {}):
         return None
     return (cam.calibration or {}).get("sigma")
 
@@ -499,6 +500,17 @@ def figures(cal: Calibration, out_rig: Rig, pairs: dict) -> list[tuple[str, str,
     return out
 
 
+def _sigma_origin(out_rig: Rig) -> str:
+    """Which estimate the pose table's poses and sigmas are from."""
+    top = out_rig.calibration or {}
+    if "free_running" in top:
+        return ("the free-running cameras' continuous-time estimate (see its section below; the figures of frame "
+                "poses and residuals are the camera-only start's, images grouped by time)")
+    if "camera_imu" in top:
+        return "the camera-IMU estimate"
+    return "the bundle adjustment's covariance"
+
+
 def build_report(cal: Calibration, out_rig: Rig, det, pairs: dict, timings: dict) -> str:
     """The whole report page as one HTML string (plotly.js embedded once, no network)."""
     pairs = pairs or {}
@@ -507,7 +519,7 @@ def build_report(cal: Calibration, out_rig: Rig, det, pairs: dict, timings: dict
             "<h2>Cameras: intrinsics</h2>", intrinsics_table(cal, out_rig),
             "<h3>Distortion model choice</h3>", model_choice_html(cal, out_rig),
             "<h2>Cameras: pose in the body frame (FLU) and its uncertainty</h2>", extrinsics_table(cal, out_rig),
-            "<p class=\"caption\">1-sigma from the bundle adjustment's covariance, in the output body frame; "
+            "<p class=\"caption\">1-sigma from " + _sigma_origin(out_rig) + ", in the output body frame; "
             "rotation sigmas are about the body F, L, U axes.</p>"]
     if out_rig.stereo_pairs:
         body += ["<h2>Stereo pairs</h2>", stereo_table(out_rig, pairs)]

@@ -3,7 +3,8 @@
 offset (`time_offset_s`, t_ref = t_cam + time_offset_s on the reference camera's clock) and,
 when estimated, the intrinsics from the continuous-time estimate, their 1-sigma under each
 camera's `calibration.sigma` (as the camera-IMU output: `rotation_deg`, `position_mm`,
-`time_offset_ms`, `intrinsics`), the stereo baselines from the new poses and a top-level
+`time_offset_ms`, `intrinsics`; `sigma_source` formal or subsets: checked on the
+recording's halves as the camera-IMU step's), the stereo baselines from the new poses and a top-level
 `calibration.free_running` block saying how."""
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ def visual_motion_rig(out_rig: Rig, cal, vm: VisualMotionResult) -> Rig:
             lens = c.intrinsics.with_values(vm.intrinsics[k].values)
             sig["intrinsics"] = {key: _r(x, 4) for key, x in zip(("fx", "fy", "cx", "cy"), vm.sigma_intrinsics[k])}
         block["sigma"] = sig
-        block["sigma_source"] = "formal"
+        block["sigma_source"] = sigma_source(vm, k)
         cams.append(replace(c, T_body_cam=T_body_cam[k], time_offset_s=float(vm.time_offset_s[k]), intrinsics=lens,
                             calibration=block))
     by_name = {c.name: c for c in cams}
@@ -66,6 +67,21 @@ def visual_motion_rig(out_rig: Rig, cal, vm: VisualMotionResult) -> Rig:
         "seconds": _r(vm.seconds, 2),
     }
     return replace(out_rig, cameras=tuple(cams), stereo_pairs=pairs, calibration=top)
+
+
+def sigma_source(vm: VisualMotionResult, k: int) -> str:
+    """Camera k's `sigma_source`, as the camera-IMU output's: `subsets` where the recording's
+    halves raised any of its sigmas, else `formal` (not compared, or the formal ones cover them)."""
+    check = vm.subsets
+    return check.source(k) if check is not None and check.compared[k] else "formal"
+
+
+def subsets_note(names: list[str], vm: VisualMotionResult) -> str:
+    """calibrate's note on the halves' check of the sigmas (or that it could not be made)."""
+    if vm.subsets is None:
+        return ("free-running cameras without an IMU: the sigmas are the formal ones (the recording's halves could "
+                "not each be estimated)")
+    return "free-running cameras without an IMU: " + vm.subsets.line(names)
 
 
 def summary_note(names: list[str], vm: VisualMotionResult) -> str:
@@ -108,14 +124,15 @@ def console_table(rig: Rig, vm: VisualMotionResult, names: list[str]):
 
     ref = names[vm.reference]
     t = Table(title=f"free-running cameras without an IMU: relative to {ref} (clocks: t_{ref} = t_cam + offset)")
-    for col in ("camera", "time offset ms", "1-sigma ms", "sigma pos mm (F L U)", "sigma rot deg (F L U)"):
+    for col in ("camera", "time offset ms", "1-sigma ms", "sigma pos mm (F L U)", "sigma rot deg (F L U)",
+                "sigmas from"):
         t.add_column(col, justify="left" if col == "camera" else "right")
     for c in rig.cameras:
         k = names.index(c.name)
         s = vm.sigma[k]
         t.add_row(c.name + (" (reference)" if k == vm.reference else ""), f"{1000 * vm.time_offset_s[k]:+.4f}",
                   f"{1000 * s[6]:.4f}", " ".join(f"{1000 * x:.3f}" for x in s[3:6]),
-                  " ".join(f"{np.degrees(x):.4f}" for x in s[:3]))
+                  " ".join(f"{np.degrees(x):.4f}" for x in s[:3]), "held" if k == vm.reference else sigma_source(vm, k))
     t.caption = (f"knots every {1000 * vm.knot_dt:.0f} ms, corner RMS {vm.corner_rms_px:.3f} px; the cameras table "
                  f"above describes the camera-only start (images grouped by time)")
     return t
