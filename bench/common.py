@@ -105,8 +105,12 @@ def code_hash() -> str:
     """Short hash of the code whose output the cache holds."""
     h = hashlib.sha256(f"{rigcal.__version__} cache {CACHE_FORMAT}".encode())
     src = Path(rigcal.__file__).parent
-    for name in CODE_FILES:
-        h.update((src / name).read_bytes())
+    for name in CODE_FILES:  # by name anywhere in the package (sim/, detect/, core/, data/)
+        paths = sorted(src.rglob(name))
+        if not paths:
+            raise FileNotFoundError(f"bench.common.CODE_FILES: {name} is not in {src}")
+        for path in paths:
+            h.update(path.read_bytes())
     return h.hexdigest()[:10]
 
 

@@ -374,3 +374,12 @@ def test_imu_freerun_tables_summarise_each_case():
     assert s["free-running"]["offset_ms_max"] == 0.03 and s["synchronised"]["rot_deg_max"] == 0.002
     assert s["free-running"]["within_2_formal"] == 0.5 and "within_2_formal" not in s["synchronised"]
     assert "free-running" in imu_freerun.tables(res)
+
+
+def test_the_render_cache_key_reads_every_code_file():
+    """bench.common.code_hash finds its CODE_FILES wherever they live in the package (the
+    cached renders of bench.accuracy and bench.same_outputs are keyed by it)."""
+    from bench import common
+
+    h = common.code_hash()
+    assert re.fullmatch(r"[0-9a-f]{10}", h) and h == common.code_hash()

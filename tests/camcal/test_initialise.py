@@ -177,3 +177,54 @@ def test_own_views_fit_is_capped_at_max_mono_views(monkeypatch):
     values, line = mi.mono()
     assert sizes and max(sizes) <= cap
     assert abs(values[0] - declared.fx) < 0.01 * declared.fx and abs(values[2] - declared.cx) < 5.0
+
+
+def _pnp_scene(seed: int, n: int = 12):
+    """A distorted camera (rigs/stereo-forward.yaml's first), an AprilGrid and n views of it
+    with 0.1 px noise: (camera, intrinsic values, obj list, uv list, true T_cam_board list)."""
+    from pathlib import Path
+
+    from rigcal.core.target import parse_target
+    from rigcal.sim.synthetic import board_view
+
+    cam = rigcal.load_rig(Path(__file__).resolve().parents[2] / "rigs" / "stereo-forward.yaml").cameras[0]
+    board = parse_target("boards:\n  - {name: g, type: aprilgrid, tags: [6, 6], tag_size: 0.088, "
+                         "tag_spacing: 0.3}\n").boards[0]
+    rng = np.random.default_rng(seed)
+    obj, img, truth = [], [], []
+    while len(obj) < n:
+        T = geo.make_T(geo.R_from_rotvec(np.array([np.pi, 0, 0]) + rng.normal(0, 0.3, 3)),
+                       np.array([-0.3, -0.3, 1.0]) + rng.normal(0, 0.1, 3))
+        seen = board_view(cam, T, board.corners, 20)
+        if seen is None:
+            continue
+        ids, uv = seen
+        obj.append(board.corners[ids])
+        img.append(uv + rng.normal(0, 0.1, uv.shape))
+        truth.append(T)
+    m = cam.intrinsics
+    return cam, np.array([m.fx, m.fy, m.cx, m.cy, *m.dist]), obj, img, truth, board.print_face
+
+
+def test_pnp_views_poses_each_view_and_a_view_posed_before_gets_the_same_pose():
+    import rigcal.camcal.initialise as ini
+
+    cam, vals, obj, img, truth, face = _pnp_scene(4)
+    faces = [face] * len(obj)
+    ini._PNP_DONE.clear()
+    fresh = ini.pnp_views(obj, img, vals, cam.intrinsics.model, faces)
+    for (T, rms), T_true in zip(fresh, truth):  # known answer: the true poses, to the noise
+        assert np.degrees(np.linalg.norm(geo.rotvec_from_R(T[:3, :3] @ T_true[:3, :3].T))) < 0.5
+        assert np.linalg.norm(T[:3, 3] - T_true[:3, 3]) < 0.01 and 0.05 < rms < 0.2  # px: 0.1 px per axis
+    # every other view again, among views posed with other intrinsics: identical poses
+    ini._PNP_DONE.clear()
+    other = ini.pnp_views(obj[::2], img[::2], vals * [1.01, 1.01, 1, 1, 1, 1, 1, 1, 1][:len(vals)],
+                          cam.intrinsics.model, faces[::2])
+    half = ini.pnp_views(obj[::2], img[::2], vals, cam.intrinsics.model, faces[::2])
+    again = ini.pnp_views(obj, img, vals, cam.intrinsics.model, faces)  # half of them known
+    for got in (half, again[::2], again):
+        ref = fresh[: len(got)] if got is again else fresh[::2]
+        assert all(np.array_equal(a[0], b[0]) and a[1] == b[1] for a, b in zip(got, ref))
+    assert not np.array_equal(other[0][0], fresh[0][0])  # other intrinsics: posed anew
+    again[0][0][:] = 0.0  # the caller's copy, not the remembered pose
+    assert np.array_equal(ini.pnp_views(obj[:1], img[:1], vals, cam.intrinsics.model, faces[:1])[0][0], fresh[0][0])

@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from rigcal.core import geometry as geo
 from rigcal.cli import app
+from rigcal.data import corners as corners_mod
 from rigcal.data.corners import read_corners
 from rigcal.errors import DatasetError
 from rigcal.core.rig import load_rig
@@ -112,6 +113,68 @@ def test_bad_corner_files_give_one_line_naming_file_and_row(text, where, tmp_pat
         read_corners(p, parse_target(TARGET))
     msg = str(e.value)
     assert "\n" not in msg and msg.startswith(str(p)) and where in msg, msg
+
+
+@pytest.mark.parametrize("text, where", [
+    (GOOD + "0001,g0,1e300,1,2\n", "row 4: corner_id: expected a non-negative integer, got '1e300'"),
+    (GOOD + "0001,g0,-1,1,2\n", "row 4: corner_id: expected a non-negative integer, got '-1'"),
+    (GOOD + "0001,g0,2,1,2,\n", "row 4: expected 5 columns"),
+    (GOOD + "0001,g0,2,1,2\n0001,g0,3\n0001,g0,4,1,2,3,4\n", "row 5: expected 5 columns"),
+    (GOOD + "0001,g0,2,1,inf\n", "row 4: y_px: expected a finite number, got 'inf'"),
+    (GOOD + "0001, g0 ,1, 3,4\n", "row 4: frame 0001, board g0, corner_id 1 already given in row 3"),
+    (GOOD + "0002,g0,0,1,2\n0001,g1,0,1,2\n0002,g0,0,1,2\n", "row 6: frame 0002, board g0, corner_id 0 already given in row 4"),
+    (GOOD + "0001,g0,2,1\x00,2\n", "row 4: x_px: expected a number"),
+])
+def test_bad_rows_the_column_reading_passes_on_are_named_as_before(text, where, tmp_path):
+    """Rows that are not clean (read_corners' column-at-a-time reading returns None) reach
+    the row-by-row reading, which names them."""
+    p = tmp_path / "left.csv"
+    p.write_text(text)
+    with pytest.raises(DatasetError) as e:
+        read_corners(p, parse_target(TARGET))
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith(str(p)) and where in msg, msg
+
+
+def _row_by_row(monkeypatch, p, target):
+    monkeypatch.setattr(corners_mod, "_parse_clean", lambda text, target: None)
+    out = read_corners(p, target)
+    monkeypatch.undo()
+    return out
+
+
+def _same_views(a, b) -> bool:
+    return len(a) == len(b) and all(
+        x[0] == y[0] and x[1] == y[1] and x[2].dtype == y[2].dtype and np.array_equal(x[2], y[2])
+        and x[3].dtype == y[3].dtype and np.array_equal(x[3], y[3]) for x, y in zip(a, b))
+
+
+@pytest.mark.parametrize("text", [
+    GOOD,
+    "#frame,board,corner_id,x_px,y_px\n7,g1,5,1,1\n7,g0,3,2,2\n7,g1,2,3,3\n8,g1,0,4,4\n9,g3,79,-1.5e2,1_0\n",
+    # not clean: indented, CRLF, blank lines, comments between rows, spaces in cells
+    "# corners\r\n\r\n 7, g1 ,5,1,1\r\n  # more\r\n7,g0,3,2.0,+2\r\n\t\n8,g1,0,4,4 \r\n",
+])
+def test_column_and_row_reading_give_the_same_views(text, tmp_path, monkeypatch):
+    p = tmp_path / "left.csv"
+    p.write_text(text)
+    target = parse_target(TARGET)
+    fast = read_corners(p, target)
+    assert fast and _same_views(fast, _row_by_row(monkeypatch, p, target))
+
+
+def test_column_reading_of_a_large_shuffled_file_matches_row_reading(tmp_path, monkeypatch):
+    rng = np.random.default_rng(5)
+    rows = [f"{f:05d},g{b},{i},{x:.6f},{y:.6f}" for f in range(300) for b in range(4) if rng.random() < 0.7
+            for i in rng.choice(80, 12, replace=False) for x, y in [rng.uniform(0, 752, 2)]]
+    rng.shuffle(rows)
+    p = tmp_path / "left.csv"
+    p.write_text("#frame,board,corner_id,x_px,y_px\n" + "\n".join(rows) + "\n")
+    target = parse_target(TARGET)
+    assert corners_mod._parse_clean(p.read_text(), target) is not None
+    fast = read_corners(p, target)
+    assert _same_views(fast, _row_by_row(monkeypatch, p, target))
+    assert sum(len(v[2]) for v in fast) == len(rows)
 
 
 def test_bad_corner_file_exits_2_and_writes_nothing(tmp_path):

@@ -35,7 +35,8 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.stats import chi2
+# chdtri(k, q): the chi-square quantile with upper tail q; scipy.stats costs 1 s to import
+from scipy.special import chdtri
 
 from rigcal.core import geometry as geo
 from rigcal.core import spline as spl
@@ -729,7 +730,7 @@ def inflated(formal: np.ndarray, diff: np.ndarray) -> np.ndarray:
     f = np.maximum(np.asarray(formal, float), 1e-300)
     half = 0.5 * np.abs(np.asarray(diff, float))
     q = float(np.sum((half / f) ** 2))
-    k = math.sqrt(q / len(f)) if q > chi2.ppf(1.0 - SUBSET_LEVEL, len(f)) else 1.0
+    k = math.sqrt(q / len(f)) if q > chdtri(len(f), SUBSET_LEVEL) else 1.0
     return np.maximum(np.maximum(f, half), k * f)
 
 
