@@ -20,9 +20,9 @@ from rigcal.core.target import dump_target
 from rigcal.data.imu_csv import imu_csv
 from rigcal.sim import imu_model
 from rigcal.sim import imu_scene as isc
+from tests.support.check_cases import changed_rig
 
 RIG = Path(__file__).resolve().parents[2] / "rigs" / "drone-stereo-back-imu.yaml"
-AXIS = {"F": 0, "L": 1, "U": 2}
 MIN_CORNERS = 8  # a view with fewer corners in the image is dropped (as detection would)
 
 
@@ -35,16 +35,9 @@ def true_rig(truth_seed: int = 1, time_offset_ms: float = 3.0) -> Rig:
 def changed_imu_rig(rig: Rig, camera: str, rotate_deg: float = 0.0, axis: str = "U", offset_ms: float = 0.0) -> Rig:
     """The rig with one camera turned by rotate_deg about body `axis` (relative to the IMU,
     which stays) and its clock offset changed by offset_ms."""
-    cams = []
-    for c in rig.cameras:
-        if c.name == camera:
-            T = c.T_body_cam.copy()
-            r = np.zeros(3)
-            r[AXIS[axis]] = np.radians(rotate_deg)
-            T[:3, :3] = geo.R_from_rotvec(r) @ T[:3, :3]
-            c = replace(c, T_body_cam=T, time_offset_s=(c.time_offset_s or 0.0) + offset_ms / 1000.0)
-        cams.append(c)
-    return rig.with_cameras(cams)
+    turned = changed_rig(rig, camera, rotate_deg=rotate_deg, axis=axis)
+    return turned.with_cameras([replace(c, time_offset_s=(c.time_offset_s or 0.0) + offset_ms / 1000.0)
+                                if c.name == camera else c for c in turned.cameras])
 
 
 def _views(cam, T_world_body: np.ndarray, T_world_board: np.ndarray, boards, rng, sigma_px: float) -> list[str]:
