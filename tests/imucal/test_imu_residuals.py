@@ -271,6 +271,17 @@ def test_normal_rows_keep_the_normal_equations(held, boards):
     assert [b.objective for b in merged] == pytest.approx([b.objective for b in blocks], rel=1e-15)
 
 
+def _assert_same_normal_equations(whole, rows, size: int) -> None:
+    """The merged rows keep the whole block's J^T J, J^T r, objective and RMS."""
+    J, r = ir.assemble([whole], size)
+    Jm, rm = ir.assemble([rows], size)
+    H = (J.T @ J).toarray()
+    np.testing.assert_allclose((Jm.T @ Jm).toarray(), H, rtol=0, atol=1e-10 * np.abs(H).max())
+    np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-10 * np.abs(J.T @ r).max())
+    assert rows.objective == pytest.approx(whole.objective, rel=1e-12)
+    assert rows.residual_rms == pytest.approx(float(np.sqrt(np.mean(whole.r ** 2))), rel=1e-12)
+
+
 @pytest.mark.parametrize("huber_k", [None, 1.5])
 def test_reprojection_rows_in_chunks_keep_the_normal_equations(monkeypatch, huber_k):
     """reprojection_rows builds the corner block a chunk at a time (in time order) and merges
@@ -287,13 +298,7 @@ def test_reprojection_rows_in_chunks_keep_the_normal_equations(monkeypatch, hube
     whole = whole if huber_k is None else ir.huber(whole, huber_k)
     monkeypatch.setattr(ir, "CHUNK_CORNERS", 37)
     rows = ir.reprojection_rows(st, lay, obs, CAMS, 0.5, huber_k)
-    J, r = ir.assemble([whole], lay.size)
-    Jm, rm = ir.assemble([rows], lay.size)
-    H = (J.T @ J).toarray()
-    np.testing.assert_allclose((Jm.T @ Jm).toarray(), H, rtol=0, atol=1e-10 * np.abs(H).max())
-    np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-10 * np.abs(J.T @ r).max())
-    assert rows.objective == pytest.approx(whole.objective, rel=1e-12)
-    assert rows.residual_rms == pytest.approx(float(np.sqrt(np.mean(whole.r ** 2))), rel=1e-12)
+    _assert_same_normal_equations(whole, rows, lay.size)
     assert len(rows.r) < len(whole.r)
 
 
@@ -349,12 +354,6 @@ def test_image_rows_keep_the_normal_equations(monkeypatch, huber_k, threads):
     monkeypatch.setattr(ir, "CHUNK_CORNERS", 37)
     monkeypatch.setattr(ir, "JOBS_THREADS", threads)
     rows = ir.reprojection_rows(st, lay, obs, CAMS, 0.5, huber_k)
-    J, r = ir.assemble([whole], lay.size)
-    Jm, rm = ir.assemble([rows], lay.size)
-    H = (J.T @ J).toarray()
-    np.testing.assert_allclose((Jm.T @ Jm).toarray(), H, rtol=0, atol=1e-10 * np.abs(H).max())
-    np.testing.assert_allclose(Jm.T @ rm, J.T @ r, rtol=0, atol=1e-10 * np.abs(J.T @ r).max())
-    assert rows.objective == pytest.approx(whole.objective, rel=1e-12)
-    assert rows.residual_rms == pytest.approx(float(np.sqrt(np.mean(whole.r ** 2))), rel=1e-12)
+    _assert_same_normal_equations(whole, rows, lay.size)
     # 6 pose + 6 camera + 1 offset + 6 board columns and the intrinsic ones merged: as many rows a view
     assert rows.r.shape[1] == 6 + 6 + 1 + 6 + max(lay.n_intr)
