@@ -21,17 +21,10 @@ from rigcal.results.imu_outputs import compare_imu
 from rigcal.data.ingest.euroc import read_sensor_yaml
 from rigcal.core.rig import load_rig
 
+from tests.support.recordings import small_imu_rig
+
 RIG = Path(__file__).resolve().parents[2] / "rigs" / "drone-stereo-back-imu.yaml"
 runner = CliRunner()
-
-
-def _small_rig(tmp: Path) -> Path:
-    """drone-stereo-back-imu at 480x360 (f = 225): renders 2x faster (at 320x240 too few boards are found)."""
-    text = RIG.read_text().replace("[640, 480]", "[480, 360]").replace(
-        "{fx: 300.0, fy: 300.0, cx: 320.0, cy: 240.0}", "{fx: 225.0, fy: 225.0, cx: 240.0, cy: 180.0}")
-    p = tmp / "rig.yaml"
-    p.write_text(text)
-    return p
 
 
 def _cli(*args):
@@ -49,7 +42,7 @@ def _calibrated_with_report(ds: Path, out: Path) -> tuple[Path, str]:
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("calimu")
     ds = tmp / "ds"
-    r = _cli("simulate", _small_rig(tmp), "--out", ds, "--scene", "imu", "--duration", 4, "--camera-rate", 10,
+    r = _cli("simulate", small_imu_rig(tmp), "--out", ds, "--scene", "imu", "--duration", 4, "--camera-rate", 10,
              "--seed", 0, "--jobs", 1)
     assert r.exit_code == 0, r.output
     return ds, *_calibrated_with_report(ds, tmp / "cal.yaml")
@@ -486,7 +479,7 @@ def test_a_second_imu_is_calibrated_and_placed_by_the_cameras(tmp_path):
     reference. The second IMU of the rig (another mount, its own noise and biases) is
     calibrated against the cameras too and placed by them: its T_imu_cam as close to the
     truth as the reference's (it used to keep its declared pose, off by the mount error)."""
-    rig = _small_rig(tmp_path)
+    rig = small_imu_rig(tmp_path)
     rig.write_text(rig.read_text().replace("cameras:\n", SECOND_IMU, 1))
     ds, out = tmp_path / "ds", tmp_path / "cal.yaml"
     r = _cli("simulate", rig, "--out", ds, "--scene", "imu", "--duration", 4, "--camera-rate", 10, "--seed", 1,

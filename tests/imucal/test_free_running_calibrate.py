@@ -7,8 +7,6 @@ placed at its group's time would be off by that much."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
 import yaml
 from typer.testing import CliRunner
@@ -17,8 +15,8 @@ from rigcal.cli import app
 from rigcal.core.rig import load_rig
 from rigcal.data.truth import load_truth
 from rigcal.results.imu_outputs import compare_imu
+from tests.support.recordings import small_imu_rig
 
-RIG = Path(__file__).resolve().parents[2] / "rigs" / "drone-stereo-back-imu.yaml"
 runner = CliRunner()
 
 
@@ -29,10 +27,7 @@ def _cli(*args):
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("freerun")
-    # drone-stereo-back-imu at 480x360 (renders 2x faster than 640x480)
-    rig = tmp / "rig.yaml"
-    rig.write_text(RIG.read_text().replace("[640, 480]", "[480, 360]").replace(
-        "{fx: 300.0, fy: 300.0, cx: 320.0, cy: 240.0}", "{fx: 225.0, fy: 225.0, cx: 240.0, cy: 180.0}"))
+    rig = small_imu_rig(tmp)
     ds = tmp / "ds"
     r = _cli("simulate", rig, "--out", ds, "--scene", "imu", "--duration", 5, "--free-running", "--camera-rate",
              "front_left=10", "--camera-rate", "front_right=15", "--camera-rate", "back=10", "--drop-frames", 0.05,

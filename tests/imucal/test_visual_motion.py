@@ -8,7 +8,6 @@ views cannot model the motion (one line)."""
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,8 +21,8 @@ from rigcal.data.truth import load_truth
 from rigcal.errors import CalibrationError
 from rigcal.imucal import residuals as ir
 from rigcal.imucal import visual_motion as vmo
+from tests.support.recordings import small_imu_rig
 
-RIG = Path(__file__).resolve().parents[2] / "rigs" / "drone-stereo-back-imu.yaml"
 runner = CliRunner()
 
 
@@ -39,10 +38,7 @@ def _without_imu(text: str) -> str:
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("visual")
-    # drone-stereo-back-imu at 480x360 (renders 2x faster than 640x480)
-    rig = tmp / "rig.yaml"
-    rig.write_text(RIG.read_text().replace("[640, 480]", "[480, 360]").replace(
-        "{fx: 300.0, fy: 300.0, cx: 320.0, cy: 240.0}", "{fx: 225.0, fy: 225.0, cx: 240.0, cy: 180.0}"))
+    rig = small_imu_rig(tmp)
     sim = tmp / "sim"
     r = _cli("simulate", rig, "--out", sim, "--scene", "imu", "--duration", 4, "--free-running", "--seed", 2,
              "--jobs", 1)
