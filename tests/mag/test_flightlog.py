@@ -54,18 +54,29 @@ def log(tmp_path_factory):
     return path, rig, sim, mag
 
 
-def test_the_logged_calibration_is_undone_to_the_raw_readings(log, tmp_path):
-    path, rig, sim, mag = log
+def _ingested(path, rig, tmp_path):
+    """`rigcal ingest` of a flight log into tmp_path/ds; the dataset's folder."""
     out = tmp_path / "ds"
     r = CliRunner().invoke(app, ["ingest", str(path), "--out", str(out), "--rig", str(rig)])
     assert r.exit_code == 0, r.stderr
+    return out
+
+
+def _calibrated_mag(dataset, tmp_path):
+    """`rigcal calibrate` of an ingested dataset; its first magnetometer."""
+    cal_out = tmp_path / "cal.yaml"
+    r = CliRunner().invoke(app, ["calibrate", str(dataset), "--out", str(cal_out)])
+    assert r.exit_code == 0, r.stderr
+    return load_rig(cal_out).magnetometers[0]
+
+
+def test_the_logged_calibration_is_undone_to_the_raw_readings(log, tmp_path):
+    path, rig, sim, mag = log
+    out = _ingested(path, rig, tmp_path)
     got = read_mag_csv(out / "mag" / "mag0.csv")
     assert len(got.t_ns) == len(mag.t_ns)
     assert np.abs(got.m_uT - mag.m_uT).max() < 0.1  # the log's 1 mG (0.1 uT) rounding, through M^-1
-    cal_out = tmp_path / "cal.yaml"
-    r = CliRunner().invoke(app, ["calibrate", str(out), "--out", str(cal_out)])
-    assert r.exit_code == 0, r.stderr
-    m = load_rig(cal_out).magnetometers[0]
+    m = _calibrated_mag(out, tmp_path)
     assert np.abs(np.array(m.calibration["hard_iron_uT"]) - sim.mags["mag0"].hard_iron).max() < 0.2
     assert geo.rotation_angle_deg(m.T_body_mag[:3, :3] @ sim.truth.magnetometers[0].T_body_mag[:3, :3].T) < 0.2
 
@@ -139,16 +150,11 @@ def ulog(tmp_path_factory, log):
 
 def test_px4_ulog_is_read_as_logged_and_calibrates(ulog, tmp_path):
     path, rig, sim, mag = ulog
-    out = tmp_path / "ds"
-    r = CliRunner().invoke(app, ["ingest", str(path), "--out", str(out), "--rig", str(rig)])
-    assert r.exit_code == 0, r.stderr
+    out = _ingested(path, rig, tmp_path)
     got = read_mag_csv(out / "mag" / "mag0.csv")
     np.testing.assert_array_equal(got.t_ns, (mag.t_ns - mag.t_ns[0]) // 1000 * 1000)  # timestamp_sample, us
     assert np.abs(got.m_uT - mag.m_uT).max() < 1e-4  # float32 gauss
-    cal_out = tmp_path / "cal.yaml"
-    r = CliRunner().invoke(app, ["calibrate", str(out), "--out", str(cal_out)])
-    assert r.exit_code == 0, r.stderr
-    m = load_rig(cal_out).magnetometers[0]
+    m = _calibrated_mag(out, tmp_path)
     assert np.abs(np.array(m.calibration["hard_iron_uT"]) - sim.mags["mag0"].hard_iron).max() < 0.2
 
 
