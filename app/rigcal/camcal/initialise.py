@@ -14,7 +14,6 @@ The poses of cameras, frames and boards then come from the pose graph (pose_grap
 
 from __future__ import annotations
 
-import hashlib
 from collections import defaultdict
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -209,43 +208,16 @@ def pnp(obj: np.ndarray, uv: np.ndarray, model_values: np.ndarray, model: str,
     return best[0], best[1] * 0.5 * (model_values[0] + model_values[1])
 
 
-# pnp_views' results by view (its corners, intrinsics, model and face): a camera-IMU run
-# with a declared camera calibration poses the same views with the same held intrinsics in
-# the camera-only start and again in the camera-IMU start (EuRoC: 2,832 views, 1.4 s)
-_PNP_DONE: dict[bytes, tuple[np.ndarray, float] | None] = {}
-PNP_CACHE_VIEWS = 50_000  # about 200 bytes a view; emptied when full
-
-
-def _pnp_key(o: np.ndarray, i: np.ndarray, model_values: np.ndarray, model: str, face: float) -> bytes:
-    h = hashlib.blake2b(digest_size=20)
-    for a in (np.asarray(o, np.float64), np.asarray(i, np.float64), np.asarray(model_values, np.float64)):
-        h.update(repr(a.shape).encode())
-        h.update(np.ascontiguousarray(a).tobytes())
-    h.update(f"{model} {float(face)!r}".encode())
-    return h.digest()
-
-
 def pnp_views(obj: list[np.ndarray], img: list[np.ndarray], model_values: np.ndarray,
               model: str, faces: list[float] | None = None) -> list[tuple[np.ndarray, float] | None]:
     """pnp() for every view of one camera, with one unprojection of all their corners
-    (per-view unprojection was half the initialisation's time). A view posed before with
-    the same corners, intrinsics, model and face gets that pose again (each corner's ray,
-    hence each view's pose, does not depend on which other views are unprojected with it)."""
+    (per-view unprojection was half the initialisation's time)."""
     if not img:
         return []
+    rays = _camera_model(model_values, model).unproject(np.concatenate([np.reshape(i, (-1, 2)) for i in img]))
+    cuts = np.cumsum([len(o) for o in obj])[:-1]
     faces = faces if faces is not None else [-1.0] * len(obj)
-    keys = [_pnp_key(o, i, model_values, model, f) for o, i, f in zip(obj, img, faces)]
-    todo = [k for k, key in enumerate(keys) if key not in _PNP_DONE]
-    if todo:
-        rays = _camera_model(model_values, model).unproject(
-            np.concatenate([np.reshape(img[k], (-1, 2)) for k in todo]))
-        cuts = np.cumsum([len(obj[k]) for k in todo])[:-1]
-        if len(_PNP_DONE) + len(todo) > PNP_CACHE_VIEWS:
-            _PNP_DONE.clear()
-        for k, r in zip(todo, np.split(rays, cuts)):
-            _PNP_DONE[keys[k]] = pnp(obj[k], img[k], model_values, model, r, faces[k])
-    # copies: a caller may change the poses it is given
-    return [None if fit is None else (fit[0].copy(), fit[1]) for fit in (_PNP_DONE[key] for key in keys)]
+    return [pnp(o, i, model_values, model, r, f) for o, i, r, f in zip(obj, img, np.split(rays, cuts), faces)]
 
 
 def camera_faces_print(T_cam_board: np.ndarray, face: float = -1.0) -> bool:
