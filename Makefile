@@ -25,8 +25,10 @@ $(DOCS_STAMP): pyproject.toml
 demo: $(STAMP)
 	bash scripts/demo.sh $(VENV)/bin $(DEMO)
 
+# -n auto: one pytest worker per core; --dist loadfile keeps a file's tests (and its module
+# fixtures, which render once per worker that needs them) on one worker.
 test: $(STAMP) browser-deps
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n auto --dist loadfile
 
 # The suite (less the slow and browser tests) under Python 3.10 and 3.13: scripts/test-pythons.sh.
 test-pythons:

@@ -49,6 +49,7 @@ def test_every_live_bench_module_is_a_section_a_check_or_shared():
             assert f"`{p.stem}`" in readme, p.stem
 
 
+@pytest.mark.slow
 def test_scale_and_montecarlo_sections_run_small():
     from bench import montecarlo, scale
 
@@ -198,6 +199,7 @@ def test_imu_calib_section_runs_small():
     assert "offset err ms" in imu_calib.tables(r)
 
 
+@pytest.mark.slow
 def test_imu_calib_rendered_part_runs_small():
     from bench import imu_calib
 
@@ -206,6 +208,7 @@ def test_imu_calib_rendered_part_runs_small():
     assert "rendered 2.5 s" in imu_calib.tables({"results": [], "rendered": x})
 
 
+@pytest.mark.slow
 def test_ingest_bench_runs_at_small_size():
     """bench.ingest end to end on 0.5 s of tiny images: both bags ingest every frame."""
     from bench import ingest
@@ -216,6 +219,7 @@ def test_ingest_bench_runs_at_small_size():
     assert "ros1" in ingest.tables(r)
 
 
+@pytest.mark.slow
 def test_aprilgrid_excess_runs_on_one_small_render():
     """bench.aprilgrid_excess end to end on one fisheye-room frame (no EuRoC): every method
     measures the same corners, and the tables render."""
@@ -229,6 +233,7 @@ def test_aprilgrid_excess_runs_on_one_small_render():
     assert "long arms" in aprilgrid_excess.tables(r)
 
 
+@pytest.mark.slow
 def test_dome_dataset_is_a_dataset_calibrate_reads(tmp_path):
     """bench.dome at a tiny size (12 cameras, 6 frames): the boards face out of the box and
     a camera behind a print sees nothing, the corners files read back as views inside the

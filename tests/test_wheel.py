@@ -64,6 +64,7 @@ def installed(tmp_path_factory) -> tuple[Path, Path, dict]:
     return bin_dir, work, env
 
 
+@pytest.mark.slow
 def test_wheel_imports_rigcal_from_its_own_environment(installed):
     bin_dir, work, env = installed
     where = _run([bin_dir / "python", "-c", "import rigcal, sys; print(rigcal.__file__)"], work, env).stdout.strip()
@@ -78,6 +79,7 @@ def test_wheel_ships_the_rigs(installed):
     assert sorted(names) == sorted(p.stem for p in (ROOT / "rigs").glob("*.yaml"))
 
 
+@pytest.mark.slow
 def test_wheel_runs_help_simulate_calibrate_compare(installed):
     bin_dir, work, env = installed
     rigcal = bin_dir / "rigcal"

@@ -86,6 +86,7 @@ def test_hand_eye_refuses_rotation_about_one_axis():
     assert hand_eye(TwB, _views_of_static_board(TwB, X, np.eye(4), rng, deg=0.0, m=0.0)) is None
 
 
+@pytest.mark.slow
 def test_camera_sharing_no_board_calibrates_from_the_rig_motion():
     """dataset.md lets a board be seen by one camera only: the back camera's boards are
     renamed so no front camera ever sees them. The frames are synchronised, so the rig's

@@ -99,6 +99,7 @@ def _unsynchronised_scene(truth, rng, n_frames, jitter_deg, jitter_mm):
     return views, {n: p_board for n in T_world_board}
 
 
+@pytest.mark.slow
 def test_unsynchronised_frames_take_intrinsics_from_each_camera_alone(drone):
     """Per-camera jitter of the rig pose breaks 'one rigid rig per frame': the joint solve
     would bend the intrinsics to absorb it. rigidity_check must say so, and the focal

@@ -150,6 +150,7 @@ def _pair_errors(cal, ref):
     return out
 
 
+@pytest.mark.slow
 def test_caliscope_four_cameras_with_reference_intrinsics(caliscope):
     """Inverted board, software sync (up to 43 ms), no declared poses: with caliscope's own
     intrinsics every pair lands within 2.5 cm and 2 deg of caliscope's extrinsics."""
@@ -159,6 +160,7 @@ def test_caliscope_four_cameras_with_reference_intrinsics(caliscope):
         assert d_vec < 25.0 and d_rot < 2.0, (pair, d_dist, d_vec, d_rot)
 
 
+@pytest.mark.slow
 def test_caliscope_four_cameras_from_the_images_alone(caliscope):
     """From these images alone (a 12-corner board, 26-45 views per camera, software sync):
     the joint solve fits 0.9 px against 0.04-0.08 px per camera alone, so rigcal takes the

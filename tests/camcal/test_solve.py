@@ -178,6 +178,7 @@ def _heteroscedastic_room(drone, seed, base=0.05, spread=0.8, n_frames=12):
     return truth, out, corners
 
 
+@pytest.mark.slow
 def test_corners_are_weighted_by_their_calibrated_sigma_and_the_covariance_stays_honest(drone):
     """weight_corners: the pipeline weights each camera's corners by its NoiseModel fitted on
     BoardView.sigma (gamma near 1: this sigma is right); without sigma, or by default,
@@ -203,6 +204,7 @@ def test_corners_are_weighted_by_their_calibrated_sigma_and_the_covariance_stays
     assert max(z) < 3.0
 
 
+@pytest.mark.slow
 def test_weighted_solve_does_not_depend_on_where_the_solve_started(drone):
     """pipeline.weighted_solve is a function of the unweighted solve's inlier set: from two
     different starts (the calibration's own and one nudged off it) the same corners and

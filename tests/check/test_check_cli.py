@@ -40,6 +40,7 @@ def check_json(work, rec, *more):
     return r.exit_code, json.loads(r.stdout)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [11, 12])
 def test_unchanged_rig_passes(work, seed):
     rec = record(work["truth"], work["dir"] / f"same{seed}", FRAMES, seed)
@@ -54,6 +55,7 @@ def test_unchanged_rig_passes(work, seed):
     assert {k for k in documented_keys() if not k.startswith(("imu", "update"))} <= json_keys(d)
 
 
+@pytest.mark.slow
 def test_turned_camera_is_flagged_as_moved_with_its_size(work):
     rec = record(changed_rig(work["truth"], "front_right", rotate_deg=0.5, axis="U"), work["dir"] / "turned", FRAMES,
                  13)
@@ -80,6 +82,7 @@ def test_turned_camera_is_flagged_as_moved_with_its_size(work):
     assert code == 0, d  # the updated rig fits the recording it was updated from
 
 
+@pytest.mark.slow
 def test_focal_change_is_flagged_as_intrinsics_changed(work):
     truth = work["truth"]
     rec = record(changed_rig(truth, "back", focal_rel=0.005), work["dir"] / "focal", FRAMES, 14)
@@ -94,6 +97,7 @@ def test_focal_change_is_flagged_as_intrinsics_changed(work):
     assert i["displacement_px"] > 0.5
 
 
+@pytest.mark.slow
 def test_camera_with_too_few_views_is_undetermined(work):
     src = record(work["truth"], work["dir"] / "few", FRAMES, 15)
     for p in sorted((src / "images" / "back").iterdir())[2:]:
@@ -138,6 +142,7 @@ def test_bad_level_is_refused(work):
     assert "--level" in r.stderr
 
 
+@pytest.mark.slow
 def test_camera_the_new_views_cannot_place_is_undetermined(work):
     """Seed 5's 8 frames never show the back camera a board the front pair sees, nor turn
     the rig enough to place it by its motion: back is undetermined, the pair still checked."""
@@ -154,6 +159,7 @@ def test_camera_the_new_views_cannot_place_is_undetermined(work):
     assert d["cameras"]["front_left"]["pose"]["relative_to"] == ["front_right"]
 
 
+@pytest.mark.slow
 def test_update_says_a_changed_camera_it_cannot_place_is_left_as_it_was(work, tmp_path):
     """Seed 5's recording with back's focal length 1 % longer (3 px): back's intrinsics,
     tested on its own views, have changed, but the new views cannot place it in the rig,

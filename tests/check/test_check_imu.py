@@ -39,6 +39,7 @@ def check_json(rig, rec, *extra):
     return r.exit_code, json.loads(r.stdout)
 
 
+@pytest.mark.slow
 def test_unchanged_rig_passes_against_the_imu(work):
     code, d = check_json(work["rig"], work["unchanged"])
     assert code == 0 and d["status"] == "ok", d
@@ -62,6 +63,7 @@ def test_unchanged_rig_passes_against_the_imu(work):
     assert {k for k in documented_keys() if k.startswith("imu")} <= json_keys(d)
 
 
+@pytest.mark.slow
 def test_camera_turned_relative_to_the_imu_is_moved_with_its_size(work, tmp_path):
     update = tmp_path / "fixed.yaml"
     code, d = check_json(work["rig"], work["turned"], "--update", update)
@@ -79,6 +81,7 @@ def test_camera_turned_relative_to_the_imu_is_moved_with_its_size(work, tmp_path
     assert code == 0, d  # the updated rig fits the recording it was updated from
 
 
+@pytest.mark.slow
 def test_changed_clock_offset_is_flagged_with_its_size(work, tmp_path):
     report = tmp_path / "clock.html"
     code, d = check_json(work["rig"], work["clock"], "--report", report)

@@ -169,6 +169,7 @@ def _relative_variances(T: np.ndarray, e0: np.ndarray) -> np.ndarray:
     return out.var(axis=0)
 
 
+@pytest.mark.slow
 def test_gauge_free_variances_give_the_relative_poses_variance_back():
     """Round trip (Monte Carlo, 2000 draws each): independent errors of known variances,
     reported as an aligned rig reports them (re-fitted); the variances found from the

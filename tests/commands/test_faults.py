@@ -168,6 +168,7 @@ def summary_line(stdout: str, cam: str) -> str:
 # ----------------------------------------------------------------------------- images
 
 
+@pytest.mark.slow
 def test_truncated_or_corrupt_image_is_skipped_with_one_warning_and_counted(faulted):
     ds, out, proc = faulted
     no_traceback(proc.stdout, proc.stderr)
@@ -356,6 +357,7 @@ def _board_pose(declared, corners):
     return pose
 
 
+@pytest.mark.slow
 def test_degenerate_motion_calibrates_and_warns_what_is_poorly_constrained():
     """Eight frames of a board in nearly the same pose in front of a stereo pair: the focal
     length and the cameras' depth are not observable; calibrate must finish and say so.
@@ -417,6 +419,7 @@ def test_a_rig_that_contradicts_its_declaration_is_named():
     assert len(msgs) == 1 and msgs[0].startswith("the calibrated rig is 1000x the size of the declared one"), msgs
 
 
+@pytest.mark.slow
 def test_a_camera_with_mirrored_images_fails_instead_of_writing_a_bad_rig():
     """A camera that flips its images (a mirror setting) sees a chessboard symmetric under
     that flip as a valid board from another pose: each camera calibrates alone, but no
@@ -623,6 +626,7 @@ def _sigint_as_from_a_terminal() -> None:
     ("simulate", signal.SIGINT, True, "working"),
     ("simulate", signal.SIGTERM, False, "working"),
 ])
+@pytest.mark.slow
 def test_interrupt_leaves_no_output_and_no_temporary_files(sim, tmp_path, command, sig, to_group, when):
     if command == "calibrate":
         out = tmp_path / "out.yaml"
@@ -933,6 +937,7 @@ def test_help_still_works(tmp_path):
     assert bare.returncode == 2 and "calibrate" in bare.stdout
 
 
+@pytest.mark.slow
 def test_a_declared_board_never_seen_is_named(sim, tmp_path):
     """A room's target.yaml with a board whose ids appear in no image (a misdeclared
     first_marker_id looks the same): calibrate works from the others and names it."""

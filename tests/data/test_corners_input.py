@@ -214,6 +214,7 @@ def euroc_calibrated(tmp_path_factory):
     return load_rig(d / "cal.yaml"), time.perf_counter() - t0
 
 
+@pytest.mark.slow
 @euroc
 def test_euroc_corners_baseline(euroc_calibrated):
     cal, _ = euroc_calibrated

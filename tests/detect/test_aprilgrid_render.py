@@ -81,6 +81,7 @@ def fisheye_room(tmp_path_factory) -> dict[str, Path]:
     ("fisheye-stereo", "board"),
     pytest.param("fisheye-stereo", "room", marks=FISHEYE_ROOM),
 ])
+@pytest.mark.slow
 def test_rendered_aprilgrid_corners_are_at_least_as_accurate_as_charuco(rig_name, scene, tmp_path):
     rig = load_rig(ROOT / "rigs" / f"{rig_name}.yaml")
     got = {}
@@ -95,6 +96,7 @@ def test_rendered_aprilgrid_corners_are_at_least_as_accurate_as_charuco(rig_name
     assert _rms(e_april) <= _rms(e_charuco), (_rms(e_april), _rms(e_charuco))
 
 
+@pytest.mark.slow
 def test_long_arms_bring_the_fisheye_room_within_charucos_accuracy(fisheye_room):
     """The long-arm pass (off by default: april.LONG_ARMS_BELOW_PX; refine mode "long-arms") turned on for
     every tag: through the fisheye in the room scene (tags 13-26 px) the AprilGrid corners are
@@ -148,6 +150,7 @@ def _decoded(aruco, gray: np.ndarray) -> np.ndarray:
     return np.zeros(0, int) if idx is None else np.asarray(idx).ravel()
 
 
+@pytest.mark.slow
 def test_simulated_aprilgrid_dataset_calibrates(tmp_path):
     from typer.testing import CliRunner
 
@@ -210,6 +213,7 @@ def test_a_room_of_three_aprilgrids_through_the_fisheye(tmp_path):
     assert _rms(e) < 0.05, _rms(e)
 
 
+@pytest.mark.slow
 def test_a_corner_left_far_off_does_not_tilt_its_tags_other_corners(tmp_path):
     """stereo-forward, board scene, seed 3: in the third frame one tag's OpenCV quad is 13-18
     px off (its neighbour above is cut by the image's edge). The box passes restart three of

@@ -46,6 +46,7 @@ def _worker_tokens(address: str) -> set:
         return set(client.run(token).values())
 
 
+@pytest.mark.slow
 def test_detection_on_the_cluster_equals_the_local_pool(cluster, fisheye_pair):
     from rigcal.data.dataset import list_dataset
     from rigcal.detect.detect import detect_dataset
@@ -74,6 +75,7 @@ def _numbers(doc, path=""):
     return {path: doc} if isinstance(doc, (int, float)) and not isinstance(doc, bool) else {}
 
 
+@pytest.mark.slow
 def test_calibrate_with_scheduler_writes_the_local_calibration(cluster, fisheye_pair, tmp_path):
     runner = CliRunner()
     r_local = runner.invoke(app, ["calibrate", str(fisheye_pair), "--out", str(tmp_path / "local.yaml"), "--jobs", "2"])

@@ -124,6 +124,7 @@ def rms(e: np.ndarray) -> float:
 # ----------------------------------------------------------------------------- accuracy
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("board", [CHARUCO, CHESS], ids=["charuco", "chessboard"])
 def test_symmetric_refinement_fence_at_twice_the_measured_hundredth_of_a_pixel(board):
     """Measured (docs/accuracy.md, Board detection): ~0.010 px RMS with the default refinement against ~0.08 px for
@@ -536,6 +537,7 @@ def _small(board: Board, seed: int, **kw) -> np.ndarray:
     return render(board, view_homography(rng, board, f=300.0, size=SMALL, **kw), rng, size=SMALL)
 
 
+@pytest.mark.slow
 def test_diagnose_names_the_dictionary_actually_printed(tmp_path):
     printed = Board("front", "charuco", 0.04, (10, 7), "DICT_4X4_1000", 0.03)
     p = tmp_path / "x.png"
@@ -603,6 +605,7 @@ def test_calibrate_with_boards_in_few_frames_names_the_board_that_is_printed(tmp
     assert not (tmp_path / "cal.yaml").exists()
 
 
+@pytest.mark.slow
 def test_calibrate_with_the_wrong_dictionary_exits_1_with_the_cause(tmp_path):
     from rigcal.cli import app
 

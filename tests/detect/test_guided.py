@@ -168,6 +168,7 @@ def fisheye_pair(tmp_path_factory):
     return d, rig, target, truth, images, views, corners, calibrate_views(views, rig, corners)
 
 
+@pytest.mark.slow
 def test_guided_pass_on_a_simulated_fisheye_pair_lowers_the_corner_error(fisheye_pair, tmp_path):
     """The corners the calibration uses, against their exact projections, before and after
     the guided pass. Measured over 10 seeds of 20 frames (docs/accuracy.md, The guided pass): 0.0106 -> 0.0062 px, and

@@ -48,6 +48,7 @@ def run(tmp_path_factory):
     return ds, *_calibrated_with_report(ds, tmp / "cal.yaml")
 
 
+@pytest.mark.slow
 def test_camera_imu_against_truth(run):
     ds, out, text = run
     est = load_rig(out)
@@ -84,6 +85,7 @@ def test_output_keys_of_imu_md(run):
         assert 0.7 < ratio < 1.5, (k, ratio)  # the simulator samples the declared noise
 
 
+@pytest.mark.slow
 def test_joint_intrinsics_agree_with_the_truth_within_their_sigma_and_held_keeps_the_camera_only_ones(run, tmp_path):
     """--imu-intrinsics joint (the default) estimates the intrinsics with the trajectory and
     clocks, and reports their 1-sigma from that estimate; held keeps the camera-only step's
@@ -129,6 +131,7 @@ def test_the_output_says_how_the_defaults_were_chosen(run):
         assert sig["time_offset_ms"] >= formal["time_offset_ms"] > 0
 
 
+@pytest.mark.slow
 def test_a_camera_calibration_as_rig_holds_its_intrinsics_by_default(run, tmp_path):
     """The two-recording workflow: a rig written by `rigcal calibrate` given as --rig keeps
     its intrinsics and their sigmas in both steps; the camera-IMU answer still meets truth."""
@@ -237,6 +240,7 @@ def test_recording_too_short_for_the_knots(run, tmp_path):
     _refused(_variant(ds, tmp_path, imu_rows=lambda rows: rows[100:220]), 2, "record longer")
 
 
+@pytest.mark.slow
 def test_clock_offset_outside_the_search_window(run, tmp_path):
     ds, _, _ = run
     # the true offsets are up to 10 ms from the declared 0: a 2 ms window cannot hold them
@@ -389,6 +393,7 @@ def test_auto_keeps_the_calibrated_model_without_scale_errors(run):
     assert not any("scale_misalignment" in k for k in cal) and "IMU model: calibrated" in text
 
 
+@pytest.mark.slow
 def test_auto_finds_and_recovers_scale_and_misalignment(scaled):
     v, out, text = scaled
     cal = yaml.safe_load(out.read_text())["imus"]["imu0"]["calibration"]
@@ -411,6 +416,7 @@ def test_auto_finds_and_recovers_scale_and_misalignment(scaled):
     assert "IMU model: scale-misalignment (likelihood ratio" in page and "gyroscope M - I (lower triangle" in page
 
 
+@pytest.mark.slow
 def test_forced_models(run, scaled, tmp_path):
     """--imu-model scale-misalignment on the unscaled recording finds M = I within its sigmas
     (not tested: the selection says so); calibrated forced on the scaled one keeps M = I
@@ -474,6 +480,7 @@ cameras:
 """
 
 
+@pytest.mark.slow
 def test_a_second_imu_is_calibrated_and_placed_by_the_cameras(tmp_path):
     """imu.md: per IMU a calibration block, with the 1-sigma of its pose when it is not the
     reference. The second IMU of the rig (another mount, its own noise and biases) is

@@ -39,6 +39,7 @@ def run(tmp_path_factory):
     return ds, out, r.output
 
 
+@pytest.mark.slow
 def test_the_stems_really_differ(run):
     ds, _, _ = run
     stems = [{p.stem for p in (ds / "images" / c).glob("*.png")} for c in ("front_left", "front_right", "back")]

@@ -55,6 +55,7 @@ def without_imu(truth, tmp_path_factory):
     return est, (tmp / "report.html").read_text(), made[0]
 
 
+@pytest.mark.slow
 def test_corner_files_of_free_running_cameras_without_an_imu(truth, without_imu):
     est = without_imu[0]
     ref = est.calibration["free_running"]["clock"].split(":", 1)[1]
@@ -68,6 +69,7 @@ def test_corner_files_of_free_running_cameras_without_an_imu(truth, without_imu)
         assert abs(err_ms) <= 3 * sig and abs(err_ms) < 0.2, (c.name, err_ms, sig)
 
 
+@pytest.mark.slow
 def test_corner_files_of_free_running_cameras_with_an_imu(truth, tmp_path):
     est = _calibrate(truth, tmp_path, with_imu=True)
     for c in est.cameras:

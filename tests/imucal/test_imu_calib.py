@@ -109,6 +109,7 @@ def test_rolling_shutter_line_delay_is_estimated():
     assert np.abs(isyn.errors_against_truth(rec, held.T_imu_cam, held.time_offset_s)[:, 2]).max() > 1e-3
 
 
+@pytest.mark.slow
 def test_rendered_recording_end_to_end(tmp_path):
     """`simulate --scene imu` images (4 s, 10 Hz, 640x480) -> detected corners and PnP poses
     (tests.support.motion_inputs) -> the estimator, against truth.yaml's rig. Intrinsics and board

@@ -85,6 +85,7 @@ def _with_intrinsics(state):
                                       Intrinsics("fisheye", vals[1], tie_focal=True, hold_centre=True)))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["gyro", "accel", "corners", "corners on boards", "corners with intrinsics", "prior"])
 def test_block_jacobians_match_whole_problem_differences(kind):
     rng = np.random.default_rng(7)

@@ -67,6 +67,7 @@ def _relative_errors(est, truth, ref: str):
     return out
 
 
+@pytest.mark.slow
 def test_the_images_really_are_free_running(run):
     sim, _, text = run
     stems = [{p.stem for p in (sim / "images" / c).glob("*.png")} for c in ("front_left", "front_right", "back")]
@@ -162,6 +163,7 @@ def test_knot_spacing_follows_the_slowest_camera():
     assert vmo.knot_spacing(views, 2) == pytest.approx(1 / 15)
 
 
+@pytest.mark.slow
 def test_a_declared_camera_calibration_holds_the_intrinsics(run, tmp_path):
     # the two-recording workflow: a rig that is itself a calibration (its cameras carry
     # calibration.sigma.intrinsics) as --rig; here the first run's output stands in for it
@@ -180,6 +182,7 @@ def test_a_declared_camera_calibration_holds_the_intrinsics(run, tmp_path):
         assert abs(d_off) < 1e-4 and np.degrees(np.linalg.norm(d_rot)) < 0.05 and np.linalg.norm(d_pos) < 1e-3, name
 
 
+@pytest.mark.slow
 def test_views_that_cannot_model_the_motion_are_refused_by_calibrate(run, tmp_path, monkeypatch):
     # the recording's ~3 images per knot made too few by asking for 100: exit 1, one line, nothing written
     _, first, _ = run

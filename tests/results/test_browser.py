@@ -115,6 +115,7 @@ def severe(log: list[dict]) -> list[str]:
     return [e["message"] for e in log if e["level"] == "SEVERE"]
 
 
+@pytest.mark.slow
 def test_report_renders_in_chromium(driver, tmp_path):
     page = tmp_path / "report.html"
     atomic_write_text(page, synthetic_report_html())

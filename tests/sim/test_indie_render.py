@@ -116,6 +116,7 @@ def waved(tmp_path_factory):
 # ----------------------------------------------------------------------------- the renderer itself
 
 
+@pytest.mark.slow
 def test_renderer_agrees_with_opencv(room):
     """The renderer's own conventions, checked without rigcal: plain OpenCV ChArUco corners
     in the rendered PNGs land where cv2.projectPoints puts the true board corners (a wrong
@@ -250,6 +251,7 @@ def test_room_every_format_and_links_gave_board_views(room):
 # ----------------------------------------------------------------------------- one board waved
 
 
+@pytest.mark.slow
 def test_waved_board_pair_and_intrinsics_within_the_reported_noise(waved):
     _, _, truth, cal, _ = waved
     _check_against_truth(cal, truth)
@@ -260,6 +262,7 @@ def test_waved_board_pair_and_intrinsics_within_the_reported_noise(waved):
 # ----------------------------------------------------------------------------- the hand-eye room
 
 
+@pytest.mark.slow
 def test_room_without_a_shared_board_calibrates(tmp_path):
     """dataset.md: boards' relative poses are unknown and estimated; nothing requires a board
     seen by both the front pair and the back camera. With the rig only yawing +-20 degrees

@@ -251,6 +251,7 @@ def test_default_scene_and_generated_targets():
     assert all(b.first_marker_id + b.n_markers <= c for b, c in zip(room.boards, firsts[1:]))
 
 
+@pytest.mark.slow
 def test_room_dataset_layout_truth_and_coverage(room):
     res, det = room
     out = res.out_dir
@@ -285,6 +286,7 @@ def test_room_truth_matches_detections(room):
         assert rms(rows) < 0.3, cam  # 2 grey levels of noise: corners still land on the truth
 
 
+@pytest.mark.slow
 def test_board_scene_pinhole_accuracy_and_coverage(board_pinhole):
     res, det = board_pinhole
     for cam, rows in det.items():
@@ -298,6 +300,7 @@ def test_board_scene_pinhole_accuracy_and_coverage(board_pinhole):
     assert all("boards" in f for f in truth["frames"].values())  # the moving board's pose per frame
 
 
+@pytest.mark.slow
 def test_board_scene_fisheye_accuracy_and_coverage(board_fisheye):
     res, det = board_fisheye
     for cam, rows in det.items():
@@ -309,6 +312,7 @@ def test_board_scene_fisheye_accuracy_and_coverage(board_fisheye):
         assert rms(rows) < 0.25, cam
 
 
+@pytest.mark.slow
 def test_coverage_of_every_image_cell(board_pinhole, room):
     for res, _ in (board_pinhole, room):
         for cam, cov in res.coverage.items():
@@ -336,6 +340,7 @@ def _digest(folder: Path) -> dict[str, str]:
             for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes_whatever_the_workers(tmp_path):
     rig = load_rig(RIGS / "down-nav.yaml")
     simulate_dataset(rig, tmp_path / "a", frames=2, seed=11, jobs=1)
@@ -357,6 +362,7 @@ def test_cli_simulate_writes_a_dataset(tmp_path):
     assert truth["render"]["blur_px"] == 1.5 and len(truth["frames"]) == 4
 
 
+@pytest.mark.slow
 def test_cli_simulate_with_given_target_and_scene(tmp_path):
     t = tmp_path / "t.yaml"
     t.write_text("boards:\n  - {name: big, type: charuco, dictionary: DICT_6X6_250, squares: [7, 5], "

@@ -272,6 +272,7 @@ def test_read_imu_csv_accepts_euroc_text(tmp_path):
         read_imu_csv(p)
 
 
+@pytest.mark.slow
 def test_camera_only_calibration_runs_on_a_motion_dataset(tmp_path):
     """--camera-only: stems are frame names, the IMU data are checked but not used, the IMU
     blocks are carried through and a note says so; --reference imu:NAME with it is refused.
