@@ -27,11 +27,14 @@ How each is read:
    neither independent (adding their edf: too narrow) nor one (the best tau's edf alone:
    too wide for white noise, too narrow for the random walk); the correlation is derived
    from the Allan estimator's filters (rigcal.imunoise.allan.correlation). White noise and
-   random walk have exact Allan shapes, so subtracting them adds no error beyond their own;
-   the flat term's shape holds only over its flicker's band (a real bias instability rolls
-   off at short taus), so its part is a systematic error of SHAPE_DOUBT of its size. Taus
-   that disagree more than their errors allow (Birge ratio R^2 > 1: the model misses the
-   curve there) widen the interval by R.
+   random walk have exact Allan shapes, so subtracting them adds no error beyond their own.
+   The bias instability under another term's range is measured, not assumed: its level
+   is the curve's excess over the white-noise and random-walk lines where it dominates
+   most, and under the white-noise range -- where a real bias instability rolls off below
+   the band its flicker spans -- it lies between that level (a flat floor) and the level
+   scaled by tau / tau_level (a band rolled off right there), a bound counted as a
+   rectangular distribution (`flicker_bound`). Taus that disagree more than their errors
+   allow (Birge ratio R^2 > 1: the model misses the curve there) widen the interval by R.
 4. Bias instability: the flat minimum of the deviation / 0.664, its interval chi-square
    with the flicker-noise edf at that tau; `dominant` says whether a flat range exists
    (otherwise the figure is an upper bound set by the white noise and random walk).
@@ -58,7 +61,6 @@ DOMINANT_SHARE = 0.5
 CONFIDENCE = 0.95
 TARGET_PRECISION = 0.10  # `needed_s`: the recording for a 1-sigma relative error of 10 %
 REWEIGHTS = 3
-SHAPE_DOUBT = 0.5  # the flat term's level under another term's range, as a systematic error (fraction of it)
 FITTED = (1, 2, 3)  # the columns of `design` fitted: N, B, K (Q held at zero, see above)
 
 
@@ -145,24 +147,73 @@ def _needed(duration_s: float, nu: float) -> float:
     return duration_s * (1.0 / (2.0 * TARGET_PRECISION ** 2)) / nu
 
 
+def flicker_bound(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, sel: np.ndarray, k: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bias instability's (flicker's) Allan variance at the taus of term k's range `sel`
+    (1 white noise, 3 random walk), from the data: (mid, half, sd_level) per tau in range --
+    the flicker lies in mid +- half there, and the level it is scaled from has the sd
+    sd_level (scaled to each tau).
+
+    The level U is the measured excess of the Allan variance over the joint fit's
+    white-noise and random-walk lines, max(0, adev^2 - N^2/tau - K^2 tau/3), at the tau tau_j
+    between the two ranges where the joint fit's flat term has its largest share (when the
+    ranges touch, the first tau past the range); its sd is the model's variance there *
+    sqrt(2 / edf). With no tau past the range (it reaches the end of the curve) the joint
+    fit's flat level is U.
+
+    Short taus (the white-noise range): a bias instability is flicker over a band of
+    frequencies, a sum of first-order
+    Gauss-Markov processes; each one's Allan variance s(tau) has s/tau non-increasing and
+    tau s non-decreasing (s = sigma^2 T^2/tau^2 (2a - 3 + 4e^-a - e^-2a), a = tau/T), so the
+    sum g at a fit tau tau_i < tau_j obeys g_i >= U r_i, r_i = tau_i/tau_j (a band rolled
+    off right at tau_j), and g_i <= U when it does not rise above its flat level (a flat
+    floor: g_i = U). Both shapes honest, the flicker at tau_i is taken as the middle of
+    [U r_i, U], the half range its bound.
+
+    Long taus (the random-walk range): a bias instability is flicker down to frequencies far
+    below a recording's (its Allan variance stays flat up to where the random walk takes
+    over: IEEE Std 952's model, and the simulator's, whose slowest process is as long as the
+    recording), so it is the level U there (half 0). A bound down to U tau_j/tau_i (a band
+    ending at tau_j) would move every random walk up by its half: +6 % for the gyroscope
+    of bench/imu_noise.py's simulated IMU, whose flicker is flat there."""
+    tau = curve.tau
+    parts = design(tau) * p
+    between = (tau > tau[sel].max()) if k == 1 else (tau < tau[sel].min())
+    if not between.any():
+        return np.full(int(sel.sum()), FLAT * p[2]), np.zeros(int(sel.sum())), np.zeros(int(sel.sum()))
+    other = parts[:, 4 - k] / parts.sum(axis=1) > DOMINANT_SHARE  # the other term's range
+    flat_side = np.flatnonzero(between & ~other)
+    if len(flat_side):
+        j = int(flat_side[np.argmax(parts[flat_side, 2] / parts[flat_side].sum(axis=1))])
+    else:
+        j = int(np.flatnonzero(between)[0 if k == 1 else -1])
+    level = max(float(curve.adev[j] ** 2 - parts[j, 1] - parts[j, 3]), 0.0)
+    sd_level = float(parts[j].sum() * math.sqrt(2.0 / nu[j]))
+    r = np.minimum(tau[sel] / tau[j], 1.0) if k == 1 else np.ones(int(sel.sum()))
+    return level * (1.0 + r) / 2.0, level * (1.0 - r) / 2.0, sd_level * (1.0 + r) / 2.0
+
+
 def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFit | None:
     """Term k (1 white, 3 random walk) re-fitted on the taus it dominates; None if none.
 
     Each tau i in range gives the squared figure p_i = (measured variance less the other
-    terms) / the term's shape. Its error has two parts:
+    exact term's line and the flicker's middle estimate, `flicker_bound`) / the term's
+    shape. Its error has three parts:
     - statistical: the variance estimate's, sd_i = model variance * sqrt(2 / edf_i) / shape,
       and the estimates at octave taus of one recording are correlated (overlapping clusters
       share samples): rigcal.imunoise.allan.correlation derives rho_ij for the white noise
       and random walk fitted;
-    - the bias instability subtracted: white noise and random walk have exact Allan shapes,
-      but the flat term is flat only over the band its flicker spans (a real one rolls off at
-      short taus, and is then over-subtracted there): its share f_i is counted as a
-      systematic error of SHAPE_DOUBT of its size, the same sign at every tau.
-    The p_i are averaged with weights 1 / (sd_i^2 + (SHAPE_DOUBT f_i)^2), and the variance of
-    that mean is w' (rho sd sd' + SHAPE_DOUBT^2 f f') w / (sum w)^2; the interval is the
-    chi-square one with the degrees of freedom of that variance, 2 value^2 / variance. When
-    the p_i scatter more than their own errors allow (the Birge ratio R^2 > 1, counted as if
-    independent), the variance is multiplied by R^2."""
+    - the flicker's shape: known only to lie in [U r_i, U] (`flicker_bound`), a bound of
+      half-width h_i, counted as a rectangular distribution (sd h_i / sqrt 3, the GUM's
+      rule for a quantity known only between bounds), one unknown for every tau;
+    - the flicker's level U, measured at one tau: its sd, scaled to each tau.
+    White noise and random walk have exact Allan shapes: subtracting them adds no error
+    beyond their own. The p_i are averaged with weights 1 / (sd_i^2 + a_i^2 + b_i^2) (a, b:
+    the two flicker parts in p units), and the variance of that mean is
+    (w' (rho sd sd') w + (w.a)^2 + (w.b)^2) / (sum w)^2; the interval is the chi-square one
+    with the degrees of freedom of that variance, 2 value^2 / variance. When the p_i scatter
+    more than their own errors allow (the Birge ratio R^2 > 1, counted as if independent),
+    the variance is multiplied by R^2."""
     A = design(curve.tau)
     parts = A * p
     total = parts.sum(axis=1)
@@ -170,16 +221,20 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
     sel = share > DOMINANT_SHARE
     if not sel.any():
         return None
-    p_i = (curve.adev[sel] ** 2 - (total[sel] - parts[sel, k])) / A[sel, k]
-    sd = total[sel] * np.sqrt(2.0 / nu[sel]) / A[sel, k]
-    flat = SHAPE_DOUBT * parts[sel, 2] / A[sel, k]
-    w = 1.0 / (sd ** 2 + flat ** 2)
+    other = 4 - k  # the other exact term: random walk (3) under white (1) and back
+    mid, half, sd_level = flicker_bound(curve, p, nu, sel, k)
+    shape = A[sel, k]
+    p_i = (curve.adev[sel] ** 2 - parts[sel, other] - mid) / shape
+    sd = total[sel] * np.sqrt(2.0 / nu[sel]) / shape
+    a, b = half / math.sqrt(3.0) / shape, sd_level / shape
+    rho = correlation(curve.m[sel], p[1] * curve.rate_hz, p[3] / curve.rate_hz)
+    w = 1.0 / (sd ** 2 + a ** 2 + b ** 2)
     value_sq = max(float(np.sum(w * p_i) / np.sum(w)), 1e-300)
     birge = 1.0
     if sel.sum() > 1:
         birge = max(1.0, float(np.sum(w * (p_i - value_sq) ** 2)) / (sel.sum() - 1))
-    rho = correlation(curve.m[sel], p[1] * curve.rate_hz, p[3] / curve.rate_hz)
-    var = (float(w @ (rho * np.outer(sd, sd)) @ w) + float(w @ flat) ** 2) / float(np.sum(w)) ** 2 * birge
+    var = (float(w @ (rho * np.outer(sd, sd)) @ w) + float(w @ a) ** 2 + float(w @ b) ** 2) \
+        / float(np.sum(w)) ** 2 * birge
     nu_term = 2.0 * value_sq ** 2 / var
     lo, hi = _interval(value_sq, nu_term)
     duration = curve.n / curve.rate_hz
