@@ -120,7 +120,8 @@ def simulate_axes(sim: str, imu, duration_s: float, seed: int) -> tuple[np.ndarr
     `noise.brown(b_minus2)` (PSD b_minus2 / f^2 with b_minus2 = K^2 / (2 pi^2), Allan variance
     K^2 tau / 3); seeded through numpy's legacy global generator, which allantools draws from.
     allantools_flicker: allantools' generators as above plus its Kasdin-Walter flicker
-    (`allantools.Noise(b=-1)`, a discrete 1/f series taken as the rate: frequency PSD
+    (`allantools.Noise(b=-1)` over 2^21 samples, the largest power of two in the recording: a
+    discrete 1/f series taken as the rate: frequency PSD
     h_-1 / f with h_-1 = qd / pi, Allan variance 2 ln2 h_-1 = (2 ln2 / pi) qd, so qd = B^2
     gives the flat 0.664 B) at the level where the flat floor equals the white + random-walk
     minimum, as rigcal's: a bias instability flat down to the shortest taus (above it at one
@@ -139,15 +140,17 @@ def simulate_axes(sim: str, imu, duration_s: float, seed: int) -> tuple[np.ndarr
         import allantools
 
         np.random.seed(7_000 + seed if sim == "allantools" else 9_000 + seed)
+        if sim == "allantools_flicker":
+            n = 2 ** int(np.floor(np.log2(n)))  # the Kasdin generator's power-of-two length (2.9 h of 3 h)
         x = np.empty((n, 6))
         for k in range(6):
             x[:, k] = (allantools.noise.white(n, b0=2.0 * nd[k] ** 2, fs=rate)
                        + allantools.noise.brown(n, b_minus2=kw[k] ** 2 / (2.0 * np.pi ** 2), fs=rate))
             if sim == "allantools_flicker":
-                flicker = allantools.Noise(nr=2 ** int(np.ceil(np.log2(n))), qd=2.0 * nd[k] * kw[k] / np.sqrt(3.0)
-                                           / (2.0 * np.log(2.0) / np.pi), b=-1)
+                flicker = allantools.Noise(nr=n, qd=2.0 * nd[k] * kw[k] / np.sqrt(3.0) / (2.0 * np.log(2.0) / np.pi),
+                                           b=-1)
                 flicker.generateNoise()
-                x[:, k] += flicker.time_series[:n]
+                x[:, k] += flicker.time_series
         x[:, 5] += 9.80665
         return x, nd, kw
     if sim == "indie":
