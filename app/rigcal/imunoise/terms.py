@@ -18,9 +18,9 @@ How each is read:
    (2 sigma^4 / edf, with Greenhall's edf for the term that dominates there), re-weighted
    three times with the model's own values so low points do not pull the fit.
 2. A term *dominates* a tau when it is the largest of the model's terms there
-   (`dominates`); its tau range is those taus. The term is then re-fitted on its range alone (a line of fixed
-   slope through the measured variance less the other terms' share there), each tau
-   weighted by the inverse variance of what it says of the term.
+   (`dominates`); its tau range is those taus. The term is then re-fitted on its range
+   alone (a line of fixed slope through the measured variance less the other terms' share
+   there), each tau weighted by the inverse variance of what it says of the term.
 3. Its confidence interval is chi-square with the degrees of freedom of that weighted
    mean's variance (2 value^2 / variance; `fit_term`). The variance counts that octave taus
    of one recording are correlated -- overlapping clusters share samples, so the taus are
@@ -33,8 +33,9 @@ How each is read:
    most; under the white-noise range, where a real bias instability rolls off below the
    band its flicker spans (or, reaching the Nyquist frequency, exceeds its flat level), it
    is that level within the room a band rolled off right there leaves, U (1 - tau /
-   tau_level), either way, a bound counted as a rectangular distribution (`flicker_bound`). Taus that disagree more than their errors
-   allow (Birge ratio R^2 > 1: the model misses the curve there) widen the interval by R.
+   tau_level), either way, a bound counted as a rectangular distribution
+   (`flicker_bound`). Taus that disagree more than their errors allow (Birge ratio
+   R^2 > 1: the model misses the curve there) widen the interval by R.
 4. Bias instability: the flat minimum of the deviation / 0.664, its interval chi-square
    with the flicker-noise edf at that tau; `dominant` says whether a flat range exists
    (otherwise the figure is an upper bound set by the white noise and random walk).
