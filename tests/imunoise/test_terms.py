@@ -209,3 +209,16 @@ def test_flicker_bound_holds_a_flat_and_a_rolled_off_bias_instability(corner_s):
         assert np.all(np.abs(g - mid_g) <= half + 2 * sd_level), (k, g / level, mid_g / level, half / level)
     assert a.white.lo < n_dens < a.white.hi
     assert a.random_walk.lo < k_walk < a.random_walk.hi
+
+
+def test_a_term_dominates_the_taus_where_it_is_the_largest():
+    """Each term's variance per tau (quantisation, white, flat, random walk): the random walk
+    dominates where it is the largest even under half of the model (second row), and a term
+    at zero dominates nowhere."""
+    from rigcal.imunoise.terms import dominates
+
+    parts = np.array([[0.0, 0.2, 0.45, 0.35], [0.0, 0.15, 0.4, 0.45], [0.0, 0.1, 0.2, 0.7], [0.0, 1.0, 0.0, 0.0]])
+    assert dominates(parts, 3).tolist() == [False, True, True, False]
+    assert dominates(parts, 2).tolist() == [True, False, False, False]
+    assert dominates(parts, 1).tolist() == [False, False, False, True]
+    assert not dominates(np.zeros((2, 4)), 3).any()
