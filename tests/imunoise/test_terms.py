@@ -165,3 +165,60 @@ def test_correlation_of_scaled_pairs_matches_the_unscaled_sums():
         assert np.allclose(rho, rho.T) and np.allclose(np.diag(rho), 1.0)
         assert np.all(np.abs(rho - direct(white_var, walk_var)) < 0.01)
         assert np.array_equal(correlation(m, white_var, walk_var), rho)  # the cached pairs give the same
+
+
+def _exact_curve(flicker, n_dens: float, k_walk: float, rate: float, seconds: float):
+    """A noise-free Allan curve: white noise + random walk + flicker(tau) (its Allan variance)."""
+    from rigcal.imunoise.allan import AllanCurve
+
+    n = int(seconds * rate)
+    m = octave_clusters(n)
+    tau = m / rate
+    return AllanCurve(tau, np.sqrt(n_dens ** 2 / tau + k_walk ** 2 * tau / 3 + flicker(tau)), m, n, rate)
+
+
+@pytest.mark.parametrize("corner_s", [None, 0.01])
+def test_flicker_bound_holds_a_flat_and_a_rolled_off_bias_instability(corner_s):
+    """An accelerometer-like axis (N 2e-3, K 3e-3 at 200 Hz, 3 h) whose bias instability is
+    flat (None) or a Gauss-Markov sum rolled off below corner_s (time constants from there,
+    x4, to the recording's length), its flat level where white noise and random walk cross:
+    at every tau of the white-noise and random-walk ranges the flicker's true Allan variance
+    lies in the bound flicker_bound derives from the curve, and both figures' intervals hold
+    the truth."""
+    from rigcal.imunoise.terms import flicker_bound
+    from rigcal.sim.static_imu import gm_allan_variance
+
+    n_dens, k_walk, rate, seconds = 2e-3, 3e-3, 200.0, 3 * 3600.0
+    level = 2 * n_dens * k_walk / np.sqrt(3)  # the white + random-walk minimum (variance)
+    if corner_s is None:
+        def flicker(tau):
+            return np.full_like(tau, level)
+    else:
+        Ts = corner_s * 4.0 ** np.arange(int(np.log(seconds / corner_s) / np.log(4)) + 1)
+        mid = sum(gm_allan_variance(np.array([30.0]), 1.0, T) for T in Ts)[0]
+
+        def flicker(tau):
+            return level / mid * sum(gm_allan_variance(tau, 1.0, T) for T in Ts)
+    c = _exact_curve(flicker, n_dens, k_walk, rate, seconds)
+    p, nu = joint_fit(c)
+    a = fit_axis(c, "x")
+    for k, fit in ((1, a.white), (3, a.random_walk)):
+        sel = (c.tau >= fit.tau_lo) & (c.tau <= fit.tau_hi)
+        mid_g, half, sd_level = flicker_bound(c, p, nu, sel, k)
+        g = flicker(c.tau[sel])
+        assert np.all(np.abs(g - mid_g) <= half + 2 * sd_level), (k, g / level, mid_g / level, half / level)
+    assert a.white.lo < n_dens < a.white.hi
+    assert a.random_walk.lo < k_walk < a.random_walk.hi
+
+
+def test_a_term_dominates_the_taus_where_it_is_the_largest():
+    """Each term's variance per tau (quantisation, white, flat, random walk): the random walk
+    dominates where it is the largest even under half of the model (second row), and a term
+    at zero dominates nowhere."""
+    from rigcal.imunoise.terms import dominates
+
+    parts = np.array([[0.0, 0.2, 0.45, 0.35], [0.0, 0.15, 0.4, 0.45], [0.0, 0.1, 0.2, 0.7], [0.0, 1.0, 0.0, 0.0]])
+    assert dominates(parts, 3).tolist() == [False, True, True, False]
+    assert dominates(parts, 2).tolist() == [True, False, False, False]
+    assert dominates(parts, 1).tolist() == [False, False, False, True]
+    assert not dominates(np.zeros((2, 4)), 3).any()

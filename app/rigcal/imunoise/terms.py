@@ -17,21 +17,25 @@ How each is read:
    measured variance at every tau, each point weighted by the variance of its estimate
    (2 sigma^4 / edf, with Greenhall's edf for the term that dominates there), re-weighted
    three times with the model's own values so low points do not pull the fit.
-2. A term *dominates* a tau when it is more than half of the model's variance there; its
-   tau range is those taus. The term is then re-fitted on its range alone (a line of fixed
-   slope through the measured variance less the other terms' share there), each tau
-   weighted by the inverse variance of what it says of the term.
+2. A term *dominates* a tau when it is the largest of the model's terms there
+   (`dominates`); its tau range is those taus. The term is then re-fitted on its range
+   alone (a line of fixed slope through the measured variance less the other terms' share
+   there), each tau weighted by the inverse variance of what it says of the term.
 3. Its confidence interval is chi-square with the degrees of freedom of that weighted
    mean's variance (2 value^2 / variance; `fit_term`). The variance counts that octave taus
    of one recording are correlated -- overlapping clusters share samples, so the taus are
    neither independent (adding their edf: too narrow) nor one (the best tau's edf alone:
    too wide for white noise, too narrow for the random walk); the correlation is derived
    from the Allan estimator's filters (rigcal.imunoise.allan.correlation). White noise and
-   random walk have exact Allan shapes, so subtracting them adds no error beyond their own;
-   the flat term's shape holds only over its flicker's band (a real bias instability rolls
-   off at short taus), so its part is a systematic error of SHAPE_DOUBT of its size. Taus
-   that disagree more than their errors allow (Birge ratio R^2 > 1: the model misses the
-   curve there) widen the interval by R.
+   random walk have exact Allan shapes, so subtracting them adds no error beyond their own.
+   The bias instability under another term's range is measured, not assumed: its level
+   is the curve's excess over the white-noise and random-walk lines where it dominates
+   most; under the white-noise range, where a real bias instability rolls off below the
+   band its flicker spans (or, reaching the Nyquist frequency, exceeds its flat level), it
+   is that level within the room a band rolled off right there leaves, U (1 - tau /
+   tau_level), either way, a bound counted as a rectangular distribution
+   (`flicker_bound`). Taus that disagree more than their errors allow (Birge ratio
+   R^2 > 1: the model misses the curve there) widen the interval by R.
 4. Bias instability: the flat minimum of the deviation / 0.664, its interval chi-square
    with the flicker-noise edf at that tau; `dominant` says whether a flat range exists
    (otherwise the figure is an upper bound set by the white noise and random walk).
@@ -54,11 +58,10 @@ from rigcal.imunoise.allan import ALPHA, MAX_TAU_FRACTION, AllanCurve, correlati
 
 TERMS = ("quantisation", "white", "flicker", "random_walk")
 FLAT = 2.0 * math.log(2.0) / math.pi  # bias instability's variance factor: sigma = sqrt(FLAT) B = 0.664 B
-DOMINANT_SHARE = 0.5
+DOMINANT_SHARE = 0.5  # the bias instability counts as seen where it is over half of the model
 CONFIDENCE = 0.95
 TARGET_PRECISION = 0.10  # `needed_s`: the recording for a 1-sigma relative error of 10 %
 REWEIGHTS = 3
-SHAPE_DOUBT = 0.5  # the flat term's level under another term's range, as a systematic error (fraction of it)
 FITTED = (1, 2, 3)  # the columns of `design` fitted: N, B, K (Q held at zero, see above)
 
 
@@ -103,6 +106,17 @@ def design(tau: np.ndarray) -> np.ndarray:
     return np.stack([3.0 / tau ** 2, 1.0 / tau, np.full_like(tau, FLAT), tau / 3.0], axis=1)
 
 
+def dominates(parts: np.ndarray, k: int) -> np.ndarray:
+    """(K,) bool: the taus term k dominates, i.e. where it is the largest of the model's
+    terms (parts (K, 4): each term's variance per tau). Where it is the largest, every
+    other term is smaller than it, though together they may be more: a tau where the
+    random walk and the flat term are near equal belongs to one of them by the model,
+    not by the noise of the fitted figures (a range cut at more than half of the model
+    moved with the fitted random walk itself: a random walk fitted low lost its most
+    precise tau and read 10 % low on average)."""
+    return (np.argmax(parts, axis=1) == k) & (parts[:, k] > 0)
+
+
 def _dominant_alpha(parts: np.ndarray) -> np.ndarray:
     return np.array([ALPHA[TERMS[k]] for k in np.argmax(parts, axis=1)])
 
@@ -145,41 +159,98 @@ def _needed(duration_s: float, nu: float) -> float:
     return duration_s * (1.0 / (2.0 * TARGET_PRECISION ** 2)) / nu
 
 
+def flicker_bound(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, sel: np.ndarray, k: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The bias instability's (flicker's) Allan variance at the taus of term k's range `sel`
+    (1 white noise, 3 random walk), from the data: (mid, half, sd_level) per tau in range --
+    the flicker lies in mid +- half there, and the level it is scaled from has the sd
+    sd_level (scaled to each tau).
+
+    The level U is the measured excess of the Allan variance over the joint fit's
+    white-noise and random-walk lines, max(0, adev^2 - N^2/tau - K^2 tau/3), at the tau tau_j
+    between the two ranges where the joint fit's flat term has its largest share; its sd is
+    the model's variance there * sqrt(2 / edf). When the ranges touch (the flat term is
+    seen nowhere, and the excess next to a range would be the other term's noise) or the
+    range reaches the end of the curve, U is the joint fit's flat level (tau_j the first tau
+    past the range).
+
+    Short taus (the white-noise range): a bias instability is flicker over a band of
+    frequencies, a sum of first-order Gauss-Markov processes; each one's Allan variance
+    s(tau) has s/tau non-increasing (s = sigma^2 T^2/tau^2 (2a - 3 + 4e^-a - e^-2a),
+    a = tau/T), so the sum g at a fit tau tau_i < tau_j obeys g_i >= U r_i,
+    r_i = tau_i/tau_j: a band rolled off right at tau_j lies U (1 - r_i) below the flat
+    level. Above it, a band reaching the Nyquist frequency exceeds the flat level at the
+    shortest taus (allantools' Kasdin-Walter flicker: 1.44 x at one sample, 1.15 x at two,
+    1.05 x at four). The flicker at tau_i is taken as the flat level U, within U (1 - r_i)
+    either way: that holds the rolled-off band, the flat floor and the full one. (The middle
+    of [U r_i, U] instead reads an accelerometer's N 0.5 % high on the full band, with 44 %
+    of its intervals holding the truth.)
+
+    Long taus (the random-walk range): a bias instability is flicker down to frequencies far
+    below a recording's (its Allan variance stays flat up to where the random walk takes
+    over: IEEE Std 952's model, and the simulator's, whose slowest process is as long as the
+    recording), so it is the level U there (half 0). A bound down to U tau_j/tau_i (a band
+    ending at tau_j) would move every random walk up by its half: +6 % for the gyroscope
+    of bench/imu_noise.py's simulated IMU, whose flicker is flat there."""
+    tau = curve.tau
+    parts = design(tau) * p
+    between = (tau > tau[sel].max()) if k == 1 else (tau < tau[sel].min())
+    if not between.any():
+        return np.full(int(sel.sum()), FLAT * p[2]), np.zeros(int(sel.sum())), np.zeros(int(sel.sum()))
+    other = dominates(parts, 4 - k)  # the other term's range
+    flat_side = np.flatnonzero(between & ~other)
+    if len(flat_side):
+        j = int(flat_side[np.argmax(parts[flat_side, 2] / parts[flat_side].sum(axis=1))])
+        level = max(float(curve.adev[j] ** 2 - parts[j, 1] - parts[j, 3]), 0.0)
+        sd_level = float(parts[j].sum() * math.sqrt(2.0 / nu[j]))
+    else:  # the ranges touch: the flat term is seen nowhere, the excess there would be the other term's noise
+        j = int(np.flatnonzero(between)[0 if k == 1 else -1])
+        level, sd_level = FLAT * p[2], 0.0
+    r = np.minimum(tau[sel] / tau[j], 1.0) if k == 1 else np.ones(int(sel.sum()))
+    return np.full(len(r), level), level * (1.0 - r), np.full(len(r), sd_level)
+
+
 def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFit | None:
     """Term k (1 white, 3 random walk) re-fitted on the taus it dominates; None if none.
 
     Each tau i in range gives the squared figure p_i = (measured variance less the other
-    terms) / the term's shape. Its error has two parts:
+    exact term's line and the flicker's estimate, `flicker_bound`) / the term's
+    shape. Its error has three parts:
     - statistical: the variance estimate's, sd_i = model variance * sqrt(2 / edf_i) / shape,
       and the estimates at octave taus of one recording are correlated (overlapping clusters
       share samples): rigcal.imunoise.allan.correlation derives rho_ij for the white noise
       and random walk fitted;
-    - the bias instability subtracted: white noise and random walk have exact Allan shapes,
-      but the flat term is flat only over the band its flicker spans (a real one rolls off at
-      short taus, and is then over-subtracted there): its share f_i is counted as a
-      systematic error of SHAPE_DOUBT of its size, the same sign at every tau.
-    The p_i are averaged with weights 1 / (sd_i^2 + (SHAPE_DOUBT f_i)^2), and the variance of
-    that mean is w' (rho sd sd' + SHAPE_DOUBT^2 f f') w / (sum w)^2; the interval is the
-    chi-square one with the degrees of freedom of that variance, 2 value^2 / variance. When
-    the p_i scatter more than their own errors allow (the Birge ratio R^2 > 1, counted as if
-    independent), the variance is multiplied by R^2."""
+    - the flicker's shape: known only to lie within h_i = U (1 - r_i) of U
+      (`flicker_bound`), counted as a rectangular distribution (sd h_i / sqrt 3, the GUM's
+      rule for a quantity known only between bounds), one unknown for every tau;
+    - the flicker's level U, measured at one tau: its sd, scaled to each tau.
+    White noise and random walk have exact Allan shapes: subtracting them adds no error
+    beyond their own. The p_i are averaged with weights 1 / (sd_i^2 + a_i^2 + b_i^2) (a, b:
+    the two flicker parts in p units), and the variance of that mean is
+    (w' (rho sd sd') w + (w.a)^2 + (w.b)^2) / (sum w)^2; the interval is the chi-square one
+    with the degrees of freedom of that variance, 2 value^2 / variance. When the p_i scatter
+    more than their own errors allow (the Birge ratio R^2 > 1, counted as if independent),
+    the variance is multiplied by R^2."""
     A = design(curve.tau)
     parts = A * p
     total = parts.sum(axis=1)
-    share = parts[:, k] / total
-    sel = share > DOMINANT_SHARE
+    sel = dominates(parts, k)
     if not sel.any():
         return None
-    p_i = (curve.adev[sel] ** 2 - (total[sel] - parts[sel, k])) / A[sel, k]
-    sd = total[sel] * np.sqrt(2.0 / nu[sel]) / A[sel, k]
-    flat = SHAPE_DOUBT * parts[sel, 2] / A[sel, k]
-    w = 1.0 / (sd ** 2 + flat ** 2)
+    other = 4 - k  # the other exact term: random walk (3) under white (1) and back
+    mid, half, sd_level = flicker_bound(curve, p, nu, sel, k)
+    shape = A[sel, k]
+    p_i = (curve.adev[sel] ** 2 - parts[sel, other] - mid) / shape
+    sd = total[sel] * np.sqrt(2.0 / nu[sel]) / shape
+    a, b = half / math.sqrt(3.0) / shape, sd_level / shape
+    rho = correlation(curve.m[sel], p[1] * curve.rate_hz, p[3] / curve.rate_hz)
+    w = 1.0 / (sd ** 2 + a ** 2 + b ** 2)
     value_sq = max(float(np.sum(w * p_i) / np.sum(w)), 1e-300)
     birge = 1.0
     if sel.sum() > 1:
         birge = max(1.0, float(np.sum(w * (p_i - value_sq) ** 2)) / (sel.sum() - 1))
-    rho = correlation(curve.m[sel], p[1] * curve.rate_hz, p[3] / curve.rate_hz)
-    var = (float(w @ (rho * np.outer(sd, sd)) @ w) + float(w @ flat) ** 2) / float(np.sum(w)) ** 2 * birge
+    var = (float(w @ (rho * np.outer(sd, sd)) @ w) + float(w @ a) ** 2 + float(w @ b) ** 2) \
+        / float(np.sum(w)) ** 2 * birge
     nu_term = 2.0 * value_sq ** 2 / var
     lo, hi = _interval(value_sq, nu_term)
     duration = curve.n / curve.rate_hz
@@ -189,7 +260,9 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
 
 def fit_bias_instability(curve: AllanCurve, p: np.ndarray) -> TermFit:
     """The flat minimum of the measured deviation / 0.664, chi-square interval with the
-    flicker edf at that tau; `dominant` False when the flat term dominates no tau."""
+    flicker edf at that tau; `dominant` False when the flat term is more than half of the
+    model at no tau (DOMINANT_SHARE; the minimum is then set by the white noise and random
+    walk as much as by it, and the figure is an upper bound)."""
     i = int(np.argmin(curve.adev))
     nu = float(curve_edf(ALPHA["flicker"], curve, curve.m[i:i + 1])[0])
     scale = 1.0 / math.sqrt(FLAT)
@@ -202,10 +275,9 @@ def fit_bias_instability(curve: AllanCurve, p: np.ndarray) -> TermFit:
 
 
 def _tau_where_dominant(p: np.ndarray, k: int) -> float | None:
-    """The smallest tau (s) at which term k would be over DOMINANT_SHARE of the model, or None."""
+    """The smallest tau (s) at which term k would dominate the model (`dominates`), or None."""
     tau = np.logspace(-3, 8, 2000)
-    parts = design(tau) * p
-    over = parts[:, k] / parts.sum(axis=1) > DOMINANT_SHARE
+    over = dominates(design(tau) * p, k)
     return float(tau[np.argmax(over)]) if over.any() else None
 
 
