@@ -216,3 +216,18 @@ def test_a_camera_linked_by_the_motion_alone_is_placed_within_its_sigmas(tmp_pat
         assert np.all(np.abs(np.degrees(d_rot)) <= 3 * np.array(sig["rotation_deg"])), (name, np.degrees(d_rot), sig)
         assert np.all(np.abs(1000 * d_pos) <= 3 * np.array(sig["position_mm"])), (name, 1000 * d_pos, sig)
         assert abs(1000 * d_off) <= 3 * sig["time_offset_ms"], (name, 1000 * d_off, sig)
+
+
+def test_an_intrinsics_structure_the_user_chose_is_kept(tmp_path):
+    # `--intrinsics square`: fx = fy stays in the continuous-time estimate (only `auto`'s choice is freed)
+    from tests.support.imu_check_cases import record, true_rig
+
+    ds = record(true_rig(101, 3.0), tmp_path / "ds", 4.0, 20.0, seed=1, free_running=True, with_imu=False)
+    out = tmp_path / "cal.yaml"
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--intrinsics", "square")
+    assert r.exit_code == 0, r.output
+    est = load_rig(out)
+    assert est.calibration["free_running"]["intrinsics"] == "estimated"
+    for c in est.cameras:
+        assert c.calibration["intrinsics_model"]["focal"] == "fx=fy", c.name
+        assert c.intrinsics.fx == c.intrinsics.fy, c.name
