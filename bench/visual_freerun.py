@@ -433,7 +433,8 @@ def corners_limits(seed: int = 0, draws: int = 30, duration: float = 10.0, motio
     formal = np.zeros((C, 7))
     formal[np.arange(C) != g] = sigma_of(cols).reshape(C - 1, 7)
     formal[:, :3], formal[:, 3:6], formal[:, 6] = np.degrees(formal[:, :3]), 1000 * formal[:, 3:6], 1000 * formal[:, 6]
-    parts = {"trajectory": range(0, lay.cam), "boards": range(lay.board, lay.intr), "intrinsics": range(lay.intr, lay.size)}
+    parts = {"trajectory": range(0, lay.cam), "boards": range(lay.board, lay.intr),
+             "intrinsics": range(lay.intr, lay.size)}
     rng = np.random.default_rng([seed, 35])
     errs = []
     with Timer() as t_mc:
@@ -452,9 +453,10 @@ def corners_limits(seed: int = 0, draws: int = 30, duration: float = 10.0, motio
         cams[n] = {"noise_free_error": errors(st0)[c].tolist(),
                    "mean_error": (errs[:, c].mean(0) if draws > 0 else nan).tolist(),
                    "spread": (errs[:, c].std(0, ddof=1) if draws > 1 else nan).tolist(), "formal": formal[c].tolist(),
-                   "offset_sigma_ms": {"formal": 1000 * float(sigma_of([o])[0]),
-                                       **{f"{k} known": 1000 * float(sigma_of([o], v)[0]) for k, v in parts.items()},
-                                       "own pose known": 1000 * float(sigma_of([o], lay.cam + 6 * c + np.arange(6))[0])}}
+                   "offset_sigma_ms": {
+                       "formal": 1000 * float(sigma_of([o])[0]),
+                       **{f"{k} known": 1000 * float(sigma_of([o], v)[0]) for k, v in parts.items()},
+                       "own pose known": 1000 * float(sigma_of([o], lay.cam + 6 * c + np.arange(6))[0])}}
     res = {"seed": seed, "duration_s": duration, "motion_scale": motion_scale, "draws": draws, "reference": names[g],
            "rms_angular_rate_deg_s": float(np.degrees(np.sqrt(np.mean(w ** 2)))), "knot_spacing_s": vm.knot_dt,
            "calibrate_s": t.wall, "draws_s": t_mc.wall, "cameras": cams}

@@ -15,13 +15,14 @@ but the reference camera's (held at 0: its clock is the time base; t_ref = t_cam
 time_offset_s), every board's pose but board 0's (the world), and the intrinsics unless
 held (--fix-intrinsics, or a declared camera calibration). Estimated intrinsics have fx,
 fy, cx and cy each a parameter of its own (imucal.step.free_structure), whatever the
-camera-only start chose with `--intrinsics auto` (another --intrinsics is kept): it tests fx = fy and a held principal point on residuals that
-carry the motion between the grouped images, and accepts reductions the continuous-time
-fit rejects. On a simulated rig whose back camera sees only a board the front cameras
-never see (its pose relative to them from the rig's motion alone), the start tied the
-back camera's fx = fy with the true ones 0.32 px apart; the tied fit put the front
-cameras 10 mm off along L relative to it (8 reported sigmas), with fx and fy free 1.5 mm,
-and the likelihood ratio rejected the tie by 68 (two parameters).
+camera-only start chose with `--intrinsics auto` (another --intrinsics is kept): the start
+tests fx = fy and a held principal point on residuals that carry the motion between the
+grouped images, and accepts reductions the continuous-time fit rejects. On simulated
+corners whose back camera sees only a board the front cameras never see (its pose
+relative to them from the rig's motion alone), the start ties the back camera's fx = fy
+with the true ones 0.32 px apart; the tied fit puts the front cameras 10 mm off along L
+relative to it (8 reported sigmas), with fx and fy free 1.5 mm, and freeing the tied
+focal lengths lowers the cost by 68 (two parameters).
 
 The smoothness prior: each control point's second difference over dt^2 (the knot's
 acceleration, of the position and of the rotation) is taken as zero-mean with a 1-sigma of
