@@ -21,11 +21,14 @@ Target: relative extrinsics no worse than 2x the synchronised recording's; offse
 
     python -m bench.visual_freerun [--seeds N] [--duration S] [--cases NAME ...] [--reuse]
     python -m bench.visual_freerun --euroc SECONDS   (real motion: euroc())
+    python -m bench.visual_freerun --corners SEEDS   (projected corners, a camera sharing no board)
+    python -m bench.visual_freerun --limits SEED [--draws N] [--duration S] [--motion-scale X]
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 import os
 import shutil
@@ -352,6 +355,135 @@ def corners_case(seeds: int = 10, duration: float = 10.0, log=say) -> dict:
             "subsets": sum(r["source"] == "subsets" for r in runs)}
 
 
+def corners_limits(seed: int = 0, draws: int = 30, duration: float = 10.0, motion_scale: float = 1.0,
+                   log=say) -> dict:
+    """What limits corners_case's estimate on one seed's geometry: the same true rig, motion
+    (its amplitudes x motion_scale) and views with the corners exact (no noise), `rigcal
+    calibrate` on them, then `draws` re-estimates (from that solution) with 0.3 px of noise
+    added to the exact corners, at the frame period's knot spacing (what calibrate chooses
+    on the noisy corners of every corners_case seed). Per non-reference camera and component (rotation about and
+    position along body F L U, clock offset), relative to the reference camera: the
+    noise-free error, the draws' mean error and spread, and the formal 1-sigma at 0.3 px; and
+    each clock offset's formal 1-sigma with parts of the problem held known (the Cramer-Rao
+    bound with those parameters given): the trajectory, the boards' poses, the intrinsics,
+    the camera's own pose."""
+    from rigcal.commands.calibrate import CalibrateOptions
+    from rigcal.commands.calibrate import run as calibrate
+    from rigcal.imucal import estimator as ic
+    from rigcal.imucal import residuals as ir
+    from rigcal.imucal import visual_motion
+    from tests.support.imu_check_cases import record, true_rig
+
+    sigma_px = 0.3
+    truth = true_rig(100 + seed, 3.0)
+    d = WORK / f"limits_{duration:g}s_seed{seed}_x{motion_scale:g}"
+    record(truth, d, duration, 20.0, seed=seed, free_running=True, with_imu=False, sigma_px=0.0,
+           motion_scale=motion_scale)
+    real, made = visual_motion.calibrate_visual_motion, []
+
+    def keep(cal, image_t_ns, *args, **kwargs):
+        made.append((cal, image_t_ns, real(cal, image_t_ns, *args, **kwargs)))
+        return made[-1][2]
+
+    # the knot spacing calibrate chooses on the noisy corners (the frame period on every seed of
+    # corners_case); on exact corners a finer one fits the spline's own error better and is chosen
+    fractions, visual_motion.KNOT_FRACTIONS = visual_motion.KNOT_FRACTIONS, (1.0,)
+    visual_motion.calibrate_visual_motion = keep
+    try:
+        with Timer() as t:
+            calibrate(d, WORK / f"{d.name}.yaml", CalibrateOptions(jobs=1))
+    finally:
+        visual_motion.calibrate_visual_motion, visual_motion.KNOT_FRACTIONS = real, fractions
+    cal, image_t_ns, vm = made[-1]
+    names, g, st0 = list(cal.cam_names), vm.reference, vm.state
+    obs = visual_motion.views_of(cal, image_t_ns).corners
+    models = [cal.rig.camera(n).intrinsics for n in names]
+    lay = ir.layout_for(st0, visual_motion.HELD)
+    ref_cols = np.r_[lay.cam + 6 * g + np.arange(6), lay.offset + g]
+
+    def blocks_of(o):
+        return lambda s: visual_motion._blocks(s, lay, o, models, sigma_px, ref_cols, vm.prior_sigma)
+
+    Tt = np.stack([truth.camera(n).T_body_cam for n in names])
+    off_t = np.array([truth.camera(n).time_offset_s for n in names])
+    Rb = Tt[g, :3, :3]
+
+    def errors(st) -> np.ndarray:
+        """(C, 7) rotation (deg, body axes), position (mm), offset (ms) errors relative to camera g."""
+        out = np.zeros((len(names), 7))
+        for c in range(len(names)):
+            Te, Tr = geo.inv_T(st.T_body_cam[g]) @ st.T_body_cam[c], geo.inv_T(Tt[g]) @ Tt[c]
+            out[c, :3] = np.degrees(Rb @ geo.rotvec_from_R(Te[:3, :3] @ Tr[:3, :3].T))
+            out[c, 3:6] = 1000 * Rb @ (Te[:3, 3] - Tr[:3, 3])
+            out[c, 6] = 1000 * (st.time_offset_s[c] - (off_t[c] - off_t[g]))
+        return out
+
+    J, _ = ir.assemble(ir.normal_rows(blocks_of(obs)(st0)), lay.size)
+    H = (J.T @ J).toarray()
+    active = np.flatnonzero(np.diag(H) > 0)
+
+    def sigma_of(cols, known=()) -> np.ndarray:
+        keep_ = np.setdiff1d(active, np.asarray(list(known), int))
+        cov = np.linalg.inv(H[np.ix_(keep_, keep_)])
+        i = np.searchsorted(keep_, cols)
+        return np.sqrt(cov[i, i])
+
+    C = len(names)
+    cols = np.concatenate([np.r_[lay.cam + 6 * c + np.arange(6), lay.offset + c] for c in range(C) if c != g])
+    formal = np.zeros((C, 7))
+    formal[np.arange(C) != g] = sigma_of(cols).reshape(C - 1, 7)
+    formal[:, :3], formal[:, 3:6], formal[:, 6] = np.degrees(formal[:, :3]), 1000 * formal[:, 3:6], 1000 * formal[:, 6]
+    parts = {"trajectory": range(0, lay.cam), "boards": range(lay.board, lay.intr),
+             "intrinsics": range(lay.intr, lay.size)}
+    rng = np.random.default_rng([seed, 35])
+    errs = []
+    with Timer() as t_mc:
+        for _ in range(draws):
+            o = replace(obs, uv=obs.uv + rng.normal(0.0, sigma_px, obs.uv.shape))
+            errs.append(errors(ic.levenberg_marquardt(st0, lay, blocks_of(o), 60)[0]))
+    errs = np.array(errs)
+    w = np.array([np.linalg.norm(geo.rotvec_from_R(st0.spline.R[i].T @ st0.spline.R[i + 1]))
+                  for i in range(len(st0.spline.R) - 1)]) / st0.spline.dt
+    cams = {}
+    for c, n in enumerate(names):
+        if c == g:
+            continue
+        o = lay.offset + c
+        nan = np.full(7, np.nan)
+        cams[n] = {"noise_free_error": errors(st0)[c].tolist(),
+                   "mean_error": (errs[:, c].mean(0) if draws > 0 else nan).tolist(),
+                   "spread": (errs[:, c].std(0, ddof=1) if draws > 1 else nan).tolist(), "formal": formal[c].tolist(),
+                   "offset_sigma_ms": {
+                       "formal": 1000 * float(sigma_of([o])[0]),
+                       **{f"{k} known": 1000 * float(sigma_of([o], v)[0]) for k, v in parts.items()},
+                       "own pose known": 1000 * float(sigma_of([o], lay.cam + 6 * c + np.arange(6))[0])}}
+    res = {"seed": seed, "duration_s": duration, "motion_scale": motion_scale, "draws": draws, "reference": names[g],
+           "rms_angular_rate_deg_s": float(np.degrees(np.sqrt(np.mean(w ** 2)))), "knot_spacing_s": vm.knot_dt,
+           "calibrate_s": t.wall, "draws_s": t_mc.wall, "cameras": cams}
+    log(f"  limits seed {seed}: {duration:g} s x{motion_scale:g}, RMS rate {res['rms_angular_rate_deg_s']:.1f} deg/s; "
+        f"calibrate {t.wall:.0f} s, {draws} draws {t_mc.wall:.0f} s")
+    return res
+
+
+def limits_table(res: dict) -> str:
+    comp = ["rot F", "rot L", "rot U", "pos F", "pos L", "pos U", "offset"]
+    rows = []
+    for n, c in res["cameras"].items():
+        for i, k in enumerate(comp):
+            f = c["formal"][i]
+            rows.append([n, k, f"{f:.4g}", f"{c['noise_free_error'][i] / f:+.2f}", f"{c['mean_error'][i] / f:+.2f}",
+                         f"{c['spread'][i] / f:.2f}"])
+    tab = md_table(["camera", "component", "formal 1-sigma (deg, mm, ms)", "noise-free error / sigma",
+                    "draws' mean error / sigma", "draws' spread / sigma"], rows,
+                   title=f"seed {res['seed']}, {res['duration_s']:g} s, motion x{res['motion_scale']:g} (RMS angular "
+                         f"rate {res['rms_angular_rate_deg_s']:.1f} deg/s), {res['draws']} draws of 0.3 px, relative "
+                         f"to {res['reference']}")
+    off = md_table(["camera", *next(iter(res["cameras"].values()))["offset_sigma_ms"]],
+                   [[n, *(f"{v:.4f}" for v in c["offset_sigma_ms"].values())] for n, c in res["cameras"].items()],
+                   title="clock offset 1-sigma (ms) at 0.3 px, with parts held known")
+    return tab + "\n\n" + off
+
+
 def euroc_table(res: dict) -> str:
     rows = [[n, r["views"], f"{r['rot_deg']:.3f}", f"{r['pos_mm']:.2f}", f"{r['baseline_mm']:.2f}",
              f"{r['offset_ms']:+.3f} +- {r['offset_sigma_ms']:.3f}" if "offset_ms" in r else "-", f"{r['wall_s']:.0f}"]
@@ -370,7 +502,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reuse", action="store_true", help="reuse the scores of earlier runs (same case, seed, duration)")
     ap.add_argument("--euroc", type=float, metavar="SECONDS", help="only the EuRoC case (euroc()) on its first SECONDS")
     ap.add_argument("--corners", type=int, metavar="SEEDS", help="only the projected-corners case (corners_case)")
+    ap.add_argument("--limits", type=int, metavar="SEED", help="only corners_limits on this seed's geometry")
+    ap.add_argument("--draws", type=int, default=30, help="--limits: noise draws")
+    ap.add_argument("--motion-scale", type=float, default=1.0, help="--limits: the motion's amplitudes x this")
     a = ap.parse_args(argv)
+    if a.limits is not None:
+        res = corners_limits(a.limits, a.draws, a.duration, a.motion_scale)
+        write_json(f"visual_freerun_limits_seed{a.limits}_{a.duration:g}s_x{a.motion_scale:g}", res)
+        print(limits_table(res))
+        return 0
     if a.corners:
         res = corners_case(a.corners, a.duration)
         write_json("visual_freerun_corners", res)

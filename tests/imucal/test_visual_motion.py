@@ -193,3 +193,44 @@ def test_views_that_cannot_model_the_motion_are_refused_by_calibrate(run, tmp_pa
     line = r.output.strip().splitlines()[-1]
     assert line.startswith("rigcal: free-running cameras without an IMU:") and "per knot" in line, line
     assert "Traceback" not in r.output and not out.exists()
+
+
+def test_a_camera_linked_by_the_motion_alone_is_placed_within_its_sigmas(tmp_path):
+    # projected corners (0.3 px), free-running at 20 Hz, no IMU: the back camera sees only a
+    # board the front cameras never see, so its pose relative to them comes from the rig's
+    # motion alone. The time-grouped start ties this back camera's fx = fy (the true ones are
+    # 0.32 px apart); the continuous-time estimate frees them, else the front cameras land
+    # 10 mm off along L relative to it, 8 reported sigmas
+    from tests.support.imu_check_cases import record, true_rig
+
+    truth = true_rig(100, 3.0)
+    ds = record(truth, tmp_path / "ds", 10.0, 20.0, seed=0, free_running=True, with_imu=False)
+    out = tmp_path / "cal.yaml"
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1)
+    assert r.exit_code == 0, r.output
+    est = load_rig(out)
+    ref = est.calibration["free_running"]["clock"].split(":", 1)[1]
+    for name, (d_rot, d_pos, d_off) in _relative_errors(est, truth, ref).items():
+        c = est.camera(name)
+        assert c.calibration["intrinsics_model"]["focal"] == "fx,fy", name
+        if name == ref:
+            continue
+        sig = c.calibration["sigma"]
+        assert np.all(np.abs(np.degrees(d_rot)) <= 3 * np.array(sig["rotation_deg"])), (name, np.degrees(d_rot), sig)
+        assert np.all(np.abs(1000 * d_pos) <= 3 * np.array(sig["position_mm"])), (name, 1000 * d_pos, sig)
+        assert abs(1000 * d_off) <= 3 * sig["time_offset_ms"], (name, 1000 * d_off, sig)
+
+
+def test_an_intrinsics_structure_the_user_chose_is_kept(tmp_path):
+    # `--intrinsics square`: fx = fy stays in the continuous-time estimate (only `auto`'s choice is freed)
+    from tests.support.imu_check_cases import record, true_rig
+
+    ds = record(true_rig(101, 3.0), tmp_path / "ds", 4.0, 20.0, seed=1, free_running=True, with_imu=False)
+    out = tmp_path / "cal.yaml"
+    r = _cli("calibrate", ds, "--out", out, "--jobs", 1, "--intrinsics", "square")
+    assert r.exit_code == 0, r.output
+    est = load_rig(out)
+    assert est.calibration["free_running"]["intrinsics"] == "estimated"
+    for c in est.cameras:
+        assert c.calibration["intrinsics_model"]["focal"] == "fx=fy", c.name
+        assert c.intrinsics.fx == c.intrinsics.fy, c.name

@@ -58,13 +58,14 @@ def _views(cam, T_world_body: np.ndarray, T_world_board: np.ndarray, boards, rng
 
 
 def record(truth: Rig, out: Path, duration: float = 6.0, camera_rate: float = 10.0, seed: int = 0,
-           sigma_px: float = 0.3, declared: Rig | None = None, free_running: bool = False, with_imu: bool = True
-           ) -> Path:
+           sigma_px: float = 0.3, declared: Rig | None = None, free_running: bool = False, with_imu: bool = True,
+           motion_scale: float = 1.0) -> Path:
     """A motion recording of exactly `truth`: imu/<imu>.csv, corners/<camera>.csv (stems = each
     camera's own clock, ns), target.yaml and rig.yaml (`declared`, default the truth).
     free_running: each camera on its own phase and rate (simulate --free-running's schedule);
-    with_imu False: no imu/ and a rig.yaml without IMUs."""
-    traj = imu_model.hand_held_trajectory(np.random.default_rng([seed, 2]))
+    with_imu False: no imu/ and a rig.yaml without IMUs; motion_scale multiplies the motion's
+    amplitudes (imu_model.hand_held_trajectory)."""
+    traj = imu_model.hand_held_trajectory(np.random.default_rng([seed, 2]), scale=motion_scale)
     centre = geo.make_T(geo.R_from_rotvec(np.array([0.0, 0.0, traj.ypr0[0]])), traj.p0)
     target, T_world_board = isc.plan_boards(truth, centre)
     timing = isc.frame_timing(truth, duration, camera_rate, free_running=free_running, seed=seed)

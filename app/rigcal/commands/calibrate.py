@@ -187,7 +187,8 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
         from rigcal.results.visual_outputs import subsets_note, summary_note, visual_motion_rig
 
         vm = calibrate_visual_motion(cal, inp.motion.frame_t_ns, cal.reference, fix_intrinsics,
-                                     {c.name: c.time_offset_s or 0.0 for c in inp.rig.cameras})
+                                     {c.name: c.time_offset_s or 0.0 for c in inp.rig.cameras},
+                                     free_intrinsics_structure=o.intrinsics == "auto")
         out_rig = visual_motion_rig(out_rig, cal, vm)
         plan_notes += [summary_note(list(cal.cam_names), vm), subsets_note(list(cal.cam_names), vm)]
     if imu_name is not None:
