@@ -195,6 +195,7 @@ def test_views_that_cannot_model_the_motion_are_refused_by_calibrate(run, tmp_pa
     assert "Traceback" not in r.output and not out.exists()
 
 
+@pytest.mark.slow
 def test_a_camera_linked_by_the_motion_alone_is_placed_within_its_sigmas(tmp_path):
     # projected corners (0.3 px), free-running at 20 Hz, no IMU: the back camera sees only a
     # board the front cameras never see, so its pose relative to them comes from the rig's
