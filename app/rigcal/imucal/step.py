@@ -370,12 +370,15 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
 
 def jacobian(res: ic.CameraImuResult, inp: Inputs, settings: ic.Settings):
     """(J, layout) of the final estimate: the residual blocks imu_calib minimises
-    (imu_calib.residual_blocks) at its state, with `settings`' corner weights."""
+    (imu_calib.residual_blocks) at its state, with `settings`' corner weights; those the
+    estimate's last iteration made, re-weighted (estimator.reweighted_blocks), where it can."""
     state, imu = res.state, inp.imu
     lay = ir.layout_for(state, ic.held_groups(settings))
-    obs = estimator_corners(inp, len(state.T_world_board))[2].subset(res.corners_used)
-    blocks = ic.residual_blocks(state, lay, obs, [c.model for c in inp.cams], imu, ic.imu_span(state.spline, imu.t),
-                                settings)
+    blocks = ic.reweighted_blocks(res, settings)  # the last LM iteration's, when it made them
+    if blocks is None:
+        obs = estimator_corners(inp, len(state.T_world_board))[2].subset(res.corners_used)
+        blocks = ic.residual_blocks(state, lay, obs, [c.model for c in inp.cams], imu,
+                                    ic.imu_span(state.spline, imu.t), settings)
     return ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay
 
 
@@ -532,6 +535,7 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
         raise
     # sigmas with the corners weighted by their measured noise (the variance factor)
     J, lay = jacobian(res, inp, _settings_with(settings, res))
+    res = replace(res, blocks=())  # used: not kept in the answer
     sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment,
                            res.state.intrinsics if settings.intrinsics else ())
     names = list(cal.cam_names)
