@@ -93,6 +93,9 @@ class Calibration:
     # per observation (obs order): the detector's own 1-sigma px (NaN unknown; None: no view had one)
     corner_sigma_detected: np.ndarray | None = None
     noise_models: list | None = None  # per camera the NoiseModel the corners were weighted by (or None)
+    # (V, 4, 4) per view of obs (obs.view indexes it) its start pose T_cam_board: the PnP of
+    # start_cameras, on every corner with the start intrinsics (the camera-IMU step's start)
+    view_T_cam_board: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------- the pipeline
@@ -181,7 +184,8 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
         state=res.state, problem=res.problem, obs=solved.obs, inliers=res.inliers, frames=setup.frames,
         boards=setup.board_names, cam_names=setup.cam_names, T_body_solve=out.T_body_solve,
         cov_extrinsics=out.cov_extrinsics, timings=timings, notes=notes, flips=flipped.flips, declared=rig,
-        corner_sigma_detected=solved.sigma_det, noise_models=weighted.noise_models)
+        corner_sigma_detected=solved.sigma_det, noise_models=weighted.noise_models,
+        view_T_cam_board=start_poses(flipped.posed, rig_start))
 
 
 @dataclass(frozen=True)
@@ -306,8 +310,7 @@ def first_solve(posed: PosedViews, rig_start: RigStart, inits: list[MonoInit], s
     start, fix: per camera the intrinsics (values and structure) to start from and which
     are held, instead of the inits' and setup's (`rigcal check`: the rig's own structure)."""
     graph = rig_start.graph
-    use = [k for k in range(len(posed.views)) if graph.frame_posed[posed.frame[k]]
-           and posed.board[k] not in graph.missing_boards]
+    use = _used_views(posed, graph)
     obs = _observations(posed, use, setup.corners, setup.board_names)
     if start is None:
         start = [Intrinsics(setup.rig.camera(n).intrinsics.model, mi.values.copy())
@@ -712,6 +715,20 @@ def _detected_sigma(posed: PosedViews, use: list[int]) -> np.ndarray | None:
         return None
     return np.concatenate([np.full(len(v.ids), np.nan) if v.sigma is None else np.asarray(v.sigma, float).ravel()
                            for v in views])
+
+
+def _used_views(posed: PosedViews, graph: PoseGraph) -> list[int]:
+    """The posed views (indices) the joint solve uses: those of frames and boards the pose
+    graph placed."""
+    return [k for k in range(len(posed.views)) if graph.frame_posed[posed.frame[k]]
+            and posed.board[k] not in graph.missing_boards]
+
+
+def start_poses(posed: PosedViews, rig_start: RigStart) -> np.ndarray:
+    """(V, 4, 4): the start pose T_cam_board of each view first_solve's observations hold,
+    in their order (obs.view)."""
+    use = _used_views(posed, rig_start.graph)
+    return np.array([posed.T_cam_board[k] for k in use], float).reshape(-1, 4, 4)
 
 
 def _observations(posed: PosedViews, use: list[int], corners: dict, board_names: list[str]) -> Observations:

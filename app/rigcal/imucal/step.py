@@ -209,9 +209,12 @@ def imu_input(samples: ImuSamples, imu: Imu, t_base_ns: int) -> ic.ImuInput:
                        imu.accelerometer_random_walk, imu.T_body_imu.copy())
 
 
-def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One PnP pose per frame, on its view with most corners (>= MIN_PNP_CORNERS):
-    (frames (F,), boards (F,), T_board_cam (F, 4, 4)). Views are grouped by one sort."""
+def _frame_poses(model, uv, p_board, view, frame, board, faces, view_T_cam_board=None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pose per frame, of its view with most corners (>= MIN_PNP_CORNERS): (frames (F,),
+    boards (F,), T_board_cam (F, 4, 4)). Views are grouped by one sort. view_T_cam_board
+    (V, 4, 4): the camera-only step's start pose of every view (indexed by `view`), taken as
+    they are; else a PnP on the view's corners (on EuRoC 1 s to redo what that start did)."""
     order = np.argsort(view, kind="stable")
     _, first, count = np.unique(view[order], return_index=True, return_counts=True)
     f, b = frame[order][first], board[order][first]
@@ -219,6 +222,9 @@ def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndar
     best = np.lexsort((-count, f))
     best = best[np.concatenate([[True], np.diff(f[best]) != 0])] if len(best) else best
     best = best[count[best] >= MIN_PNP_CORNERS]
+    if view_T_cam_board is not None:
+        ids = view[order][first][best]
+        return f[best], b[best], geo.inv_T(np.asarray(view_T_cam_board)[ids]).reshape(-1, 4, 4)
     groups = np.split(order, np.cumsum(count)[:-1])
     m = model
     fits = pnp_views([p_board[groups[k]] for k in best], [uv[groups[k]] for k in best],
@@ -231,8 +237,9 @@ def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndar
 def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
                  line_delays: dict[str, float], image_t_ns=None) -> Inputs:
     """The inlier corners of the camera-only calibration `cal` (rigcal.camcal.pipeline.Calibration) on
-    each camera's clock (frames are integer-ns stems), one PnP pose per image (its largest
-    board view) for the start, and the IMU. image_t_ns: camera -> frame -> the image's own
+    each camera's clock (frames are integer-ns stems), one pose per image (its largest board
+    view: the camera-only step's start pose, cal.view_T_cam_board, else a PnP) for the
+    start, and the IMU. image_t_ns: camera -> frame -> the image's own
     stem (ns) where it differs from the frame's name (free-running cameras grouped into
     shared frames for the camera-only start, rigcal.data.dataset.associate_by_time)."""
     t_base = int(samples.t_ns[0])
@@ -251,7 +258,8 @@ def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_decla
     for c, name in enumerate(cal.cam_names):
         m = cal.rig.camera(name).intrinsics
         s = ok & (o.cam == c)
-        frames, b, T = _frame_poses(m, o.uv[s], o.p_board[s], o.view[s], o.frame[s], o.board[s], faces)
+        frames, b, T = _frame_poses(m, o.uv[s], o.p_board[s], o.view[s], o.frame[s], o.board[s], faces,
+                                    getattr(cal, "view_T_cam_board", None))
         if len(frames) < MIN_FRAMES:
             raise CalibrationError(f"camera {name}: a board pose in only {len(frames)} images; the clock offset "
                                    f"needs at least {MIN_FRAMES}")
