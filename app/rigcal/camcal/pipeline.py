@@ -117,8 +117,9 @@ class Setup:
     # with fix_intrinsics: note cameras whose own views fit the declared intrinsics badly
     # (a calibrateCamera per camera; `rigcal check` tests the intrinsics itself)
     misfit_notes: bool = True
-    # the camera-only result is the start of a camera-IMU step: own-views intrinsics start
-    # without the radtan4 refit (MonoInit.mono(refit=False)), the same optimum from there
+    # the camera-only result is the start of a camera-IMU step that re-estimates the
+    # intrinsics: own-views intrinsics start without the radtan4 refit
+    # (MonoInit.mono(refit=False)), the same optimum from there
     imu_start: bool = False
 
     @property
@@ -157,11 +158,12 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
     model); the rig is then solved again on them. None: the detector's corners are final.
     faces: board name -> the sign of board z on its printed side (-1, OpenCV's boards, when
     absent; +1 for Kalibr's AprilGrid frame: Board.print_face).
-    imu_start: the result starts a camera-IMU step (a motion dataset with an IMU): where the
-    rig is not rigid per frame, each camera's own-views solve starts from its radtan5 fit
-    with k3 dropped rather than from a radtan4 refit of up to MAX_MONO_VIEWS views by OpenCV
-    (the solve over every view reaches the same optimum; 2.7 s CPU less on the 30 s
-    three-camera recording)."""
+    imu_start: the result starts a camera-IMU step that re-estimates the intrinsics (a motion
+    dataset with an IMU, --imu-intrinsics joint or prior; held keeps this step's exactly, as
+    --camera-only gives them): where the rig is not rigid per frame, each camera's own-views
+    solve starts from its radtan5 fit with k3 dropped rather than from a radtan4 refit of up
+    to MAX_MONO_VIEWS views by OpenCV (the solve over every view reaches the same optimum;
+    2.7 s CPU less on the 30 s three-camera recording)."""
     t0 = time.perf_counter()
     setup = Setup(rig, corners, sorted({v.frame for v in views}), distortion, fix_intrinsics, intrinsics, faces,
                   imu_start=imu_start)
