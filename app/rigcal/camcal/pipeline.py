@@ -95,7 +95,9 @@ class Calibration:
     corner_sigma_detected: np.ndarray | None = None
     noise_models: list | None = None  # per camera the NoiseModel the corners were weighted by (or None)
     # (V, 4, 4) per view of obs (obs.view indexes it) its start pose T_cam_board: the PnP of
-    # start_cameras, on every corner with the start intrinsics (the camera-IMU step's start)
+    # start_cameras, on every corner, kept for the camera-IMU step's start where it was made
+    # with the final intrinsics (held); None otherwise (EuRoC without a camera calibration:
+    # started from poses of the 20-view start intrinsics, calibrate took 84 s CPU against 58)
     view_T_cam_board: np.ndarray | None = None
 
 
@@ -198,7 +200,7 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
         boards=setup.board_names, cam_names=setup.cam_names, T_body_solve=out.T_body_solve,
         cov_extrinsics=out.cov_extrinsics, timings=timings, notes=notes, flips=flipped.flips, declared=rig,
         corner_sigma_detected=solved.sigma_det, noise_models=weighted.noise_models,
-        view_T_cam_board=start_poses(flipped.posed, rig_start))
+        view_T_cam_board=start_poses(flipped.posed, rig_start) if fix_intrinsics else None)
 
 
 @dataclass(frozen=True)

@@ -238,8 +238,8 @@ def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_decla
                  line_delays: dict[str, float], image_t_ns=None) -> Inputs:
     """The inlier corners of the camera-only calibration `cal` (rigcal.camcal.pipeline.Calibration) on
     each camera's clock (frames are integer-ns stems), one pose per image (its largest board
-    view: the camera-only step's start pose, cal.view_T_cam_board, else a PnP) for the
-    start, and the IMU. image_t_ns: camera -> frame -> the image's own
+    view: the camera-only step's start pose, cal.view_T_cam_board, where it kept them, else
+    a PnP with its intrinsics) for the start, and the IMU. image_t_ns: camera -> frame -> the image's own
     stem (ns) where it differs from the frame's name (free-running cameras grouped into
     shared frames for the camera-only start, rigcal.data.dataset.associate_by_time)."""
     t_base = int(samples.t_ns[0])
