@@ -256,3 +256,22 @@ def test_own_views_start_without_the_radtan4_refit_reaches_the_same_intrinsics(m
     assert own[0].log == own[1].log
     sigma = np.sqrt(np.diag(own[0].cov))
     assert np.all(np.abs(own[0].intrinsics.values - own[1].intrinsics.values) <= 0.01 * sigma)  # held: 0
+
+
+def test_start_poses_are_handed_over_only_when_made_with_the_final_intrinsics():
+    """Calibration.view_T_cam_board (the camera-IMU start's poses, one per view of obs): the
+    camera-only start's PnP, kept when the intrinsics are held (the start's are then the
+    final ones); with them estimated, None (the camera-IMU step poses with the solved ones)."""
+    rng = np.random.default_rng(2)
+    truth = perturb(rigcal.load_rig("drone-stereo-back"), rng)
+    views, corners = noisy_room(truth, rng, 0.2, n_frames=12)
+    held = calibrate_views(views, truth, corners, fix_intrinsics=True)
+    T = held.view_T_cam_board
+    assert T is not None and T.shape == (held.obs.view.max() + 1, 4, 4)
+    # each view's start pose reprojects its corners near where they were seen
+    for v in (0, len(T) // 2, len(T) - 1):
+        k = held.obs.view == v
+        cam = truth.camera(held.cam_names[int(held.obs.cam[k][0])]).intrinsics
+        uv, _ = cam.project(geo.transform(T[v], held.obs.p_board[k]))
+        assert np.sqrt(np.mean(np.sum((uv - held.obs.uv[k]) ** 2, axis=1))) < 1.0
+    assert calibrate_views(views, truth, corners).view_T_cam_board is None
