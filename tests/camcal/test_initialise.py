@@ -227,3 +227,52 @@ def test_pnp_views_poses_each_view_and_a_views_pose_does_not_depend_on_the_other
     assert not np.array_equal(other[0][0], fresh[0][0])  # other intrinsics: posed anew
     again[0][0][:] = 0.0  # the caller's copy, not shared with a later call
     assert np.array_equal(ini.pnp_views(obj[:1], img[:1], vals, cam.intrinsics.model, faces[:1])[0][0], fresh[0][0])
+
+
+def test_own_views_start_without_the_radtan4_refit_reaches_the_same_intrinsics(monkeypatch):
+    """mono(refit=False) (calibrate_views' imu_start: a camera-IMU step follows) starts the
+    own-views solve from the radtan5 fit with k3 dropped instead of a radtan4 refit by
+    OpenCV; the solve over every view lands on the same intrinsics from either start."""
+    from rigcal.camcal import initialise
+    from rigcal.camcal.solve import Intrinsics
+
+    rng = np.random.default_rng(5)
+    truth = perturb(rigcal.load_rig("drone-stereo-back"), rng)
+    views, corners = noisy_room(truth, rng, 0.3, n_frames=25)
+    mine = [v for v in views if v.camera == "front_left"]
+    declared = truth.camera("front_left").intrinsics
+    mi = initialise.init_camera(mine, corners, declared, "auto", False)
+    fits = []
+    fit = initialise.fit_pinhole
+    monkeypatch.setattr(initialise, "fit_pinhole", lambda o, i, m, n: fits.append(n) or fit(o, i, m, n))
+    refit, line = mi.mono()
+    assert "radtan4" in line and fits[-1] == 4  # k3 dropped here, so there is a refit to skip
+    fits.clear()
+    quick, quick_line = mi.mono(refit=False)
+    assert quick_line == line and 4 not in fits and len(quick) == len(refit) == 8
+    assert not np.array_equal(quick, refit)  # another start
+    own = [initialise.own_views_intrinsics(mine, corners, Intrinsics("pinhole", np.array(v, float)),
+                                           (declared.cx, declared.cy), "auto") for v in (refit, quick)]
+    # the same structure, the values within the solver's convergence: under a hundredth of their sigma
+    assert own[0].log == own[1].log
+    sigma = np.sqrt(np.diag(own[0].cov))
+    assert np.all(np.abs(own[0].intrinsics.values - own[1].intrinsics.values) <= 0.01 * sigma)  # held: 0
+
+
+def test_start_poses_are_handed_over_only_when_made_with_the_final_intrinsics():
+    """Calibration.view_T_cam_board (the camera-IMU start's poses, one per view of obs): the
+    camera-only start's PnP, kept when the intrinsics are held (the start's are then the
+    final ones); with them estimated, None (the camera-IMU step poses with the solved ones)."""
+    rng = np.random.default_rng(2)
+    truth = perturb(rigcal.load_rig("drone-stereo-back"), rng)
+    views, corners = noisy_room(truth, rng, 0.2, n_frames=12)
+    held = calibrate_views(views, truth, corners, fix_intrinsics=True)
+    T = held.view_T_cam_board
+    assert T is not None and T.shape == (held.obs.view.max() + 1, 4, 4)
+    # each view's start pose reprojects its corners near where they were seen
+    for v in (0, len(T) // 2, len(T) - 1):
+        k = held.obs.view == v
+        cam = truth.camera(held.cam_names[int(held.obs.cam[k][0])]).intrinsics
+        uv, _ = cam.project(geo.transform(T[v], held.obs.p_board[k]))
+        assert np.sqrt(np.mean(np.sum((uv - held.obs.uv[k]) ** 2, axis=1))) < 1.0
+    assert calibrate_views(views, truth, corners).view_T_cam_board is None

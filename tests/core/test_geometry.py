@@ -315,3 +315,22 @@ def test_fit_rigid_to_recovers_a_known_transform_and_is_least_squares():
     for _ in range(20):
         nudge = geo.make_T(geo.R_from_rotvec(rng.normal(0, 1e-3, 3)), rng.normal(0, 1e-3, 3))
         assert cost(fit) <= cost(nudge @ fit) + 1e-15
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 5])
+def test_robust_mean_poses_batched_equal_robust_mean_pose_exactly(n):
+    """The pose graph's batched average gives robust_mean_pose's numbers bit for bit, also
+    for groups where an outlier view gets weight 0 and the translation median drops it."""
+    rng = np.random.default_rng(n)
+    groups = []
+    for g in range(60):
+        base = geo.make_T(geo.R_from_rotvec(rng.normal(0, 1, 3)), rng.normal(0, 1, 3))
+        noise = [geo.make_T(geo.R_from_rotvec(rng.normal(0, 0.002, 3)), rng.normal(0, 0.002, 3)) for _ in range(n)]
+        if g % 3 == 0 and n > 2:
+            noise[-1] = geo.make_T(geo.R_from_rotvec([0.4, -0.3, 0.2]), [0.5, 0.0, 0.0])  # a gross outlier
+        groups.append([base @ T for T in noise])
+    Ts = np.array(groups)
+    one = np.array([geo.robust_mean_pose(T) for T in Ts])
+    assert np.array_equal(geo.robust_mean_poses(Ts), one)
+    if n > 3:  # the outliers were rejected: their groups' translations are the inliers' median
+        assert np.abs(one[0, :3, 3] - np.median(Ts[0, :-1, :3, 3], axis=0)).max() == 0.0

@@ -241,3 +241,24 @@ def test_every_knot_is_observed_when_the_imu_starts_with_the_frames():
     for group in (lay.rot, lay.pos):
         g = d[group:group + 3 * lay.n_ctrl]
         assert g.min() > 1e-3 * np.median(g), (g.min(), np.median(g))
+
+
+def test_last_iterations_blocks_reweighted_equal_a_fresh_evaluation(solved):
+    """The estimate keeps its last residual blocks; re-weighted to another corner noise they
+    give the Jacobian and residuals a fresh evaluation at that noise gives (what
+    step.jacobian used to compute)."""
+    rec, res = solved
+    settings = replace(res.settings, sigma_px=SIGMA_PX * 1.7)
+    lay = ir.layout_for(res.state, ic.held_groups(settings))
+    fresh = ic.residual_blocks(res.state, lay, rec.obs.subset(res.corners_used), [c.model for c in rec.cams],
+                               rec.imu, ic.imu_span(res.state.spline, rec.imu.t), settings)
+    kept = ic.reweighted_blocks(res, settings)
+    (J0, r0), (J1, r1) = (ir.assemble(ir.normal_rows(b), lay.size) for b in (fresh, kept))
+    H0, H1 = (J0.T @ J0).toarray(), (J1.T @ J1).toarray()
+    assert np.abs(H1 - H0).max() <= 1e-9 * np.abs(H0).max()
+    assert np.allclose(J1.T @ r1, J0.T @ r0, rtol=1e-9, atol=1e-9 * np.abs(J0.T @ r0).max())
+    assert np.isclose(sum(b.objective for b in kept), sum(b.objective for b in fresh), rtol=1e-9)
+    # anything but the corner noise changed, or a robust loss: an evaluation is needed
+    assert ic.reweighted_blocks(res, replace(settings, line_delay=True)) is None
+    assert ic.reweighted_blocks(res, replace(settings, huber=3.0)) is None
+    assert ic.reweighted_blocks(replace(res, blocks=()), settings) is None

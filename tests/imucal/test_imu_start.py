@@ -94,3 +94,32 @@ def test_images_outside_the_imu_stream_are_refused():
     t_cam, R_wc, t_imu, gyro = _recording(traj, offset=0.0)
     with pytest.raises(CalibrationError, match="overlap the IMU stream"):
         imu_start.rate_start(t_cam + 100.0, R_wc, t_imu, gyro)
+
+
+def test_frame_poses_take_the_given_start_poses_of_each_frames_largest_view():
+    """build_inputs' per-image poses: the camera-only step's start pose of each frame's
+    largest view when given (no second PnP), else a PnP of that view; on exact corners the
+    two agree."""
+    from rigcal.core.camera import CameraModel
+    from rigcal.imucal.step import _frame_poses
+
+    cam = CameraModel("pinhole", 640, 480, 400.0, 400.0, 320.0, 240.0, (-0.1, 0.02, 0.0, 0.0, 0.0))
+    gx, gy = np.meshgrid(np.arange(6) * 0.04, np.arange(5) * 0.04)
+    board = np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])
+    rng = np.random.default_rng(3)
+    uv, p, view, frame, brd, T_views = [], [], [], [], [], []
+    for v in range(8):  # two views (boards) per frame, the second with fewer corners
+        T = geo.make_T(geo.R_from_rotvec(rng.normal(0, 0.2, 3)) @ geo.R_from_rotvec([np.pi, 0, 0]),
+                       [-0.1 + 0.02 * rng.normal(), -0.08, 0.5 + 0.05 * v])
+        n = 30 if v % 2 == 0 else 12
+        xy, _ = cam.project(geo.transform(T, board[:n]))
+        uv.append(xy), p.append(board[:n]), view.append(np.full(n, v)), frame.append(np.full(n, v // 2))
+        brd.append(np.full(n, v % 2)), T_views.append(T)
+    args = [np.concatenate(x) for x in (uv, p, view, frame, brd)]
+    faces = [1.0, 1.0]
+    f_given, b_given, T_given = _frame_poses(cam, *args, faces, view_T_cam_board=np.array(T_views))
+    f_pnp, b_pnp, T_pnp = _frame_poses(cam, *args, faces)
+    assert list(f_given) == [0, 1, 2, 3] and list(b_given) == [0, 0, 0, 0]  # each frame's 30-corner view
+    assert np.array_equal(f_given, f_pnp) and np.array_equal(b_given, b_pnp)
+    assert np.allclose(T_given, geo.inv_T(np.array(T_views)[[0, 2, 4, 6]]), atol=1e-15)
+    assert np.allclose(T_pnp, T_given, atol=1e-7)

@@ -268,13 +268,14 @@ def _faces(views: list[BoardView], faces: dict | None) -> list[float] | None:
 class MonoInit:
     """One camera's start: intrinsics, per-view T_cam_board (None where PnP failed), the
     model-selection log, and its own-views fit for the rigidity check (rms_px None when
-    the intrinsics were not fitted; mono() gives the values it supports on its own)."""
+    the intrinsics were not fitted; mono() gives the values it supports on its own;
+    mono(refit=False) a start for them without the radtan4 refit where k3 is dropped)."""
 
     values: np.ndarray
     T_cam_board: list
     log: list[str]
     rms_px: float | None = None
-    mono: Callable[[], tuple[np.ndarray, str]] | None = None
+    mono: Callable[..., tuple[np.ndarray, str]] | None = None
 
 
 def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, distortion: str,
@@ -290,7 +291,7 @@ def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, di
         values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
     elif declared.model == "fisheye":
         values, rms = _init_fisheye(obj, img, declared, _faces(views, faces))
-        mono = lambda: (values, "fisheye (own views)")  # noqa: E731
+        mono = lambda refit=True: (values, "fisheye (own views)")  # noqa: E731
     else:
         sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
         o_s, i_s = [obj[i] for i in sel], [img[i] for i in sel]
@@ -308,9 +309,11 @@ def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, di
                 chosen = fit8
         values, rms = chosen.values, chosen.rms_px
 
-        def mono(n=len(chosen.values) - 4):
+        def mono(refit=True, n=len(chosen.values) - 4):
             # refitted on the camera's views (up to MAX_MONO_VIEWS), cleaned: the k3 decision
-            # is kept, the values start own_views_intrinsics' solve over every view
+            # is kept, the values start own_views_intrinsics' solve over every view. k3
+            # dropped: radtan4 refitted (refit), else the radtan5 fit without k3 as the start
+            # (the solve over every view goes to the same optimum from either)
             keep_views = _select_views(np.array([len(o) for o in obj]), MAX_MONO_VIEWS)
             own, _, _, o_c, i_c = _clean_fit([obj[i] for i in keep_views], [img[i] for i in keep_views],
                                              declared, n)
@@ -319,7 +322,8 @@ def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, di
             keep, line = keep_k3(own.values[8], own.sigma[8] ** 2)
             if keep:
                 return own.values, f"radtan5 (own views; {line})"
-            return fit_pinhole(o_c, i_c, declared, 4).values, f"radtan4 (own views; {line})"
+            four = fit_pinhole(o_c, i_c, declared, 4).values if refit else own.values[:8]
+            return four, f"radtan4 (own views; {line})"
     return MonoInit(values, pnp_views(obj, img, values, declared.model, _faces(views, faces)), notes, rms, mono)
 
 

@@ -10,6 +10,7 @@ it with synthetic corners.
 
 from __future__ import annotations
 
+import os
 import time
 from dataclasses import dataclass, field, replace
 from typing import Callable, NamedTuple
@@ -21,7 +22,7 @@ from rigcal.camcal.body_frame import check_reference, extrinsic_covariance, refe
 from rigcal.core.camera import PINHOLE_MODEL_NAMES, CameraModel
 from rigcal.errors import CalibrationError, InputError
 from rigcal.camcal.initialise import (MIN_VIEW_CORNERS, RIGIDITY_RATIO, MonoInit, PosedViews, fixed_intrinsics_misfit,
-                                      init_camera, own_views_intrinsics, resolve_flips)
+                                      init_camera, opencv_one_thread, own_views_intrinsics, resolve_flips)
 from rigcal.camcal.model_selection import (INTRINSICS_CHOICES, forced_structure, intrinsic_sigmas, intrinsics_model,
                                            reduce_models, solve_covariance)
 from rigcal.core.observations import BoardView
@@ -93,6 +94,11 @@ class Calibration:
     # per observation (obs order): the detector's own 1-sigma px (NaN unknown; None: no view had one)
     corner_sigma_detected: np.ndarray | None = None
     noise_models: list | None = None  # per camera the NoiseModel the corners were weighted by (or None)
+    # (V, 4, 4) per view of obs (obs.view indexes it) its start pose T_cam_board: the PnP of
+    # start_cameras, on every corner, kept for the camera-IMU step's start where it was made
+    # with the final intrinsics (held); None otherwise (EuRoC without a camera calibration:
+    # started from poses of the 20-view start intrinsics, calibrate took 84 s CPU against 58)
+    view_T_cam_board: np.ndarray | None = None
 
 
 # ----------------------------------------------------------------------------- the pipeline
@@ -113,6 +119,10 @@ class Setup:
     # with fix_intrinsics: note cameras whose own views fit the declared intrinsics badly
     # (a calibrateCamera per camera; `rigcal check` tests the intrinsics itself)
     misfit_notes: bool = True
+    # the camera-only result is the start of a camera-IMU step that re-estimates the
+    # intrinsics: own-views intrinsics start without the radtan4 refit
+    # (MonoInit.mono(refit=False)), the same optimum from there
+    imu_start: bool = False
 
     @property
     def cam_names(self) -> list[str]:
@@ -131,7 +141,8 @@ class Setup:
 def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndarray],
                     distortion: str = "auto", fix_intrinsics: bool = False, reference: str = "aligned",
                     weight_corners: bool = False, rerefine: Callable | None = None,
-                    intrinsics: str = "auto", faces: dict[str, float] | None = None) -> Calibration:
+                    intrinsics: str = "auto", faces: dict[str, float] | None = None,
+                    imu_start: bool = False) -> Calibration:
     """The whole calibration from detected views. corners: board name -> (N, 3) object points.
 
     The stages in order (docs/how-it-works.md): usable_views, start_cameras
@@ -148,9 +159,16 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
     the corners once the rig is solved (guided.guided_uv: the cross placed by the calibrated
     model); the rig is then solved again on them. None: the detector's corners are final.
     faces: board name -> the sign of board z on its printed side (-1, OpenCV's boards, when
-    absent; +1 for Kalibr's AprilGrid frame: Board.print_face)."""
+    absent; +1 for Kalibr's AprilGrid frame: Board.print_face).
+    imu_start: the result starts a camera-IMU step that re-estimates the intrinsics (a motion
+    dataset with an IMU, --imu-intrinsics joint or prior; held keeps this step's exactly, as
+    --camera-only gives them): where the rig is not rigid per frame, each camera's own-views
+    solve starts from its radtan5 fit with k3 dropped rather than from a radtan4 refit of up
+    to MAX_MONO_VIEWS views by OpenCV (the solve over every view reaches the same optimum;
+    2.7 s CPU less on the 30 s three-camera recording)."""
     t0 = time.perf_counter()
-    setup = Setup(rig, corners, sorted({v.frame for v in views}), distortion, fix_intrinsics, intrinsics, faces)
+    setup = Setup(rig, corners, sorted({v.frame for v in views}), distortion, fix_intrinsics, intrinsics, faces,
+                  imu_start=imu_start)
     check_reference(reference, rig)
     if intrinsics != "auto" and intrinsics not in INTRINSICS_CHOICES:
         raise InputError(f"--intrinsics: expected one of auto, {', '.join(INTRINSICS_CHOICES)}, got {intrinsics!r}")
@@ -181,7 +199,8 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
         state=res.state, problem=res.problem, obs=solved.obs, inliers=res.inliers, frames=setup.frames,
         boards=setup.board_names, cam_names=setup.cam_names, T_body_solve=out.T_body_solve,
         cov_extrinsics=out.cov_extrinsics, timings=timings, notes=notes, flips=flipped.flips, declared=rig,
-        corner_sigma_detected=solved.sigma_det, noise_models=weighted.noise_models)
+        corner_sigma_detected=solved.sigma_det, noise_models=weighted.noise_models,
+        view_T_cam_board=start_poses(flipped.posed, rig_start) if fix_intrinsics else None)
 
 
 @dataclass(frozen=True)
@@ -306,8 +325,7 @@ def first_solve(posed: PosedViews, rig_start: RigStart, inits: list[MonoInit], s
     start, fix: per camera the intrinsics (values and structure) to start from and which
     are held, instead of the inits' and setup's (`rigcal check`: the rig's own structure)."""
     graph = rig_start.graph
-    use = [k for k in range(len(posed.views)) if graph.frame_posed[posed.frame[k]]
-           and posed.board[k] not in graph.missing_boards]
+    use = _used_views(posed, graph)
     obs = _observations(posed, use, setup.corners, setup.board_names)
     if start is None:
         start = [Intrinsics(setup.rig.camera(n).intrinsics.model, mi.values.copy())
@@ -354,14 +372,26 @@ def choose_models(solved: JointSolve, inits: list[MonoInit], by_cam: dict[str, l
 def _own_views_models(solved: JointSolve, inits: list[MonoInit], by_cam: dict[str, list[BoardView]],
                       setup: Setup, note: str) -> ModelChoice:
     """Intrinsics from each camera's own views (initialise.own_views_intrinsics), then the
-    rig solved with them held fixed."""
+    rig solved with them held fixed. The cameras' fits are independent and each runs OpenCV
+    on one thread (initialise.opencv_one_thread, for reproducible sums), so they run on a
+    thread per core: the same numbers, in about half the time on 2 cores (the 30 s
+    three-camera motion recording: 9 s of single-threaded fits)."""
+    from concurrent.futures import ThreadPoolExecutor
+
     st = solved.res.state.copy()
     own, free_sigma, logs = [], {}, {}
-    for c, mi in enumerate(inits):
-        v, line = mi.mono()
-        o = own_views_intrinsics(by_cam[setup.cam_names[c]], setup.corners,
-                                 Intrinsics(st.intrinsics[c].model, np.array(v, float)), setup.centres[c],
-                                 setup.intrinsics, setup.faces)
+
+    def fit(c):
+        v, line = inits[c].mono(refit=not setup.imu_start)
+        return own_views_intrinsics(by_cam[setup.cam_names[c]], setup.corners,
+                                    Intrinsics(st.intrinsics[c].model, np.array(v, float)), setup.centres[c],
+                                    setup.intrinsics, setup.faces), line
+
+    # one OpenCV thread set here for all of them: each fit's own setting and restoring of
+    # the process-wide count would otherwise race with the other threads' fits
+    with opencv_one_thread(), ThreadPoolExecutor(max_workers=max(1, min(len(inits), os.cpu_count() or 1))) as ex:
+        fits = list(ex.map(fit, range(len(inits))))
+    for c, (o, line) in enumerate(fits):
         own.append(o)
         st.intrinsics[c] = o.intrinsics
         if o.cov_free is not None:
@@ -712,6 +742,20 @@ def _detected_sigma(posed: PosedViews, use: list[int]) -> np.ndarray | None:
         return None
     return np.concatenate([np.full(len(v.ids), np.nan) if v.sigma is None else np.asarray(v.sigma, float).ravel()
                            for v in views])
+
+
+def _used_views(posed: PosedViews, graph: PoseGraph) -> list[int]:
+    """The posed views (indices) the joint solve uses: those of frames and boards the pose
+    graph placed."""
+    return [k for k in range(len(posed.views)) if graph.frame_posed[posed.frame[k]]
+            and posed.board[k] not in graph.missing_boards]
+
+
+def start_poses(posed: PosedViews, rig_start: RigStart) -> np.ndarray:
+    """(V, 4, 4): the start pose T_cam_board of each view first_solve's observations hold,
+    in their order (obs.view)."""
+    use = _used_views(posed, rig_start.graph)
+    return np.array([posed.T_cam_board[k] for k in use], float).reshape(-1, 4, 4)
 
 
 def _observations(posed: PosedViews, use: list[int], corners: dict, board_names: list[str]) -> Observations:

@@ -242,8 +242,8 @@ def _refine_all(links: Sequence[ViewLink], known: KnownPoses, gauge_cam: int, ga
     ok = known_c[cam] & known_b[board] & known_f[frame]
     est = T_world_board_k[board[ok]] @ geo.inv_T(T_cam_board_v[ok]) @ geo.inv_T(T_body_cam_k[cam[ok]])
     T_world_body = list(known.T_world_body)
-    for f, e in _groups(frame[ok], est):
-        T_world_body[f] = geo.robust_mean_pose(e)
+    for f, T in _robust_means(frame[ok], est).items():
+        T_world_body[f] = T
     _, T_world_body_k = _stacked(tuple(T_world_body))
     est_b = T_world_body_k[frame[ok]] @ T_body_cam_k[cam[ok]] @ T_cam_board_v[ok]
     est_c = geo.inv_T(T_world_body_k[frame[ok]]) @ T_world_board_k[board[ok]] @ geo.inv_T(T_cam_board_v[ok])
@@ -255,6 +255,20 @@ def _refine_all(links: Sequence[ViewLink], known: KnownPoses, gauge_cam: int, ga
         if c != gauge_cam:
             T_body_cam[c] = geo.robust_mean_pose(e)
     return KnownPoses(tuple(T_body_cam), tuple(T_world_body), tuple(T_world_board))
+
+
+def _robust_means(keys: np.ndarray, values: np.ndarray) -> dict[int, np.ndarray]:
+    """{key: geo.robust_mean_pose of its values} for each distinct key (_groups), the groups
+    with as many values averaged in one batch (geo.robust_mean_poses: the same numbers;
+    a motion recording's 600 frames of 2-3 views each took 1.1 ms a call one by one)."""
+    by_size = defaultdict(list)
+    for k, chunk in _groups(keys, values):
+        by_size[len(chunk)].append((k, chunk))
+    out = {}
+    for items in by_size.values():
+        means = geo.robust_mean_poses(np.stack([chunk for _, chunk in items]))
+        out.update({k: T for (k, _), T in zip(items, means)})
+    return dict(sorted(out.items()))
 
 
 def _groups(keys: np.ndarray, values: np.ndarray):

@@ -176,7 +176,9 @@ def run(dataset: Path, out_path: Path, options: CalibrateOptions = CalibrateOpti
     cal = calibrate_views(found.views, found.rig, {b.name: b.corners for b in inp.target.boards},
                           distortion=o.distortion, fix_intrinsics=fix_intrinsics,
                           reference="aligned" if reference.startswith("imu:") else reference, rerefine=rerefine,
-                          intrinsics=o.intrinsics, faces={b.name: b.print_face for b in inp.target.boards})
+                          intrinsics=o.intrinsics, faces={b.name: b.print_face for b in inp.target.boards},
+                          # the camera-IMU step re-estimates the intrinsics: these are its start only
+                          imu_start=imu_name is not None and imu_options.imu_intrinsics in ("joint", "prior"))
     from rigcal.camcal.stereo_checks import stereo_checks
 
     pairs = stereo_checks(cal, dataset_truth=dataset / "truth.yaml")

@@ -209,9 +209,12 @@ def imu_input(samples: ImuSamples, imu: Imu, t_base_ns: int) -> ic.ImuInput:
                        imu.accelerometer_random_walk, imu.T_body_imu.copy())
 
 
-def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One PnP pose per frame, on its view with most corners (>= MIN_PNP_CORNERS):
-    (frames (F,), boards (F,), T_board_cam (F, 4, 4)). Views are grouped by one sort."""
+def _frame_poses(model, uv, p_board, view, frame, board, faces, view_T_cam_board=None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One pose per frame, of its view with most corners (>= MIN_PNP_CORNERS): (frames (F,),
+    boards (F,), T_board_cam (F, 4, 4)). Views are grouped by one sort. view_T_cam_board
+    (V, 4, 4): the camera-only step's start pose of every view (indexed by `view`), taken as
+    they are; else a PnP on the view's corners (on EuRoC 1 s to redo what that start did)."""
     order = np.argsort(view, kind="stable")
     _, first, count = np.unique(view[order], return_index=True, return_counts=True)
     f, b = frame[order][first], board[order][first]
@@ -219,6 +222,9 @@ def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndar
     best = np.lexsort((-count, f))
     best = best[np.concatenate([[True], np.diff(f[best]) != 0])] if len(best) else best
     best = best[count[best] >= MIN_PNP_CORNERS]
+    if view_T_cam_board is not None:
+        ids = view[order][first][best]
+        return f[best], b[best], geo.inv_T(np.asarray(view_T_cam_board)[ids]).reshape(-1, 4, 4)
     groups = np.split(order, np.cumsum(count)[:-1])
     m = model
     fits = pnp_views([p_board[groups[k]] for k in best], [uv[groups[k]] for k in best],
@@ -231,8 +237,9 @@ def _frame_poses(model, uv, p_board, view, frame, board, faces) -> tuple[np.ndar
 def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_declared: dict[str, float],
                  line_delays: dict[str, float], image_t_ns=None) -> Inputs:
     """The inlier corners of the camera-only calibration `cal` (rigcal.camcal.pipeline.Calibration) on
-    each camera's clock (frames are integer-ns stems), one PnP pose per image (its largest
-    board view) for the start, and the IMU. image_t_ns: camera -> frame -> the image's own
+    each camera's clock (frames are integer-ns stems), one pose per image (its largest board
+    view: the camera-only step's start pose, cal.view_T_cam_board, where it kept them, else
+    a PnP with its intrinsics) for the start, and the IMU. image_t_ns: camera -> frame -> the image's own
     stem (ns) where it differs from the frame's name (free-running cameras grouped into
     shared frames for the camera-only start, rigcal.data.dataset.associate_by_time)."""
     t_base = int(samples.t_ns[0])
@@ -251,7 +258,8 @@ def build_inputs(cal, samples: ImuSamples, imu: Imu, faces: list[float], t_decla
     for c, name in enumerate(cal.cam_names):
         m = cal.rig.camera(name).intrinsics
         s = ok & (o.cam == c)
-        frames, b, T = _frame_poses(m, o.uv[s], o.p_board[s], o.view[s], o.frame[s], o.board[s], faces)
+        frames, b, T = _frame_poses(m, o.uv[s], o.p_board[s], o.view[s], o.frame[s], o.board[s], faces,
+                                    getattr(cal, "view_T_cam_board", None))
         if len(frames) < MIN_FRAMES:
             raise CalibrationError(f"camera {name}: a board pose in only {len(frames)} images; the clock offset "
                                    f"needs at least {MIN_FRAMES}")
@@ -370,12 +378,15 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
 
 def jacobian(res: ic.CameraImuResult, inp: Inputs, settings: ic.Settings):
     """(J, layout) of the final estimate: the residual blocks imu_calib minimises
-    (imu_calib.residual_blocks) at its state, with `settings`' corner weights."""
+    (imu_calib.residual_blocks) at its state, with `settings`' corner weights; those the
+    estimate's last iteration made, re-weighted (estimator.reweighted_blocks), where it can."""
     state, imu = res.state, inp.imu
     lay = ir.layout_for(state, ic.held_groups(settings))
-    obs = estimator_corners(inp, len(state.T_world_board))[2].subset(res.corners_used)
-    blocks = ic.residual_blocks(state, lay, obs, [c.model for c in inp.cams], imu, ic.imu_span(state.spline, imu.t),
-                                settings)
+    blocks = ic.reweighted_blocks(res, settings)  # the last LM iteration's, when it made them
+    if blocks is None:
+        obs = estimator_corners(inp, len(state.T_world_board))[2].subset(res.corners_used)
+        blocks = ic.residual_blocks(state, lay, obs, [c.model for c in inp.cams], imu,
+                                    ic.imu_span(state.spline, imu.t), settings)
     return ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay
 
 
@@ -532,6 +543,7 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
         raise
     # sigmas with the corners weighted by their measured noise (the variance factor)
     J, lay = jacobian(res, inp, _settings_with(settings, res))
+    res = replace(res, blocks=())  # used: not kept in the answer
     sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment,
                            res.state.intrinsics if settings.intrinsics else ())
     names = list(cal.cam_names)
