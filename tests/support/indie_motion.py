@@ -42,7 +42,7 @@ truth_trajectory.csv (T_world_body at the IMU rate, IMU clock, full double preci
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -159,14 +159,14 @@ SIZE = (480, 360)
 FOCAL = 280.0
 
 
-def declared_rig(rates: dict[str, float]) -> dict:
+def declared_rig(rates: dict[str, float], T_body_imu: np.ndarray = T_BODY_IMU) -> dict:
     """rig.yaml as a user writes it: nominal camera poses and intrinsics, the IMU exactly."""
     cams = {}
     for name, (pos, look, _) in CAMERAS.items():
         cams[name] = {"model": "pinhole", "resolution": list(SIZE), "intrinsics": {"focal": FOCAL},
                       "distortion": [0, 0, 0, 0, 0], "position": pos, "look": look}
-    imu = {"position": [float(x) for x in T_BODY_IMU[:3, 3]],
-           "rotation": [[float(x) for x in r] for r in R_BODY_IMU], "update_rate": 400.0, **NOISE}
+    imu = {"position": [float(x) for x in T_body_imu[:3, 3]],
+           "rotation": [[float(x) for x in r] for r in T_body_imu[:3, :3]], "update_rate": 400.0, **NOISE}
     return {"rig": "indie-motion", "body_frame": "FLU", "imus": {IMU_NAME: imu}, "cameras": cams,
             "stereo_pairs": [["front_left", "front_right"]]}
 
@@ -261,10 +261,11 @@ class Recording:
     stamps: dict           # camera -> (K,) int64 stems, camera clock
     boards: dict           # name -> (Board, T_world_board)
     photometry: dict
+    T_body_imu: np.ndarray = field(default_factory=lambda: T_BODY_IMU.copy())  # the IMU's mounting, declared exactly
 
 
 def recording(seed: int = 0, duration: float = 12.0, imu_rate: float = 400.0,
-              rates: dict | None = None) -> Recording:
+              rates: dict | None = None, T_body_imu: np.ndarray = T_BODY_IMU) -> Recording:
     """Everything of one recording but the pixels and the IMU noise: cameras at 20 / 30 /
     15 Hz; front_right starts 1.5 s late, back stops 1.5 s early; time offsets of
     1.5-6 ms, signs mixed."""
@@ -284,7 +285,8 @@ def recording(seed: int = 0, duration: float = 12.0, imu_rate: float = 400.0,
     ph = {"front_left": ir.Photometry(0.6, 2.0, 1.05, 2.2, 0.25),
           "front_right": ir.Photometry(0.8, 2.5, 0.95, 1.8, 0.3),
           "back": ir.Photometry(0.7, 3.0, 1.1, 2.0, 0.35)}
-    return Recording(seed, duration, imu_rate, mot, cams, rates, offsets, stamps, walls(rng, mot.T_world_room), ph)
+    return Recording(seed, duration, imu_rate, mot, cams, rates, offsets, stamps, walls(rng, mot.T_world_room), ph,
+                     T_body_imu)
 
 
 def capture_time(rec: Recording, camera: str, stem: int) -> float:
@@ -315,8 +317,8 @@ def write_recording(rec: Recording, out: Path, S: int = 2, render: bool = True) 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng([rec.seed, 400])
-    imu = imu_stream(rec.motion, rec.duration, rec.imu_rate, rng)
-    declared = declared_rig(rec.rates)
+    imu = imu_stream(rec.motion, rec.duration, rec.imu_rate, rng, rec.T_body_imu)
+    declared = declared_rig(rec.rates, rec.T_body_imu)
     declared["imus"][IMU_NAME]["update_rate"] = float(rec.imu_rate)
     _yaml(out / "rig.yaml", declared)
     _yaml(out / "target.yaml", {"boards": [b.yaml_entry() for b, _ in rec.boards.values()]})
@@ -328,7 +330,7 @@ def write_recording(rec: Recording, out: Path, S: int = 2, render: bool = True) 
         for cam in rec.cameras:
             render_camera(rec, cam, out / "images" / cam.name, S)
     _write_truth(rec, out, imu, declared)
-    return {"T_imu_cam": {c.name: ir.inv(T_BODY_IMU) @ c.T_body_cam for c in rec.cameras},
+    return {"T_imu_cam": {c.name: ir.inv(rec.T_body_imu) @ c.T_body_cam for c in rec.cameras},
             "time_offset_s": dict(rec.time_offsets), "gyro_bias_mean": _bias_samples(imu, "gyro_bias")[1].mean(0),
             "accel_bias_mean": _bias_samples(imu, "accel_bias")[1].mean(0), "imu": imu}
 
@@ -350,7 +352,8 @@ def _write_truth(rec: Recording, out: Path, imu: dict, declared: dict) -> None:
              "time_offset_s": rec.time_offsets[c.name]}
         cams[c.name] = d
     imu_decl = declared["imus"][IMU_NAME]
-    imus = {IMU_NAME: {**ir._pose_doc(T_BODY_IMU), "quaternion": [float(x) for x in ir.quat_wxyz(R_BODY_IMU)],
+    imus = {IMU_NAME: {**ir._pose_doc(rec.T_body_imu),
+                       "quaternion": [float(x) for x in ir.quat_wxyz(rec.T_body_imu[:3, :3])],
                        **{k: v for k, v in imu_decl.items() if k not in ("position", "rotation")}}}
     rig = {"rig": "indie-motion-truth", "body_frame": "FLU", "imus": imus, "cameras": cams,
            "stereo_pairs": declared["stereo_pairs"]}
