@@ -165,9 +165,11 @@ def tables(res: dict) -> str:
                             title="error / reported 1-sigma (target 90-98 % within 2)"))
         e = [c for r in ok for c in r["cameras"].values()]
         b = [r["biases"] for r in ok]
+        rms = lambda k: float(np.sqrt(np.mean([x[k] ** 2 for x in e])))  # noqa: E731
         out.append(
-            f"\nworst over {len(ok)} seeds: T_imu_cam {max(x['rot_deg'] for x in e):.4f} deg, "
-            f"{max(x['pos_mm'] for x in e):.3f} mm; |offset| {max(abs(x['offset_ms']) for x in e):.4f} ms; "
+            f"\nover {len(ok)} seeds (RMS / max): T_imu_cam {rms('rot_deg'):.4f} / {max(x['rot_deg'] for x in e):.4f} deg, "
+            f"{rms('pos_mm'):.3f} / {max(x['pos_mm'] for x in e):.3f} mm; |offset| {rms('offset_ms'):.4f} / "
+            f"{max(abs(x['offset_ms']) for x in e):.4f} ms (mean {np.mean([x['offset_ms'] for x in e]):+.4f}); max "
             f"gyro bias {max(np.abs(x['gyroscope_bias']['error']).max() for x in b if 'gyroscope_bias' in x):.2e} rad/s, "
             f"accel bias {max(np.abs(x['accelerometer_bias']['error']).max() for x in b if 'accelerometer_bias' in x):.2e} m/s^2. "
             + "; ".join(f"seed {r['seed']}: calibrate {r['calibrate_wall_s']:.0f} s wall / {r['calibrate_cpu_s']:.0f} s CPU"
