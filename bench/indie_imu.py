@@ -124,7 +124,8 @@ def one(seed: int, duration: float, log=say, reuse: bool = False) -> dict:
         return res
     res |= score(yaml.safe_load(out.read_text()), yaml.safe_load((ds / "truth.yaml").read_text()))
     e = res["cameras"].values()
-    log(f"  seed {seed}: calibrate {t.wall:.0f} s wall / {t.cpu:.0f} s CPU; worst {max(x['rot_deg'] for x in e):.4f} deg, "
+    log(f"  seed {seed}: calibrate {t.wall:.0f} s wall / {t.cpu:.0f} s CPU; "
+        f"worst {max(x['rot_deg'] for x in e):.4f} deg, "
         f"{max(x['pos_mm'] for x in e):.3f} mm, offsets {', '.join('%+.4f' % x['offset_ms'] for x in e)} ms")
     kept.write_text(json.dumps(res), encoding="utf-8")
     return res
@@ -166,14 +167,16 @@ def tables(res: dict) -> str:
         e = [c for r in ok for c in r["cameras"].values()]
         b = [r["biases"] for r in ok]
         rms = lambda k: float(np.sqrt(np.mean([x[k] ** 2 for x in e])))  # noqa: E731
+        top = lambda k: max(abs(x[k]) for x in e)  # noqa: E731
+        bias = lambda k: max(np.abs(x[k]["error"]).max() for x in b if k in x)  # noqa: E731
+        offsets = [x["offset_ms"] for x in e]
         out.append(
-            f"\nover {len(ok)} seeds (RMS / max): T_imu_cam {rms('rot_deg'):.4f} / {max(x['rot_deg'] for x in e):.4f} deg, "
-            f"{rms('pos_mm'):.3f} / {max(x['pos_mm'] for x in e):.3f} mm; |offset| {rms('offset_ms'):.4f} / "
-            f"{max(abs(x['offset_ms']) for x in e):.4f} ms (mean {np.mean([x['offset_ms'] for x in e]):+.4f}); max "
-            f"gyro bias {max(np.abs(x['gyroscope_bias']['error']).max() for x in b if 'gyroscope_bias' in x):.2e} rad/s, "
-            f"accel bias {max(np.abs(x['accelerometer_bias']['error']).max() for x in b if 'accelerometer_bias' in x):.2e} m/s^2. "
-            + "; ".join(f"seed {r['seed']}: calibrate {r['calibrate_wall_s']:.0f} s wall / {r['calibrate_cpu_s']:.0f} s CPU"
-                        for r in ok))
+            f"\nover {len(ok)} seeds (RMS / max): T_imu_cam {rms('rot_deg'):.4f} / {top('rot_deg'):.4f} deg, "
+            f"{rms('pos_mm'):.3f} / {top('pos_mm'):.3f} mm; |offset| {rms('offset_ms'):.4f} / "
+            f"{top('offset_ms'):.4f} ms (mean {np.mean(offsets):+.4f}); max gyro bias "
+            f"{bias('gyroscope_bias'):.2e} rad/s, accel bias {bias('accelerometer_bias'):.2e} m/s^2. "
+            + "; ".join(f"seed {r['seed']}: calibrate {r['calibrate_wall_s']:.0f} s wall / "
+                        f"{r['calibrate_cpu_s']:.0f} s CPU" for r in ok))
     return "\n".join(out)
 
 

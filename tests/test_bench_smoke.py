@@ -21,8 +21,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
            "indie_noise", "simulate_imu", "imu_calib", "imu_coverage", "imu_euroc", "imu_freerun", "imu_speed",
-           "indie_imu", "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "mag", "check", "dome", "long_recording",
-           "intrinsics_holdout", "visual_freerun", "__main__") + CHECKS
+           "indie_imu", "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "mag", "check", "dome",
+           "long_recording", "intrinsics_holdout", "visual_freerun", "__main__") + CHECKS
 
 
 @pytest.mark.parametrize("name", MODULES)
