@@ -30,7 +30,11 @@ tests/support/indie_render.py's ray caster (itself rigcal-free):
   one stopping early. Each camera has a true clock offset (a few ms, its own sign):
   imu.md's `t_imu = t_cam + time_offset_s`, so an image stamped t_cam is rendered at the
   trajectory's time t_cam + time_offset_s. Stems are integer nanoseconds of the camera clock.
-* Boards: static ChArUco boards (disjoint id ranges) on the front and back walls.
+* Boards: static ChArUco boards (disjoint id ranges) on the front and back walls, each
+  tilted at random about its centre. Nothing keeps two sheets apart: in some seeds two
+  pass through each other (not physical), in others one hangs partly in front of another
+  (seed 7: the corners at its edge bias the front cameras' intrinsics; see
+  docs/camera-imu-free-running.md).
 
 Truth goes to truth.yaml (dataset.md + imu.md additions: the true rig with time_offset_s,
 the IMU's pose, biases sampled at 10 Hz, gravity_world, boards, frames) and
