@@ -28,6 +28,9 @@ Sections (each also runs alone: python -m bench.<name>):
                and intrinsic parameter's error / its 1-sigma (target: 90-98 % within 2 sigma)
   imu_freerun  `rigcal calibrate` on free-running, mixed-rate and rolling-shutter free-running 30 s recordings
                vs a synchronised one: T_imu_cam, clock offset and line delay errors, share within 2 sigma
+  indie_imu    `rigcal calibrate` on free-running camera + 400 Hz IMU recordings from an independent generator
+               (tests/support/indie_motion.py, no rigcal code), 12 s x 3 seeds: T_imu_cam, clock offsets,
+               biases vs truth, share within 2 sigma
   visual_freerun  `rigcal calibrate` without an IMU: free-running cameras (continuous-time trajectory from the
                views alone) vs a synchronised camera-only recording of the same length, 10 s x 3 seeds:
                relative poses (deg, mm), camera-camera clock offsets (ms), share within 2 sigma
@@ -70,8 +73,8 @@ from types import ModuleType
 from typing import Any, Callable
 
 from . import (accuracy, aprilgrid_excess, check, dome, imu_calib, imu_coverage, imu_euroc, imu_freerun, imu_noise,
-               imu_speed, indie, indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo, noise_limit,
-               peer_opencv, real, scale, simulate_imu, solver_libraries, speed, visual_freerun)
+               imu_speed, indie, indie_imu, indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo,
+               noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed, visual_freerun)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -120,6 +123,8 @@ TABLE = (
     Section("imu_coverage", "imu_coverage", lambda q, d: imu_coverage.run(seeds=3 if q else 20), _only(imu_coverage)),
     Section("imu_freerun", "imu_freerun",
             lambda q, d: imu_freerun.run(seeds=1 if q else 3, duration=8.0 if q else 30.0), _only(imu_freerun)),
+    Section("indie_imu", "indie_imu", lambda q, d: indie_imu.run(seeds=1 if q else 3, duration=8.0 if q else 12.0),
+            _only(indie_imu)),
     Section("visual_freerun", "visual_freerun",
             lambda q, d: visual_freerun.run(seeds=1 if q else 3, duration=5.0 if q else 10.0), _only(visual_freerun)),
     Section("solvers", "solver_libraries", lambda q, d: solver_libraries.run((100,) if q else solver_libraries.FRAMES),

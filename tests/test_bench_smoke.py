@@ -21,8 +21,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
            "indie_noise", "simulate_imu", "imu_calib", "imu_coverage", "imu_euroc", "imu_freerun", "imu_speed",
-           "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "mag", "check", "dome", "long_recording",
-           "intrinsics_holdout", "visual_freerun", "__main__") + CHECKS
+           "indie_imu", "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "mag", "check", "dome",
+           "long_recording", "intrinsics_holdout", "visual_freerun", "__main__") + CHECKS
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -388,3 +388,36 @@ def test_the_render_cache_key_reads_every_code_file():
 
     h = common.code_hash()
     assert re.fullmatch(r"[0-9a-f]{10}", h) and h == common.code_hash()
+
+
+def test_indie_imu_scores_the_truth_as_zero_and_a_turned_camera_by_its_angle(tmp_path):
+    """bench.indie_imu's scoring on an unrendered independent recording: the truth scored
+    against itself is exact; one camera turned by 0.01 deg about body z and moved 1 mm along
+    body x, and its clock 0.02 ms late, shows exactly that, in units of the sigmas given."""
+    import copy
+
+    import numpy as np
+    import yaml
+
+    from bench.indie_imu import score
+    from tests.support import indie_motion as im
+
+    im.write_recording(im.recording(seed=0, duration=1.0), tmp_path, render=False)
+    truth = yaml.safe_load((tmp_path / "truth.yaml").read_text())
+    cal = copy.deepcopy(truth["rig"])
+    for c in cal["cameras"].values():
+        c["calibration"] = {"sigma": {"rotation_deg": [0.005] * 3, "position_mm": [0.5] * 3, "time_offset_ms": 0.01}}
+    true_bias = np.mean(truth["imus"]["imu0"]["gyroscope_bias"]["values"], axis=0)
+    cal["imus"]["imu0"]["calibration"] = {"gyroscope_bias": true_bias.tolist()}
+    r = score(cal, truth)
+    assert max(max(abs(x) for x in v) for v in r["z"].values()) < 1e-9
+    c = cal["cameras"]["back"]
+    a = np.radians(0.01)
+    Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    c["rotation"] = (Rz @ np.asarray(c["rotation"])).tolist()
+    c["position"] = (np.asarray(c["position"]) + [0.001, 0, 0]).tolist()
+    c["time_offset_s"] += 2e-5
+    r = score(cal, truth)["cameras"]["back"]
+    assert abs(r["rot_deg"] - 0.01) < 1e-9 and abs(r["pos_mm"] - 1.0) < 1e-9 and abs(r["offset_ms"] - 0.02) < 1e-9
+    np.testing.assert_allclose(r["rot_deg_xyz"], [0, 0, 0.01], atol=1e-9)
+    np.testing.assert_allclose(r["pos_mm_xyz"], [1.0, 0, 0], atol=1e-9)
