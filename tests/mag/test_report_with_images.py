@@ -7,48 +7,36 @@ from __future__ import annotations
 import shutil
 
 import numpy as np
+import yaml
 from typer.testing import CliRunner
 
 from rigcal.cli import app
 from rigcal.core.rig import load_rig, parse_rig
 from rigcal.sim.imu_scene import simulate_motion_dataset
 
-from tests.support.mag_data import mag_dataset
+from tests.support.mag_data import MAG_RIG, mag_dataset
 
 # a forward pair whose 2 s motion calibrates the cameras (tests/sim/test_simulate_imu.py's
-# --camera-only case), with the shipped drone-imu-mag rig's IMU and magnetometer
-RIG = """\
-rig: pair-imu-mag
-imus:
-  imu0:
-    position: [0.0, 0.0, 0.0]
-    axes: [F, L, U]
-    update_rate: 200.0
-    gyroscope_noise_density: 1.7e-4
-    gyroscope_random_walk: 1.9e-5
-    accelerometer_noise_density: 2.0e-3
-    accelerometer_random_walk: 3.0e-3
-magnetometers:
-  mag0:
-    position: [0.0, 0.0, 0.12]
-    axes: [F, -L, -U]
-    update_rate: 100.0
-    noise_density: 0.05
-    imu: imu0
-cameras:
-  front:
-    model: pinhole
-    resolution: [320, 240]
-    intrinsics: {focal: 160.0}
-    position: [0.1, 0.0, 0.0]
-    axes: [-L, -U, F]
-  right:
-    model: pinhole
-    resolution: [320, 240]
-    intrinsics: {focal: 160.0}
-    position: [0.1, -0.1, 0.0]
-    axes: [-L, -U, F]
+# --camera-only case), with the IMU and magnetometer of the shipped drone-imu-mag rig, whose
+# compass dance (mag_dataset) gives the imu/ and mag/ files
+CAMERAS = """\
+front:
+  model: pinhole
+  resolution: [320, 240]
+  intrinsics: {focal: 160.0}
+  position: [0.1, 0.0, 0.0]
+  axes: [-L, -U, F]
+right:
+  model: pinhole
+  resolution: [320, 240]
+  intrinsics: {focal: 160.0}
+  position: [0.1, -0.1, 0.0]
+  axes: [-L, -U, F]
 """
+_SHIPPED = yaml.safe_load(MAG_RIG.read_text(encoding="utf-8"))
+RIG = yaml.safe_dump({"rig": "pair-imu-mag", "body_frame": _SHIPPED["body_frame"], "imus": _SHIPPED["imus"],
+                      "magnetometers": _SHIPPED["magnetometers"], "cameras": yaml.safe_load(CAMERAS)},
+                     sort_keys=False)
 
 
 def test_report_with_images_has_the_magnetometer_section(tmp_path):
