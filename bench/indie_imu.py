@@ -36,20 +36,14 @@ import yaml
 from .common import OUT, Timer, md_table, say, write_json
 
 from tests.support import indie_motion as im
+from tests.support import indie_render as ir
 
 DIR = OUT / "indie_imu"
 
 
 def _T(d: dict) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = np.asarray(d["rotation"], float), np.asarray(d["position"], float)
-    return T
-
-
-def _inv(T: np.ndarray) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3], out[:3, 3] = T[:3, :3].T, -T[:3, :3].T @ T[:3, 3]
-    return out
+    """A pose block of a rig YAML (`rotation` matrix, `position`) as a 4x4 matrix."""
+    return ir.pose(np.asarray(d["rotation"], float), np.asarray(d["position"], float))
 
 
 def score(cal: dict, truth: dict) -> dict:
@@ -63,8 +57,8 @@ def score(cal: dict, truth: dict) -> dict:
     for name, tc in truth["rig"]["cameras"].items():
         c = cal["cameras"][name]
         sig = c["calibration"]["sigma"]
-        T_est = _inv(T_bi) @ _T(c)
-        T_true = _inv(T_bi_true) @ _T(tc)
+        T_est = ir.inv(T_bi) @ _T(c)
+        T_true = ir.inv(T_bi_true) @ _T(tc)
         d_rot = cv2.Rodrigues(R_bi @ T_est[:3, :3] @ T_true[:3, :3].T @ R_bi.T)[0].ravel()  # rad, body axes
         d_pos = R_bi @ (T_est[:3, 3] - T_true[:3, 3])  # m, body axes
         d_off = float(c.get("time_offset_s", 0.0)) - float(tc["time_offset_s"])
