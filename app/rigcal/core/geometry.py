@@ -295,33 +295,16 @@ def mean_rotation(Rs: np.ndarray, weights: np.ndarray | None = None) -> np.ndarr
 def robust_mean_pose(Ts: np.ndarray, iters: int = 3) -> np.ndarray:
     """Robust average of poses (N, 4, 4): rotation by iteratively reweighted chordal mean
     (weights fall off past 3x the median angular residual), translation by the
-    element-wise median. Used to average one graph edge over many observations."""
-    Ts = np.asarray(Ts, dtype=float)
-    if len(Ts) == 1:
-        return Ts[0].copy()
-    R = mean_rotation(Ts[:, :3, :3])
-    if len(Ts) == 2:
-        # two residual angles are equal, so every weight is: the plain means are the answer
-        return make_T(R, Ts[:, :3, 3].mean(axis=0))
-    w = np.ones(len(Ts))
-    for _ in range(iters):
-        ang = rotation_angles(np.einsum("ji,njk->nik", R, Ts[:, :3, :3]))
-        scale = 3.0 * max(np.median(ang), 1e-4)
-        w = 1.0 / (1.0 + (ang / scale) ** 2)
-        w[ang > 3 * scale] = 0.0
-        if w.sum() == 0:
-            w[:] = 1.0
-        R = mean_rotation(Ts[:, :3, :3], w)
-    keep = w > 0
-    t = np.median(Ts[keep, :3, 3], axis=0)
-    return make_T(R, t)
+    element-wise median of the views the rotation kept. Used to average one graph edge
+    over many observations; robust_mean_poses is the one implementation."""
+    return robust_mean_poses(np.asarray(Ts, dtype=float)[None], iters)[0]
 
 
 def robust_mean_poses(Ts: np.ndarray, iters: int = 3) -> np.ndarray:
     """robust_mean_pose of each group of poses Ts (G, N, 4, 4) (N the same for every
-    group): (G, 4, 4), the same arithmetic batched over the groups (the pose graph
-    averages hundreds of frames of 2-3 views each, where the per-call overhead was the
-    cost)."""
+    group): (G, 4, 4), batched over the groups (the pose graph averages hundreds of frames
+    of 2-3 views each, where a call per frame cost more than its arithmetic). Two views:
+    their residual angles are equal, so every weight is, and the plain means are the answer."""
     Ts = np.asarray(Ts, dtype=float)
     G, n = Ts.shape[:2]
     if n == 1:
