@@ -14,6 +14,7 @@ from dataclasses import replace
 import numpy as np
 
 from rigcal.camcal.body_frame import reference_transform
+from rigcal.camcal.model_selection import intrinsics_model
 from rigcal.core.rig import Rig
 from rigcal.imucal.visual_motion import VisualMotionResult
 
@@ -44,9 +45,8 @@ def visual_motion_rig(out_rig: Rig, cal, vm: VisualMotionResult) -> Rig:
             lens = c.intrinsics.with_values(vm.intrinsics[k].values)
             sig["intrinsics"] = {key: _r(x, 4) for key, x in zip(("fx", "fy", "cx", "cy"), vm.sigma_intrinsics[k])}
             if "intrinsics_model" in block:  # the estimate's structure (it frees what the start tied or held)
-                it = vm.state.intrinsics[k]
-                block["intrinsics_model"] = {**block["intrinsics_model"], "focal": "fx=fy" if it.tie_focal else "fx,fy",
-                                             "principal_point": "held" if it.hold_centre else "free"}
+                block["intrinsics_model"] = intrinsics_model(vm.state.intrinsics[k],
+                                                             block["intrinsics_model"]["distortion"], fixed=False)
         block["sigma"] = sig
         block["sigma_source"] = sigma_source(vm, k)
         cams.append(replace(c, T_body_cam=T_body_cam[k], time_offset_s=float(vm.time_offset_s[k]), intrinsics=lens,
