@@ -300,14 +300,14 @@ def factor(H: sp.spmatrix, order: np.ndarray):
 
 
 def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: int, cost_tol: float = 0.0,
-                        lam0: float = START_LAMBDA) -> tuple[ir.State, list, int]:
+                        lam0: float = START_LAMBDA, blocks: list | None = None) -> tuple[ir.State, list, int]:
     """Minimise the sum of squared block residuals; returns (state, its blocks, iterations).
     Steps solve (J^T J + lam diag(J^T J)) dx = -J^T r by sparse LU. Converged when a step
     lowers the cost by less than tol = max(1e-9 of it, cost_tol), or by what the linearised
     model predicted (-2 g^T dx - dx^T J^T J dx) to within MODEL_STOP tol: near the optimum
     Gauss-Newton converges quadratically and the next step would gain about that model
-    error."""
-    blocks = blocks_of(state)
+    error. blocks: blocks_of(state) when the caller has them (not evaluated again)."""
+    blocks = blocks_of(state) if blocks is None else blocks
     order = band_order(lay)
     J, r = ir.assemble(ir.normal_rows(blocks), lay.size)
     cost, lam = sum(b.objective for b in blocks), lam0
@@ -415,11 +415,14 @@ def refine(res: CameraImuResult, models: list[CameraModel], obs: ir.Corners, imu
     below the test's threshold, 39.1, and the last steps of the estimate's own 1e-9
     criterion cost 4 of 5 iterations on the 30 s recording; 0: to convergence). Its `sigma`
     is NaN: not computed (one more sparse LU), the test needs only the costs. lam0: LM's
-    first damping (None: WARM_LAMBDA, the start being a solution)."""
+    first damping (None: WARM_LAMBDA, the start being a solution). With settings that differ
+    from res's only in the corner noise (the re-weighted refinement) its first evaluation is
+    res's last blocks re-weighted (reweighted_blocks), not a new one."""
     t0 = time.perf_counter()
     k = res.corners_used
     return _solve(res.state, res.starts, k, obs.subset(k), models, imu, imu_span(res.state.spline, imu.t), settings, t0,
-                  cost_tol, sigmas=False, lam0=WARM_LAMBDA if lam0 is None else lam0)
+                  cost_tol, sigmas=False, lam0=WARM_LAMBDA if lam0 is None else lam0,
+                  blocks=reweighted_blocks(res, settings))
 
 
 def solve_from(state: ir.State, obs: ir.Corners, models: list[CameraModel], imu: ImuInput, settings: Settings,
@@ -446,10 +449,11 @@ def imu_span(spline: spl.Spline, t: np.ndarray) -> np.ndarray:
 
 def _solve(state: ir.State, starts: tuple, keep: np.ndarray, obs: ir.Corners, models: list, imu: ImuInput,
            use: np.ndarray, settings: Settings, t0: float, cost_tol: float = 0.0, sigmas: bool = True,
-           lam0: float | None = None) -> CameraImuResult:
+           lam0: float | None = None, blocks: list | None = None) -> CameraImuResult:
     lay = ir.layout_for(state, held_groups(settings))
     state, blocks, iters = levenberg_marquardt(state, lay, lambda s: residual_blocks(s, lay, obs, models, imu, use, settings),
-                                               settings.max_iter, cost_tol, START_LAMBDA if lam0 is None else lam0)
+                                               settings.max_iter, cost_tol, START_LAMBDA if lam0 is None else lam0,
+                                               blocks)
     names = ("corners", "gyro", "accel", "bias_walk")
     rms = {k: b.residual_rms for k, b in zip(names, blocks)}
     T_imu_cam = geo.inv_T(state.T_body_imu)[None] @ state.T_body_cam
