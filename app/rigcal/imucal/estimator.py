@@ -300,13 +300,16 @@ def factor(H: sp.spmatrix, order: np.ndarray):
 
 
 def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: int, cost_tol: float = 0.0,
-                        lam0: float = START_LAMBDA, blocks: list | None = None) -> tuple[ir.State, list, int]:
+                        lam0: float = START_LAMBDA, blocks: list | None = None, loose: tuple | None = None
+                        ) -> tuple[ir.State, list, int]:
     """Minimise the sum of squared block residuals; returns (state, its blocks, iterations).
     Steps solve (J^T J + lam diag(J^T J)) dx = -J^T r by sparse LU. Converged when a step
     lowers the cost by less than tol = max(1e-9 of it, cost_tol), or by what the linearised
     model predicted (-2 g^T dx - dx^T J^T J dx) to within MODEL_STOP tol: near the optimum
     Gauss-Newton converges quadratically and the next step would gain about that model
-    error. blocks: blocks_of(state) when the caller has them (not evaluated again)."""
+    error. blocks: blocks_of(state) when the caller has them (not evaluated again).
+    loose: (a larger cost_tol, a test of the blocks): the tolerance where the new state's
+    blocks pass the test (e.g. a refinement with other weights follows from there)."""
     blocks = blocks_of(state) if blocks is None else blocks
     order = band_order(lay)
     J, r = ir.assemble(ir.normal_rows(blocks), lay.size)
@@ -338,6 +341,8 @@ def levenberg_marquardt(state: ir.State, lay: ir.Layout, blocks_of, max_iter: in
                 break
             lam *= 10
         tol = max(1e-9 * cost, cost_tol)
+        if loose is not None and loose[0] > tol and loose[1](tb):
+            tol = loose[0]
         predicted = -(2.0 * (g[act] @ dx[act]) + dx @ (H @ dx))
         done = cost - c < tol or abs(cost - c - predicted) < MODEL_STOP * tol
         state, blocks, cost, lam = trial, tb, c, max(lam / 10, 1e-9)
@@ -381,14 +386,15 @@ def held_groups(settings: Settings) -> frozenset:
 
 def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput,
                          settings: Settings = Settings(), T_world_board: np.ndarray | None = None,
-                         intrinsics: tuple = (), sigmas: bool = True) -> CameraImuResult:
+                         intrinsics: tuple = (), sigmas: bool = True, loose: tuple | None = None) -> CameraImuResult:
     """Start (imu_start), then the joint estimate; raises CalibrationError on a recording
     that cannot determine it or when the corners' times fall outside the IMU stream.
     T_world_board (B, 4, 4): the boards' start poses when obs has several (board 0 is the
     world: held; the others are estimated); the cameras' T_world_cam must agree with it.
     intrinsics: per camera rigcal.camcal.solve.Intrinsics to start from (settings.intrinsics: to
     estimate; the cameras' models must agree with them). sigmas: False leaves the result's
-    `sigma` NaN (a caller that computes its own saves a sparse LU: 0.6 s on EuRoC)."""
+    `sigma` NaN (a caller that computes its own saves a sparse LU: 0.6 s on EuRoC). loose:
+    levenberg_marquardt's."""
     t0 = time.perf_counter()
     state, starts, use = start_state(cams, imu, settings)
     if T_world_board is not None:
@@ -403,7 +409,7 @@ def calibrate_camera_imu(cams: list[CameraInput], obs: ir.Corners, imu: ImuInput
     if t_obs.min() < state.spline.t0 or t_obs.max() > state.spline.t_end:
         raise CalibrationError("corner times fall outside the camera frames' span; give every frame's pose")
     return _solve(state, tuple(starts), keep, obs, [c.model for c in cams], imu, use, settings, t0, ESTIMATE_COST_TOL,
-                  sigmas)
+                  sigmas, loose=loose)
 
 
 def refine(res: CameraImuResult, models: list[CameraModel], obs: ir.Corners, imu: ImuInput,
@@ -427,18 +433,18 @@ def refine(res: CameraImuResult, models: list[CameraModel], obs: ir.Corners, imu
 
 def solve_from(state: ir.State, obs: ir.Corners, models: list[CameraModel], imu: ImuInput, settings: Settings,
                starts: tuple = (), sigmas: bool = True, cost_tol: float = ESTIMATE_COST_TOL,
-               lam0: float = START_LAMBDA) -> CameraImuResult:
+               lam0: float = START_LAMBDA, loose: tuple | None = None) -> CameraImuResult:
     """The joint estimate from a given state (e.g. a trajectory found on one board, the other
     boards and cameras placed in it, or a time window of a solution) on the corners whose
     frames the state's spline spans and the IMU samples inside it; sigmas as
-    calibrate_camera_imu's; cost_tol and lam0 as levenberg_marquardt's (WARM_LAMBDA from a
-    solution's state, e.g. a time window of one)."""
+    calibrate_camera_imu's; cost_tol, lam0 and loose as levenberg_marquardt's (WARM_LAMBDA
+    from a solution's state, e.g. a time window of one)."""
     t0 = time.perf_counter()
     keep = frame_span(state, obs)
     if not keep.any():
         raise CalibrationError("no corner falls inside the IMU stream")
     return _solve(state, starts, keep, obs.subset(keep), models, imu, imu_span(state.spline, imu.t), settings, t0,
-                  cost_tol, sigmas, lam0)
+                  cost_tol, sigmas, lam0, loose=loose)
 
 
 def imu_span(spline: spl.Spline, t: np.ndarray) -> np.ndarray:
@@ -449,11 +455,11 @@ def imu_span(spline: spl.Spline, t: np.ndarray) -> np.ndarray:
 
 def _solve(state: ir.State, starts: tuple, keep: np.ndarray, obs: ir.Corners, models: list, imu: ImuInput,
            use: np.ndarray, settings: Settings, t0: float, cost_tol: float = 0.0, sigmas: bool = True,
-           lam0: float | None = None, blocks: list | None = None) -> CameraImuResult:
+           lam0: float | None = None, blocks: list | None = None, loose: tuple | None = None) -> CameraImuResult:
     lay = ir.layout_for(state, held_groups(settings))
     state, blocks, iters = levenberg_marquardt(state, lay, lambda s: residual_blocks(s, lay, obs, models, imu, use, settings),
                                                settings.max_iter, cost_tol, START_LAMBDA if lam0 is None else lam0,
-                                               blocks)
+                                               blocks, loose)
     names = ("corners", "gyro", "accel", "bias_walk")
     rms = {k: b.residual_rms for k, b in zip(names, blocks)}
     T_imu_cam = geo.inv_T(state.T_body_imu)[None] @ state.T_body_cam
