@@ -248,12 +248,14 @@ def start_state(cams: list[CameraInput], imu: ImuInput, settings: Settings) -> t
 
 
 def residual_blocks(state: ir.State, lay: ir.Layout, obs: ir.Corners, models: list, imu: ImuInput,
-                    use: np.ndarray, settings: Settings) -> list:
+                    use: np.ndarray, settings: Settings, corners: ir.Block | None = None) -> list:
     """The blocks the estimate minimises at `state`: corners (normal_rows' form), gyroscope,
-    accelerometer and the biases' random walk, on the IMU samples `use` (imu_span)."""
+    accelerometer and the biases' random walk, on the IMU samples `use` (imu_span). corners:
+    the corner block at `state` when the caller has it (not evaluated again)."""
     sg, sa = imu_sigmas(imu)
     mj = ir.motion_jacobian(state, imu.t[use])  # shared by both IMU blocks
-    blocks = [ir.reprojection_rows(state, lay, obs, models, settings.sigma_px, settings.huber),
+    blocks = [corners if corners is not None else ir.reprojection_rows(state, lay, obs, models, settings.sigma_px,
+                                                                       settings.huber),
               ir.gyro_block(state, lay, imu.t[use], imu.gyro[use], sg, mj),
               ir.accel_block(state, lay, imu.t[use], imu.accel[use], sa, mj),
               ir.bias_prior_block(state, lay, imu.gyroscope_random_walk, imu.accelerometer_random_walk)]
@@ -428,12 +430,13 @@ def refine(res: CameraImuResult, models: list[CameraModel], obs: ir.Corners, imu
     is NaN: not computed (one more sparse LU), the test needs only the costs. lam0: LM's
     first damping (None: WARM_LAMBDA, the start being a solution). With settings that differ
     from res's only in the corner noise (the re-weighted refinement) its first evaluation is
-    res's last blocks re-weighted (reweighted_blocks), not a new one."""
+    res's last blocks re-weighted (reweighted_blocks), not a new one; with another IMU model
+    (the scale-misalignment refit) its corner block (reweighted_corners), the IMU's evaluated."""
     t0 = time.perf_counter()
     k = res.corners_used
     return _solve(res.state, res.starts, k, obs.subset(k), models, imu, imu_span(res.state.spline, imu.t), settings, t0,
                   cost_tol, sigmas=False, lam0=WARM_LAMBDA if lam0 is None else lam0,
-                  blocks=reweighted_blocks(res, settings))
+                  blocks=reweighted_blocks(res, settings), corners=reweighted_corners(res, settings))
 
 
 def solve_from(state: ir.State, obs: ir.Corners, models: list[CameraModel], imu: ImuInput, settings: Settings,
@@ -460,8 +463,11 @@ def imu_span(spline: spl.Spline, t: np.ndarray) -> np.ndarray:
 
 def _solve(state: ir.State, starts: tuple, keep: np.ndarray, obs: ir.Corners, models: list, imu: ImuInput,
            use: np.ndarray, settings: Settings, t0: float, cost_tol: float = 0.0, sigmas: bool = True,
-           lam0: float | None = None, blocks: list | None = None, loose: tuple | None = None) -> CameraImuResult:
+           lam0: float | None = None, blocks: list | None = None, loose: tuple | None = None,
+           corners: ir.Block | None = None) -> CameraImuResult:
     lay = ir.layout_for(state, held_groups(settings))
+    if blocks is None and corners is not None:  # the first evaluation without the corners'
+        blocks = residual_blocks(state, lay, obs, models, imu, use, settings, corners)
     state, blocks, iters = levenberg_marquardt(state, lay, lambda s: residual_blocks(s, lay, obs, models, imu, use, settings),
                                                settings.max_iter, cost_tol, START_LAMBDA if lam0 is None else lam0,
                                                blocks, loose)
@@ -481,14 +487,25 @@ def reweighted_blocks(res: CameraImuResult, settings: Settings) -> list | None:
     (another parameter set or IMU model). The corner block is linear in 1 / sigma_px (its
     merged rows too: the Cholesky factor of a scaled Gram matrix scales alike), so it is
     rescaled; the IMU and prior blocks do not depend on it."""
+    corners = reweighted_corners(res, settings)
+    if corners is None or held_groups(res.settings) != held_groups(settings):
+        return None
+    return [corners, *res.blocks[1:]]
+
+
+def reweighted_corners(res: CameraImuResult, settings: Settings) -> ir.Block | None:
+    """res's last corner block weighted as `settings` weigh the corners, or None when it
+    cannot be had without an evaluation (reweighted_blocks' cases). The IMU model may differ
+    (scale_misalignment): its columns are no corner's, and every layout has them, held or not."""
     used = res.settings
     if not res.blocks or used is None or used.huber is not None or settings.huber is not None:
         return None
-    if (held_groups(used) != held_groups(settings) or used.intrinsics_prior is not settings.intrinsics_prior
-            or replace(used, sigma_px=settings.sigma_px, intrinsics_prior=()) != replace(settings, intrinsics_prior=())):
+    if (held_groups(used) - {"scale"} != held_groups(settings) - {"scale"}
+            or used.intrinsics_prior is not settings.intrinsics_prior
+            or replace(used, sigma_px=settings.sigma_px, intrinsics_prior=(),
+                       scale_misalignment=settings.scale_misalignment) != replace(settings, intrinsics_prior=())):
         return None
     k = used.sigma_px / settings.sigma_px
     b = res.blocks[0]
-    corners = replace(b, r=b.r * k, J=b.J * k, cost=None if b.cost is None else b.cost * k * k,
-                      rms=None if b.rms is None else b.rms * k)
-    return [corners, *res.blocks[1:]]
+    return replace(b, r=b.r * k, J=b.J * k, cost=None if b.cost is None else b.cost * k * k,
+                   rms=None if b.rms is None else b.rms * k)
