@@ -375,9 +375,9 @@ def _own_views_models(solved: JointSolve, inits: list[MonoInit], by_cam: dict[st
                       setup: Setup, note: str) -> ModelChoice:
     """Intrinsics from each camera's own views (initialise.own_views_intrinsics), then the
     rig solved with them held fixed. The cameras' fits are independent and each runs OpenCV
-    on one thread (initialise.opencv_one_thread, for reproducible sums), so they run on a
-    thread per core: the same numbers, in about half the time on 2 cores (the 30 s
-    three-camera motion recording: 9 s of single-threaded fits)."""
+    on one thread (initialise.opencv_one_thread, for reproducible sums; with imu_start the
+    start is initialise.own_views_start's, no OpenCV), so they run on a thread per core: the
+    same numbers, in about half the time on 2 cores."""
     from concurrent.futures import ThreadPoolExecutor
 
     st = solved.res.state.copy()
