@@ -262,6 +262,9 @@ def test_last_iterations_blocks_reweighted_equal_a_fresh_evaluation(solved):
     assert ic.reweighted_blocks(res, replace(settings, line_delay=True)) is None
     assert ic.reweighted_blocks(res, replace(settings, huber=3.0)) is None
     assert ic.reweighted_blocks(replace(res, blocks=()), settings) is None
+    # blocks made on other corners than the result now says it used (outliers left out after)
+    assert ic.reweighted_blocks(replace(res, corners_used=res.corners_used.copy()), settings) is None
+    assert ic.reweighted_corners(replace(res, corners_used=res.corners_used.copy()), settings) is None
 
 
 def test_reweighted_refinement_starts_from_the_estimates_last_blocks(solved, monkeypatch):

@@ -107,6 +107,9 @@ class CameraImuResult:
     # evaluation (1.5 s on EuRoC). Empty when not kept.
     blocks: tuple = ()
     settings: Settings | None = None
+    # the corners_used the blocks were made on (this very array: a result whose corners_used
+    # was replaced, e.g. outliers left out, no longer matches its blocks)
+    blocks_corners: np.ndarray | None = None
 
 
 def imu_sigmas(imu: ImuInput) -> tuple[float, float]:
@@ -477,7 +480,7 @@ def _solve(state: ir.State, starts: tuple, keep: np.ndarray, obs: ir.Corners, mo
     sigma = camera_sigmas(ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay) if sigmas else np.full((lay.n_cam, 7), np.nan)
     return CameraImuResult(state, T_imu_cam, state.time_offset_s.copy(), sigma, starts, rms,
                            iters, time.perf_counter() - t0, keep, {k: b.objective for k, b in zip(names, blocks)},
-                           tuple(blocks), settings)
+                           tuple(blocks), settings, keep)
 
 
 def reweighted_blocks(res: CameraImuResult, settings: Settings) -> list | None:
@@ -499,6 +502,8 @@ def reweighted_corners(res: CameraImuResult, settings: Settings) -> ir.Block | N
     (scale_misalignment): its columns are no corner's, and every layout has them, held or not."""
     used = res.settings
     if not res.blocks or used is None or used.huber is not None or settings.huber is not None:
+        return None
+    if res.blocks_corners is not res.corners_used:  # made on other corners
         return None
     if (held_groups(used) - {"scale"} != held_groups(settings) - {"scale"}
             or used.intrinsics_prior is not settings.intrinsics_prior
