@@ -50,7 +50,7 @@ from scipy.stats import chi2
 from rigcal.imunoise.allan import ALPHA, AllanCurve, curve_edf, pooled_allan_deviation
 from rigcal.imunoise.estimate import SENSORS
 from rigcal.imunoise.recording import ImuRecording, check
-from rigcal.imunoise.terms import FLAT, fit_bias_instability, fit_term, joint_fit
+from rigcal.imunoise.terms import FLAT, fit_bias_instability, fit_term, joint_fit, settled_curve
 from rigcal.sim.static_imu import write_imu_csv
 
 from .common import CACHE, OUT, md_table, say, write_json
@@ -117,14 +117,15 @@ def max_random_walk(curve: AllanCurve, p: np.ndarray) -> float:
 
 def axis_figures(curve: AllanCurve) -> dict:
     """rigcal's terms of one axis (terms.fit_axis's steps, without its refusal when a term is
-    not seen)."""
-    p, nu = joint_fit(curve)
-    white, rw = fit_term(curve, p, nu, 1), fit_term(curve, p, nu, 3)
-    bias = fit_bias_instability(curve, p)
+    not seen); `first_tau` the first tau read (after the taus the IMU's filter shapes)."""
+    read, step = settled_curve(curve)
+    p, nu = joint_fit(read)
+    white, rw = fit_term(read, p, nu, 1, step), fit_term(read, p, nu, 3, step)
+    bias = fit_bias_instability(read, p)
     out = {"N": None if white is None else (white.value, white.lo, white.hi, white.tau_lo, white.tau_hi),
            "B": (bias.value, bias.lo, bias.hi, bias.dominant),
            "K": None if rw is None else (rw.value, rw.lo, rw.hi, rw.tau_lo, rw.tau_hi, rw.needed_s),
-           "K_max": max_random_walk(curve, p), "model": p.tolist(),
+           "K_max": max_random_walk(curve, p), "model": p.tolist(), "first_tau": float(read.tau[0]),
            "N_needed_s": None if white is None else white.needed_s,
            "min": (bias.value * math.sqrt(FLAT), bias.lo * math.sqrt(FLAT), bias.hi * math.sqrt(FLAT), True),
            "N_1s": curve_at_1s(curve)}
