@@ -111,6 +111,20 @@ def test_white_noise_leaves_no_tau_out():
         assert settled(c) == (0, 0.0)
 
 
+def test_too_short_with_gaps_names_the_longest_stretch():
+    """A pooled curve's taus reach a tenth of its longest stretch, so the length needed is
+    one stretch's, not the sum of them."""
+    from rigcal.imunoise.allan import pooled_allan_deviation
+
+    x = series(1800, N, K / 10, seed=5)  # the random walk would dominate from about 150 s
+    pooled = pooled_allan_deviation([x[:120_000], x[120_000:240_000], x[240_000:]], RATE)
+    with pytest.raises(TooShort) as e:
+        fit_axis(pooled, "gyroscope x")
+    msg = str(e.value)
+    assert "a tenth of the longest of its 3 stretches between gaps, 10 min" in msg
+    assert "without a gap" in msg and "30 min" not in msg
+
+
 def test_too_short_for_the_random_walk_says_how_long():
     with pytest.raises(TooShort, match=r"too short for the gyroscope x random walk.*record at least"):
         fit_axis(allan_deviation(series(120, N, K, seed=4), RATE), "gyroscope x")

@@ -295,17 +295,22 @@ def _hours(s: float) -> str:
 
 
 def too_short_message(curve: AllanCurve, p: np.ndarray, k: int, what: str) -> str:
-    duration = curve.n / curve.rate_hz
+    """A pooled curve's taus reach a tenth of its longest stretch between gaps, not of the
+    whole: the length needed is then one stretch's."""
+    duration = max(curve.lengths()) / curve.rate_hz
+    span = f"the {_hours(duration)} recording" if not curve.segments else \
+        f"the longest of its {len(curve.segments)} stretches between gaps, {_hours(duration)}"
+    once = "" if not curve.segments else " without a gap"
     tau_max = float(curve.tau.max())
     shape = "rise (slope +1/2)" if k == 3 else "fall (slope -1/2)"
     tx = _tau_where_dominant(p, k)
     if tx is not None and k == 3:
-        need = f"record at least {_hours(2 * tx / MAX_TAU_FRACTION)} (it would dominate from tau ~{tx:.0f} s; " \
+        need = f"record at least {_hours(2 * tx / MAX_TAU_FRACTION)}{once} (it would dominate from tau ~{tx:.0f} s; " \
                f"the longest tau read is a tenth of the recording)"
     else:
-        need = f"it is not seen at all: record at least {_hours(4 * duration)}, still and warmed up"
+        need = f"it is not seen at all: record at least {_hours(4 * duration)}{once}, still and warmed up"
     return (f"too short for the {what}: the Allan deviation shows no {shape} where it dominates up to tau = "
-            f"{tau_max:.3g} s (a tenth of the {_hours(duration)} recording); {need}")
+            f"{tau_max:.3g} s (a tenth of {span}); {need}")
 
 
 def settled(curve: AllanCurve) -> tuple[int, float]:
