@@ -31,7 +31,12 @@ What runs:
    imu-noise` refuses to turn into a figure);
 3. the six recordings pooled as one recording with gaps between them (as `rigcal imu-noise`
    pools the stretches between gaps), also end to end;
-4. rigcal's Allan deviation of each recording beside avar's published one at the same taus.
+4. rigcal's Allan deviation of each recording beside avar's published one at the same taus;
+5. what the IMU's own filter does, on simulated chips whose truth is known
+   (tests/support/imu_static.filtered_axis: white noise at 800 Hz through a 16-tap moving
+   average or a one-pole 10 ms filter, every 8th sample kept, plus a random walk; 1 h at
+   100 Hz per seed, the rig's gyroscope figures): N / its low-frequency truth and how often
+   the 95 % interval holds it. Runs without the .rda files.
 """
 
 from __future__ import annotations
@@ -191,10 +196,38 @@ def compare_published(curves: list[AllanCurve], pub: dict) -> dict:
             "median": float(np.median(flat)) if len(flat) else None}
 
 
-def run(data: Path = DATA) -> dict:
+FILTERS = ("moving average", "one pole")
+
+
+def filtered_coverage(seeds: int, hours: float = 1.0, n_density: float = 1.7e-4, k_walk: float = 1.9e-5) -> dict:
+    """Per filter kind: N / truth (median, min, max), intervals holding the truth, the first
+    tau read (s): simulated chips whose samples are filtered and decimated as a real IMU's."""
+    from rigcal.imunoise.terms import TooShort, fit_axis
+    from tests.support.imu_static import filtered_axis
+
+    out = {}
+    for kind in FILTERS:
+        ratios, inside, first, refused = [], 0, [], 0
+        for seed in range(seeds):
+            x, truth = filtered_axis(hours * 3600, RATE_HZ, n_density, k_walk, kind, seed=3000 + seed)
+            try:
+                a = fit_axis(pooled_allan_deviation([x], RATE_HZ))
+            except TooShort:
+                refused += 1
+                continue
+            ratios.append(a.white.value / truth)
+            inside += a.white.lo <= truth <= a.white.hi
+            first.append(a.white.tau_lo)
+        out[kind] = {"seeds": seeds, "refused": refused, "inside": inside, "ratio": ratios, "first_tau": first}
+    return out
+
+
+def run(data: Path = DATA, filtered_seeds: int = 30) -> dict:
     files = [data / f"{name}.rda" for name in RECORDINGS]
+    filtered = filtered_coverage(filtered_seeds) if filtered_seeds else {}
     if not all(f.exists() for f in files):
-        return {"skipped": f"{data}: the ADIS16405 recordings ({SOURCES['recordings']}) are not there"}
+        return {"skipped": f"{data}: the ADIS16405 recordings ({SOURCES['recordings']}) are not there",
+                "filtered": filtered}
     t_start = time.perf_counter()
     parts, per = [], []
     for name, f in zip(RECORDINGS, files):
@@ -235,7 +268,8 @@ def run(data: Path = DATA) -> dict:
     for r in per:
         r["curves"] = [{"tau": c.tau.tolist(), "adev": c.adev.tolist()} for c in r["curves"]]
     return {"sources": SOURCES, "rate_hz": RATE_HZ, "datasheet": datasheet(), "recordings": per, "pooled": pooled,
-            "published": published, "seconds": time.perf_counter() - t_start, "load_avg": os.getloadavg()[0]}
+            "published": published, "filtered": filtered, "seconds": time.perf_counter() - t_start,
+            "load_avg": os.getloadavg()[0]}
 
 
 # ----------------------------------------------------------------------------- tables
@@ -303,10 +337,22 @@ def figure_table(r: dict) -> str:
                           "datasheet (N: its ARW / VRW; in-run bias stability beside the Allan minimum and B)")
 
 
+def filtered_table(f: dict) -> str:
+    rows = [[kind, f"{len(v['ratio'])} of {v['seeds']}", _span(v["ratio"], "{:.4f}") if v["ratio"] else "-",
+             f"{v['inside']} of {len(v['ratio'])}", _span(v["first_tau"], "{:.2g}") if v["first_tau"] else "-"]
+            for kind, v in f.items()]
+    return md_table(["chip filter (800 Hz, every 8th sample kept)", "read (not refused)", "N / low-frequency truth",
+                     "95 % intervals holding it", "first tau read s: median [min, max]"], rows,
+                    title="simulated filtered IMUs, 1 h at 100 Hz each (the curve's first taus are the filter's; "
+                          "white noise alone is read from 0.01 s)")
+
+
 def tables(r: dict) -> str:
     if "skipped" in r:
-        return f"\n**imu_noise_real: skipped** ({r['skipped']})\n"
+        return f"\n**imu_noise_real: skipped** ({r['skipped']})\n" + (filtered_table(r["filtered"]) if r.get("filtered") else "")
     out = [figure_table(r)]
+    if r.get("filtered"):
+        out.append(filtered_table(r["filtered"]))
     rows = []
     for rec in r["recordings"] + [dict(name="the 6 pooled", **r["pooled"])]:
         c = rec["cli"]
@@ -342,8 +388,9 @@ def tables(r: dict) -> str:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--data", type=Path, default=DATA, help="the folder holding the .rda files")
+    ap.add_argument("--filtered-seeds", type=int, default=30, help="simulated filtered IMUs per filter (0: skip)")
     a = ap.parse_args(argv)
-    r = run(a.data)
+    r = run(a.data, a.filtered_seeds)
     write_json("imu_noise_real", r)
     text = tables(r)
     say(text)

@@ -63,29 +63,6 @@ def test_white_density_interval_covers_the_truth_for_most_seeds():
     assert covered >= 16  # 95 % intervals: fewer than 16 of 20 has probability 3e-4
 
 
-def filtered_series(seconds: float, kind: str, seed: int, up: int = 8) -> tuple[np.ndarray, float]:
-    """(x at RATE, its white noise density at low frequencies): white noise of density N at
-    up * RATE through an on-chip-like filter, every up-th sample kept (consecutive samples
-    correlated, as a real IMU's), plus a random walk K. The decimated series' density at
-    frequencies well below the filter's is N sqrt(sum_k |H(2 pi k / up)|^2), k = 0 .. up-1
-    (the filter's gain at DC and at the rates that alias onto it): N itself for a 16-tap
-    moving average (zeros at every multiple of RATE / 2), 3.95 % more for a one-pole filter
-    of time constant 10 ms."""
-    from scipy.signal import freqz, lfilter
-
-    rng = np.random.default_rng(seed)
-    n, fs = int(seconds * RATE), RATE * up
-    w = N * np.sqrt(fs) * rng.standard_normal(n * up + 64)
-    if kind == "moving average":
-        b, a = np.ones(16) / 16, [1.0]
-    else:
-        pole = np.exp(-1.0 / (fs * 0.010))
-        b, a = [1.0 - pole], [1.0, -pole]
-    x = lfilter(b, a, w)[64:][: n * up: up] + np.cumsum(K / np.sqrt(RATE) * rng.standard_normal(n))
-    gain = np.abs(freqz(b, a, worN=2 * np.pi * np.arange(up) / up)[1])
-    return x, N * float(np.sqrt(np.sum(gain ** 2)))
-
-
 @pytest.mark.parametrize("kind", ["moving average", "one pole"])
 def test_a_filtered_imu_reads_the_density_below_its_filter(kind):
     """A real IMU's samples are filtered: the Allan deviation at the shortest taus lies below
@@ -93,7 +70,9 @@ def test_a_filtered_imu_reads_the_density_below_its_filter(kind):
     the deficit they show is added back beyond them: the density read is the one at low
     frequencies (within 3 %; the joint fit on every tau made up a bias instability and
     found no random walk in the same hour)."""
-    x, truth = filtered_series(3600, kind, seed=7)
+    from tests.support.imu_static import filtered_axis
+
+    x, truth = filtered_axis(3600, RATE, N, K, kind, seed=7)
     c = allan_deviation(x, RATE)
     start, step = settled(c)
     assert c.adev[0] * np.sqrt(c.tau[0]) < 0.6 * truth
