@@ -349,7 +349,8 @@ def filtered_table(f: dict) -> str:
 
 def tables(r: dict) -> str:
     if "skipped" in r:
-        return f"\n**imu_noise_real: skipped** ({r['skipped']})\n" + (filtered_table(r["filtered"]) if r.get("filtered") else "")
+        text = f"\n**imu_noise_real: skipped** ({r['skipped']})\n"
+        return text + (filtered_table(r["filtered"]) if r.get("filtered") else "")
     out = [figure_table(r)]
     if r.get("filtered"):
         out.append(filtered_table(r["filtered"]))
@@ -364,7 +365,8 @@ def tables(r: dict) -> str:
     rows = []
     for rec in r["recordings"]:
         rows.append([rec["name"], f"{rec['hours']:.2f}",
-                     " ".join(f"{m:+.3f}" for m in rec["mean"][:3]), " ".join(f"{m * 1e3:+.1f}" for m in rec["mean"][3:]),
+                     " ".join(f"{m:+.3f}" for m in rec["mean"][:3]),
+                     " ".join(f"{m * 1e3:+.1f}" for m in rec["mean"][3:]),
                      " ".join(f"{v:.3f}" for v in rec["sd"][:3]), " ".join(f"{v * 1e3:.2f}" for v in rec["sd"][3:]),
                      " ".join(f"{v:+.2f}" for v in rec["lag1"])])
     out.append(md_table(["recording", "h", "gyro mean deg/s", "accel mean mg (z: 1 g)", "gyro sd deg/s",
