@@ -12,7 +12,7 @@ eec6e5b; CC BY-NC-SA 4.0). The published Allan result: the maximum-overlap Allan
 one of them in the R package avar (github.com/SMAC-Group/avar, data/adis_av.rda, commit
 899afb1; AGPL-3). Neither is shipped with rigcal: put the seven .rda files in --data
 (default bench/out/cache/imudata); without them the section says so and is skipped. The R
-files are read with the `rdata` package (the `test` extra).
+files are read with the `rdata` package (the `bench` extra: pip install -e '.[bench]').
 
 The datasheet (ADIS16405 data sheet, Analog Devices, Table 1, 25 deg C; the same figures as
 NaveGo's ADIS16405 error profile): gyroscope angular random walk 2.0 deg/sqrt(h), in-run bias
