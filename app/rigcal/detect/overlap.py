@@ -4,8 +4,8 @@ A board hanging partly in front of another (boards on walls overlapping in persp
 board held up in front of one on the wall) hides the far board along the near board's
 sheet edge. A far-board corner whose refinement cross reaches that edge sees the near
 sheet's paper or pattern instead of its own squares: its point symmetry is broken and
-the fit is pulled towards the edge (0.2-1 px on renders where the rest are at 0.03 px),
-and its own sigma does not cover that. Such corners are left out.
+the fit is pulled towards the edge (0.2-3 px on renders where the rest are within 0.03
+px), by more than its own sigma says. Such corners are left out.
 
 The edge can be anywhere between the near board's pattern and the edge of its sheet, and
 the sheet's margin is not declared; so every corner whose cross (corner_fit.ARM_SQUARES
@@ -43,7 +43,6 @@ SHEET_MARGIN_SQUARES = 1.0
 # What the refinement sees past its cross's last samples: the bilinear sample, the 3x3
 # gradient kernel and an edge's blur (px).
 EDGE_BLUR_PX = 3.0
-SAMPLES_PER_SIDE = 64  # points per side of a projected outline
 MIN_HOMOGRAPHY_CORNERS = 4
 FRONT_RATIO = 2  # missing corners, hidden board : board in front, above which the order is clear
 
@@ -74,11 +73,9 @@ def view_homography(board: Board, ids: np.ndarray, uv: np.ndarray) -> np.ndarray
 
 
 def outline_px(H: np.ndarray, rect: np.ndarray) -> np.ndarray | None:
-    """(4 * SAMPLES_PER_SIDE, 2) float32 image polygon of a board-frame rectangle under H,
-    None where part of it maps through the horizon (its image is not a closed outline)."""
-    t = np.arange(SAMPLES_PER_SIDE)[:, None] / SAMPLES_PER_SIDE
-    pts = np.concatenate([rect[k] + t * (rect[(k + 1) % 4] - rect[k]) for k in range(4)])
-    p = np.column_stack([pts, np.ones(len(pts))]) @ H.T
+    """(4, 2) float32 image polygon of a board-frame rectangle under H (a homography keeps
+    lines straight), None where part of it maps through the horizon (no closed outline)."""
+    p = np.column_stack([rect, np.ones(len(rect))]) @ H.T
     if not (p[:, 2] > 0).all() and not (p[:, 2] < 0).all():
         return None
     return (p[:, :2] / p[:, 2:]).astype(np.float32)
