@@ -19,12 +19,12 @@ when more than FRONT_RATIO times as many of B's corners that should show in the 
 (B's homography) are missing inside A's grown outline as of A's inside B's (a hidden
 board misses many there; the board in front only those its refinement failed on). Where
 that is not clear (no corner missing, or both boards missing about as many: sheets that
-cross), corners of both are dropped.
-Views whose regions do not come within reach of each other are not touched (the same
-corners, bit for bit).
+cross), corners of both are dropped. Views whose regions do not come within reach of each
+other are not touched (the same corners, bit for bit).
 
-Not handled: two sheets that pass through each other (the line where they meet is an
-occluding edge inside both outlines), and occluders that are not boards (a hand).
+Not handled: the line where two sheets pass through each other (an occluding edge inside
+both outlines), a near board too little of which shows to be detected, a view whose
+outline crosses the horizon, and occluders that are not boards (a hand).
 """
 
 from __future__ import annotations
