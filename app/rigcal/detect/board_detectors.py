@@ -212,7 +212,8 @@ class BoardDetector:
         # Corners whose cross reaches another board's edge (one board in front of another) are
         # biased towards it: leave them out (overlap.py). A no-op where boards keep apart.
         out = []
-        for (board, ids, uv, amb, sigma), near in zip(views, near_other_boards([v[:3] for v in views], gray.shape[::-1])):
+        near_edges = near_other_boards([v[:3] for v in views], gray.shape[::-1])
+        for (board, ids, uv, amb, sigma), near in zip(views, near_edges):
             if near.any():
                 ids, uv, sigma = ids[~near], uv[~near], sigma[~near]
                 if len(ids) < self.min_corners or is_degenerate(ids, uv, board):
