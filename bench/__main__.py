@@ -43,6 +43,10 @@ Sections (each also runs alone: python -m bench.<name>):
                tag size in four rendered AprilGrid scenes, ChArUco alongside; EuRoC PnP
   imu_noise    `rigcal imu-noise` on simulated static recordings (seeds x 3 h at 200 Hz) vs truth, interval
                coverage, allan_variance_ros's and imu_utils's formulas on the same data; 3 h at 400 Hz end to end
+  imu_noise_real  `rigcal imu-noise` on a real IMU: six published 2.8 h static recordings of an ADIS16405 beside
+               its datasheet and the publishers' Allan deviation (skipped unless the .rda files are in
+               bench/out/cache/imudata); simulated chips whose samples are filtered and decimated (30 x 1 h per
+               filter): N vs its low-frequency truth, interval coverage
 
 Not sections (checks run by hand, each also `python -m bench.<name>`):
 
@@ -73,8 +77,8 @@ from types import ModuleType
 from typing import Any, Callable
 
 from . import (accuracy, aprilgrid_excess, check, dome, imu_calib, imu_coverage, imu_euroc, imu_freerun, imu_noise,
-               imu_speed, indie, indie_imu, indie_noise, ingest, intrinsics_holdout, long_recording, mag, montecarlo,
-               noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed, visual_freerun)
+               imu_noise_real, imu_speed, indie, indie_imu, indie_noise, ingest, intrinsics_holdout, long_recording, mag,
+               montecarlo, noise_limit, peer_opencv, real, scale, simulate_imu, solver_libraries, speed, visual_freerun)
 from .common import OUT, machine, say, write_json
 
 @dataclass(frozen=True)
@@ -137,6 +141,8 @@ TABLE = (
     Section("imu_noise", "imu_noise", lambda q, d: imu_noise.run(seeds=3 if q else 10, hours=1.0 if q else 3.0,
                                                                  speed_hours=1.0 if q else 3.0,
                                                                  coverage_seeds=2 if q else 40), _only(imu_noise)),
+    Section("imu_noise_real", "imu_noise_real", lambda q, d: imu_noise_real.run(filtered_seeds=10 if q else 30),
+            _only(imu_noise_real)),
 )
 SECTIONS = tuple(s.name for s in TABLE)
 

@@ -38,7 +38,7 @@ RIGS = ROOT / "rigs"
 JOBS = 2  # the machine the figures are quoted for has 2 cores
 # the code whose output the cache holds: the renderer and every detection stage
 CODE_FILES = ("simulate.py", "render.py", "target.py", "camera.py", "detect.py", "image_read.py",
-              "board_detectors.py", "april.py", "corner_refine.py", "corner_grid.py", "corner_fit.py")
+              "board_detectors.py", "overlap.py", "april.py", "corner_refine.py", "corner_grid.py", "corner_fit.py")
 # what a cached detection holds: 2 = (camera, frame, board, ids, uv, ambiguous, sigma);
 # 1 had no sigma. Part of the cache key, so no old file is read as the new format.
 CACHE_FORMAT = 2

@@ -21,8 +21,8 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 CHECKS = ("same_outputs", "faults")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
            "indie_noise", "simulate_imu", "imu_calib", "imu_coverage", "imu_euroc", "imu_freerun", "imu_speed",
-           "indie_imu", "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "mag", "check", "dome",
-           "long_recording", "intrinsics_holdout", "visual_freerun", "__main__") + CHECKS
+           "indie_imu", "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "imu_noise_real", "mag", "check",
+           "dome", "long_recording", "intrinsics_holdout", "visual_freerun", "__main__") + CHECKS
 
 
 @pytest.mark.parametrize("name", MODULES)
@@ -421,3 +421,31 @@ def test_indie_imu_scores_the_truth_as_zero_and_a_turned_camera_by_its_angle(tmp
     assert abs(r["rot_deg"] - 0.01) < 1e-9 and abs(r["pos_mm"] - 1.0) < 1e-9 and abs(r["offset_ms"] - 0.02) < 1e-9
     np.testing.assert_allclose(r["rot_deg_xyz"], [0, 0, 0.01], atol=1e-9)
     np.testing.assert_allclose(r["pos_mm_xyz"], [1.0, 0, 0], atol=1e-9)
+
+
+def test_imu_noise_real_units_and_random_walk_bound():
+    """bench.imu_noise_real: an imudata ADIS16405 row (deg/s, g) becomes rad/s and m/s^2 at
+    100 Hz; and the random-walk bound of a curve that is exactly white noise plus a random
+    walk lies above the true K by the chi-square factor of the longest tau's few clusters
+    (the white noise is negligible there)."""
+    from scipy.stats import chi2
+
+    from bench import imu_noise_real as real
+    from rigcal.imunoise.allan import ALPHA, AllanCurve, curve_edf, octave_clusters
+
+    t_ns, g, a = real.adis_samples(np.array([[1.0, -2.0, 0.5, 0.01, 0.0, -1.0]] * 3))
+    np.testing.assert_array_equal(t_ns, [0, 10_000_000, 20_000_000])
+    np.testing.assert_allclose(g[0], np.deg2rad([1.0, -2.0, 0.5]))
+    np.testing.assert_allclose(a[0], [0.0980665, 0.0, -9.80665])
+    with pytest.raises(ValueError):
+        real.adis_samples(np.zeros((3, 5)))
+
+    n, rate, N, K = 10 ** 9, 100.0, 6e-4, 2e-5
+    m = octave_clusters(n)
+    tau = m / rate
+    curve = AllanCurve(tau, np.sqrt(N ** 2 / tau + K ** 2 * tau / 3.0), m, n, rate)
+    bound = real.max_random_walk(curve, np.array([0.0, N ** 2, 0.0, K ** 2]))
+    nu = float(curve_edf(ALPHA["random_walk"], curve, m[-1:])[0])
+    assert 1.0 < nu < 30.0  # a tenth of the recording: ten clusters, whatever n
+    assert bound > K
+    assert bound == pytest.approx(K * np.sqrt(nu / chi2.ppf(0.05, nu)), rel=1e-4)

@@ -245,3 +245,17 @@ def test_euroc_corner_file_matches_kalibrs_layout():
     ids = (4 * raw[:, 1] + raw[:, 2]).astype(int)
     np.testing.assert_allclose(target.boards[0].corners[ids], raw[:, 5:8], atol=1e-6)
     assert yaml.safe_load((make_datasets.EUROC / "kalibr_target.yaml").read_text())["target_type"] == "aprilgrid"
+
+
+def test_a_declared_board_absent_from_the_corner_files_is_named_as_such(tmp_path):
+    """Corners detected elsewhere: a declared board no corners file mentions is named, and
+    the warning does not send the user to the board's dictionary (nothing was detected here)."""
+    ds = tmp_path / "ds"
+    _write_room(ds, n_frames=12)
+    (ds / "target.yaml").write_text(
+        TARGET + "  - {name: spare, type: aprilgrid, tags: [5, 4], tag_size: 0.08, tag_spacing: 0.3, "
+        "first_tag_id: 200}\n")
+    res = CliRunner().invoke(app, ["calibrate", str(ds), "--out", str(tmp_path / "cal.yaml"), "--jobs", "1"])
+    assert res.exit_code == 0, res.output
+    assert "board spare: no corners of it in the corners files" in res.output
+    assert "never detected" not in res.output and "dictionary" not in res.output

@@ -228,7 +228,8 @@ def test_two_boards_in_one_image_each_with_its_own_ids():
     Ha = view_homography(rng, a, fill=0.35, tilt_deg=20)
     Hb = view_homography(rng, b, fill=0.35, tilt_deg=20)
     shift = lambda dx: np.array([[1, 0, dx], [0, 1, 0], [0, 0, 1.0]])  # noqa: E731
-    Ha, Hb = shift(-150) @ Ha, shift(150) @ Hb
+    # far enough apart that neither sheet could reach the other's corners (detect/overlap.py)
+    Ha, Hb = shift(-175) @ Ha, shift(175) @ Hb
     img = np.minimum(render(a, Ha, rng, noise=0), render(b, Hb, rng, noise=0))
     views = {v[0]: v for v in detect_image(img, Target((a, b)))}
     assert set(views) == {"left_wall", "right_wall"}

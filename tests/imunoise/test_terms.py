@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from rigcal.imunoise.allan import allan_deviation, edf, octave_clusters
-from rigcal.imunoise.terms import TooShort, combine, fit_axis, fit_term, joint_fit
+from rigcal.imunoise.terms import TooShort, combine, fit_axis, fit_term, joint_fit, settled
 
 RATE = 200.0
 N = 1.7e-4  # rad/s/sqrt(Hz)
@@ -61,6 +61,47 @@ def test_white_density_interval_covers_the_truth_for_most_seeds():
         w = fit_term(c, p, nu, 1)
         covered += w.lo < N < w.hi
     assert covered >= 16  # 95 % intervals: fewer than 16 of 20 has probability 3e-4
+
+
+@pytest.mark.parametrize("kind", ["moving average", "one pole"])
+def test_a_filtered_imu_reads_the_density_below_its_filter(kind):
+    """A real IMU's samples are filtered: the Allan deviation at the shortest taus lies below
+    the white-noise line (here 0.5-0.56 of it at one sample). Those taus are left out and
+    the deficit they show is added back beyond them: the density read is the one at low
+    frequencies (within 3 %; the joint fit on every tau made up a bias instability and
+    found no random walk in the same hour)."""
+    from tests.support.imu_static import filtered_axis
+
+    x, truth = filtered_axis(3600, RATE, N, K, kind, seed=7)
+    c = allan_deviation(x, RATE)
+    start, step = settled(c)
+    assert c.adev[0] * np.sqrt(c.tau[0]) < 0.6 * truth
+    assert start >= 3 and step > 0
+    a = fit_axis(c, "gyroscope x")
+    assert a.white.value == pytest.approx(truth, rel=0.03)
+    assert a.white.tau_lo == pytest.approx(c.tau[start])
+    assert a.random_walk.value == pytest.approx(K, rel=0.5)
+    assert len(a.edf) == len(c.tau)  # the whole curve kept for the plot
+
+
+def test_white_noise_leaves_no_tau_out():
+    for seed in range(6):
+        c = allan_deviation(series(1800, N, K, seed=200 + seed), RATE)
+        assert settled(c) == (0, 0.0)
+
+
+def test_too_short_with_gaps_names_the_longest_stretch():
+    """A pooled curve's taus reach a tenth of its longest stretch, so the length needed is
+    one stretch's, not the sum of them."""
+    from rigcal.imunoise.allan import pooled_allan_deviation
+
+    x = series(1800, N, K / 10, seed=5)  # the random walk would dominate from about 150 s
+    pooled = pooled_allan_deviation([x[:120_000], x[120_000:240_000], x[240_000:]], RATE)
+    with pytest.raises(TooShort) as e:
+        fit_axis(pooled, "gyroscope x")
+    msg = str(e.value)
+    assert "a tenth of the longest of its 3 stretches between gaps, 10 min" in msg
+    assert "without a gap" in msg and "30 min" not in msg
 
 
 def test_too_short_for_the_random_walk_says_how_long():

@@ -24,6 +24,33 @@ def static_imu(seconds: float, rate: float, n_density, k_walk, seed: int = 0):
     return t, x[:, :3], x[:, 3:]
 
 
+def filtered_axis(seconds: float, rate: float, n_density: float, k_walk: float, kind: str, seed: int,
+                  up: int = 8) -> tuple[np.ndarray, float]:
+    """(x (N,) at rate, its white noise density at low frequencies): one axis as an IMU chip
+    makes it, white noise of density n_density at up * rate through the chip's filter with
+    every up-th sample kept (consecutive samples correlated), plus a random walk k_walk.
+    kind: "moving average" (16 taps at up * rate) or "one pole" (time constant 10 ms, unit
+    gain at DC). The decimated series' density at frequencies well below the filter's is
+    n_density sqrt(sum_k |H(2 pi k / up)|^2), k = 0 .. up - 1 (the filter's gain at DC and at
+    the frequencies that alias onto it): n_density itself for the moving average (zeros at
+    every multiple of rate / 2), 3.95 % more for the one-pole filter at 100 Hz."""
+    from scipy.signal import freqz, lfilter
+
+    rng = np.random.default_rng(seed)
+    n, fs = int(seconds * rate), rate * up
+    w = n_density * np.sqrt(fs) * rng.standard_normal(n * up + 64)
+    if kind == "moving average":
+        b, a = np.ones(16) / 16, np.array([1.0])
+    elif kind == "one pole":
+        pole = np.exp(-1.0 / (fs * 0.010))
+        b, a = np.array([1.0 - pole]), np.array([1.0, -pole])
+    else:
+        raise ValueError(kind)
+    x = lfilter(b, a, w)[64:][: n * up: up] + np.cumsum(k_walk / np.sqrt(rate) * rng.standard_normal(n))
+    gain = np.abs(freqz(b, a, worN=2 * np.pi * np.arange(up) / up)[1])
+    return x, n_density * float(np.sqrt(np.sum(gain ** 2)))
+
+
 def write_csv(path: Path, t, gyro, accel, temp=None) -> Path:
     cols = [gyro, accel] + ([np.asarray(temp)[:, None]] if temp is not None else [])
     v = np.hstack(cols)

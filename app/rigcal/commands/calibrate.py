@@ -442,9 +442,15 @@ def _check_detections(rig: Rig, det, views: list[BoardView], images, target, tar
     # With several boards, one that is never found (its ids, squares or layout misdeclared)
     # would just drop out of the room: say so.
     found = {v.board for v in det.views}
-    return [f"board {b.name}: never detected in {sum(det.n_images.values())} images; check its dictionary, "
-            f"first_marker_id, squares and legacy_pattern in {target_file}"
-            for b in target.boards if len(target.boards) > 1 and b.name not in found]
+    missing = [b.name for b in target.boards if len(target.boards) > 1 and b.name not in found]
+    n_img = sum(det.n_images.values())
+    if not n_img:
+        # corners/<camera>.csv only: nothing was detected here, so the board's declaration is
+        # not what to check
+        return [f"board {name}: no corners of it in the corners files; declared in {target_file} "
+                f"but not seen by any camera" for name in missing]
+    return [f"board {name}: never detected in {n_img} images; check its dictionary, "
+            f"first_marker_id, squares and legacy_pattern in {target_file}" for name in missing]
 
 
 def _motion_notes(dataset: Path, rig: Rig, images, min_overlap_s: float = 0.0):

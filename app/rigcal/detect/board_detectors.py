@@ -11,8 +11,10 @@ order is made right-handed and, for boards that are not 180-degree symmetric, tu
 the black top-left square is first. Views of symmetric boards are flagged `ambiguous`
 (the solver resolves the order against the other cameras).
 
-Each view's corners are then refined (corner_refine.refine_corners); views with fewer
-than `min_corners` corners, or with (nearly) collinear corners, are dropped and counted.
+Each view's corners are then refined (corner_refine.refine_corners), corners whose
+refinement reaches another board's edge in the image are left out (overlap.py), and
+views with fewer than `min_corners` corners, or with (nearly) collinear corners, are
+dropped and counted.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ import cv2
 import numpy as np
 
 from rigcal.detect import april
+from rigcal.detect.overlap import near_other_boards
 from rigcal.detect.corner_refine import REFINE_MODES, refine_corners
 from rigcal.core.target import Board, Target
 
@@ -205,5 +208,16 @@ class BoardDetector:
             if len(ids) < self.min_corners or is_degenerate(ids, uv, board):
                 dropped += 1
                 continue
-            views.append((board.name, ids, uv, amb, sigma))
-        return views, dropped
+            views.append((board, ids, uv, amb, sigma))
+        # Corners whose cross reaches another board's edge (one board in front of another) are
+        # biased towards it: leave them out (overlap.py). A no-op where boards keep apart.
+        out = []
+        near_edges = near_other_boards([v[:3] for v in views], gray.shape[::-1])
+        for (board, ids, uv, amb, sigma), near in zip(views, near_edges):
+            if near.any():
+                ids, uv, sigma = ids[~near], uv[~near], sigma[~near]
+                if len(ids) < self.min_corners or is_degenerate(ids, uv, board):
+                    dropped += 1
+                    continue
+            out.append((board.name, ids, uv, amb, sigma))
+        return out, dropped

@@ -529,6 +529,12 @@ def _corner_parts(state: State, lay: Layout, obs: Corners, cameras: list[CameraM
                         np.concatenate(cols, axis=1), mj, inv)
 
 
+def corner_errors(state: State, obs: Corners, cameras: list[CameraModel]) -> np.ndarray:
+    """(M, 2) each corner's projection at its IMU-clock time minus its measurement, pixels
+    (the corner block's residuals unweighted)."""
+    return _corner_parts(state, layout_for(state), obs, cameras, 1.0).r
+
+
 def _image_rows(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float,
                 huber_k: float | None) -> Block:
     """The corner rows of one chunk as reprojection_rows gives them, for corners that share

@@ -52,6 +52,13 @@ from rigcal.core.rig import Imu
 # the estimate is refined with the corners re-weighted by the noise it measured when that
 # differs from the assumed by more than this fraction
 REWEIGHT_ABOVE = 0.2
+# corners further than this many robust sigmas from the estimate's projection are left out
+# (the camera-only step's level, camcal.solve.bundle_adjust), and the estimate refined
+# without them when they are more than a handful: under Gaussian noise one corner in
+# 270,000 lies beyond, and a few corners do not move the answer
+REJECT_SIGMA = 5.0
+REJECT_REFIT = 1e-3  # ... more than this share of the corners, and at least REJECT_MIN
+REJECT_MIN = 5
 MIN_KNOTS = 20  # the images and IMU must share at least this many knot spacings
 MIN_FRAMES = 10  # per camera: the clock-offset search needs rates over ~10 frame intervals
 MIN_PNP_CORNERS = 8
@@ -121,6 +128,14 @@ class Inputs:
     imu: ic.ImuInput
     t_base_ns: int  # the IMU's first sample: time 0
     intrinsics: tuple = ()  # per camera rigcal.camcal.solve.Intrinsics of the camera-only step
+    gauge: int | None = None  # the gauge board when fixed (corners_subset), else the one with most corners
+
+    def corners_subset(self, keep: np.ndarray) -> "Inputs":
+        """These inputs with only the corners `keep` (M,) bool, the gauge board kept: the
+        estimate's boards stay in the same order whatever the corners left out."""
+        gauge = self.gauge if self.gauge is not None else _most_corners(self.board, None)
+        return replace(self, cam=self.cam[keep], board=self.board[keep], t_cam=self.t_cam[keep],
+                       uv=self.uv[keep], p_board=self.p_board[keep], gauge=gauge)
 
 
 @dataclass(frozen=True, eq=False)
@@ -294,11 +309,34 @@ def _with_boards(inp: Inputs, T_world_board: np.ndarray) -> list:
                                                                           inp.T_board_cam)]
 
 
+def _most_corners(board: np.ndarray, n_boards: int | None) -> int:
+    return int(np.argmax(np.bincount(board, minlength=n_boards or 0)))
+
+
+def corner_outliers(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> np.ndarray:
+    """(M,) bool over obs: the corners the estimate `res` (its state; the corners it used)
+    projects more than REJECT_SIGMA robust sigmas away from where they were measured, the
+    sigma per camera from its median error (Rayleigh, as camcal.solve.judge_inliers). The
+    camera-only step's test cannot judge free-running images (grouped, their residuals
+    carry the motion between them) and misses what only the continuous-time model shows;
+    a corner whose refinement window took in another object's edge (a board or a hand in
+    front) is off by a pixel or more, a hundred of them move a principal point."""
+    used = np.flatnonzero(res.corners_used)
+    sub = obs.subset(used)
+    e = np.linalg.norm(ir.corner_errors(res.state, sub, models), axis=1)
+    out = np.zeros(len(obs.cam), bool)
+    for c in np.unique(sub.cam):
+        k = sub.cam == c
+        sigma = float(np.median(e[k])) / math.sqrt(2.0 * math.log(2.0))
+        out[used[k]] = e[k] > REJECT_SIGMA * max(sigma, 1e-4)
+    return out
+
+
 def estimator_corners(inp: Inputs, n_boards: int) -> tuple[int, np.ndarray, ir.Corners]:
     """(gauge, order, corners): the gauge board (most corners: it fixes the world frame and is
     held), the boards in the estimator's order (B,) (the gauge first, then the others as
     they come) and the corners with their boards numbered in that order."""
-    gauge = int(np.argmax(np.bincount(inp.board, minlength=n_boards)))
+    gauge = inp.gauge if inp.gauge is not None else _most_corners(inp.board, n_boards)
     order = np.r_[gauge, [b for b in range(n_boards) if b != gauge]].astype(int)
     rank = np.empty(n_boards, int)
     rank[order] = np.arange(n_boards)
@@ -536,6 +574,19 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
         res, settings, passes = estimate(inp, cal.state.T_world_board, settings)
         test = None
         _, order, obs = estimator_corners(inp, len(cal.state.T_world_board))
+        out = corner_outliers(res, obs, [c.model for c in inp.cams])
+        n_out = int(out.sum())
+        if n_out > max(REJECT_MIN, REJECT_REFIT * len(out)):
+            inp = inp.corners_subset(~out)
+            _, order, obs = estimator_corners(inp, len(cal.state.T_world_board))
+            res = replace(res, corners_used=res.corners_used[~out])
+            # the inliers' noise: the outliers inflated what the estimate measured
+            e = ir.corner_errors(res.state, obs.subset(res.corners_used), [c.model for c in inp.cams])
+            settings = replace(settings, sigma_px=max(float(np.sqrt(np.mean(e ** 2))), 1e-3))
+            res = ic.refine(res, [c.model for c in inp.cams], obs, inp.imu, settings, cost_tol=ic.ESTIMATE_COST_TOL)
+            passes += 1
+        else:
+            n_out = 0
         if options.imu_model == "auto":
             # scale-misalignment from the calibrated solution, on the same corners and weights,
             # the boards estimated with it
@@ -576,6 +627,9 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
     reweighted = " (the second with the corners re-weighted by the noise the first measured)" if passes > 1 else ""
+    if n_out:
+        reweighted = (f" (the last without the {n_out} corners the one before put beyond {REJECT_SIGMA:g} robust "
+                      f"sigmas, e.g. near the edge of something in front of the board)")
     source = ("prior" if settings.intrinsics_prior else "joint") if settings.intrinsics else (
         "declared" if options.intrinsics_from_rig else "camera-only")
     held = {"joint": "too" + (" (fx, fy, cx, cy each: the camera-only step chose its structure on residuals that "

@@ -62,6 +62,8 @@ DOMINANT_SHARE = 0.5  # the bias instability counts as seen where it is over hal
 CONFIDENCE = 0.95
 TARGET_PRECISION = 0.10  # `needed_s`: the recording for a 1-sigma relative error of 10 %
 REWEIGHTS = 3
+SETTLE_SIGMAS = 3.0  # `settled`: a step in sigma^2 tau is significant over this many standard deviations
+MIN_TAUS = 4  # the fewest octave taus a curve is read from
 FITTED = (1, 2, 3)  # the columns of `design` fitted: N, B, K (Q held at zero, see above)
 
 
@@ -210,7 +212,8 @@ def flicker_bound(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, sel: np.ndar
     return np.full(len(r), level), level * (1.0 - r), np.full(len(r), sd_level)
 
 
-def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFit | None:
+def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int, settle_step: float = 0.0
+             ) -> TermFit | None:
     """Term k (1 white, 3 random walk) re-fitted on the taus it dominates; None if none.
 
     Each tau i in range gives the squared figure p_i = (measured variance less the other
@@ -224,6 +227,10 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
       (`flicker_bound`), counted as a rectangular distribution (sd h_i / sqrt 3, the GUM's
       rule for a quantity known only between bounds), one unknown for every tau;
     - the flicker's level U, measured at one tau: its sd, scaled to each tau.
+    - the sensor filter's deficit left after the taus `settled` left out (settle_step, in
+      sigma^2 tau, at the curve's first tau): step m_first / m_i, added back with half of
+      it either way as a rectangular bound (the 1 / m law is asymptotic), one unknown for
+      every tau.
     White noise and random walk have exact Allan shapes: subtracting them adds no error
     beyond their own. The p_i are averaged with weights 1 / (sd_i^2 + a_i^2 + b_i^2) (a, b:
     the two flicker parts in p units), and the variance of that mean is
@@ -240,16 +247,18 @@ def fit_term(curve: AllanCurve, p: np.ndarray, nu: np.ndarray, k: int) -> TermFi
     other = 4 - k  # the other exact term: random walk (3) under white (1) and back
     mid, half, sd_level = flicker_bound(curve, p, nu, sel, k)
     shape = A[sel, k]
-    p_i = (curve.adev[sel] ** 2 - parts[sel, other] - mid) / shape
+    deficit = settle_step * curve.m[0] / curve.m[sel] / curve.tau[sel]  # the filter's, in variance
+    p_i = (curve.adev[sel] ** 2 - parts[sel, other] - mid + deficit) / shape
     sd = total[sel] * np.sqrt(2.0 / nu[sel]) / shape
     a, b = half / math.sqrt(3.0) / shape, sd_level / shape
+    c = deficit / 2.0 / math.sqrt(3.0) / shape
     rho = correlation(curve.m[sel], p[1] * curve.rate_hz, p[3] / curve.rate_hz)
-    w = 1.0 / (sd ** 2 + a ** 2 + b ** 2)
+    w = 1.0 / (sd ** 2 + a ** 2 + b ** 2 + c ** 2)
     value_sq = max(float(np.sum(w * p_i) / np.sum(w)), 1e-300)
     birge = 1.0
     if sel.sum() > 1:
         birge = max(1.0, float(np.sum(w * (p_i - value_sq) ** 2)) / (sel.sum() - 1))
-    var = (float(w @ (rho * np.outer(sd, sd)) @ w) + float(w @ a) ** 2 + float(w @ b) ** 2) \
+    var = (float(w @ (rho * np.outer(sd, sd)) @ w) + float(w @ a) ** 2 + float(w @ b) ** 2 + float(w @ c) ** 2) \
         / float(np.sum(w)) ** 2 * birge
     nu_term = 2.0 * value_sq ** 2 / var
     lo, hi = _interval(value_sq, nu_term)
@@ -286,33 +295,89 @@ def _hours(s: float) -> str:
 
 
 def too_short_message(curve: AllanCurve, p: np.ndarray, k: int, what: str) -> str:
-    duration = curve.n / curve.rate_hz
+    """A pooled curve's taus reach a tenth of its longest stretch between gaps, not of the
+    whole: the length needed is then one stretch's."""
+    duration = max(curve.lengths()) / curve.rate_hz
+    span = f"the {_hours(duration)} recording" if not curve.segments else \
+        f"the longest of its {len(curve.segments)} stretches between gaps, {_hours(duration)}"
+    once = "" if not curve.segments else " without a gap"
     tau_max = float(curve.tau.max())
     shape = "rise (slope +1/2)" if k == 3 else "fall (slope -1/2)"
     tx = _tau_where_dominant(p, k)
     if tx is not None and k == 3:
-        need = f"record at least {_hours(2 * tx / MAX_TAU_FRACTION)} (it would dominate from tau ~{tx:.0f} s; " \
+        need = f"record at least {_hours(2 * tx / MAX_TAU_FRACTION)}{once} (it would dominate from tau ~{tx:.0f} s; " \
                f"the longest tau read is a tenth of the recording)"
     else:
-        need = f"it is not seen at all: record at least {_hours(4 * duration)}, still and warmed up"
+        need = f"it is not seen at all: record at least {_hours(4 * duration)}{once}, still and warmed up"
     return (f"too short for the {what}: the Allan deviation shows no {shape} where it dominates up to tau = "
-            f"{tau_max:.3g} s (a tenth of the {_hours(duration)} recording); {need}")
+            f"{tau_max:.3g} s (a tenth of {span}); {need}")
+
+
+def settled(curve: AllanCurve) -> tuple[int, float]:
+    """(the index of the first tau the terms are read from, the last step left out): the
+    leading taus where the sensor's own filtering holds the Allan variance below the
+    white-noise line are left out.
+
+    White noise keeps sigma^2 tau flat. A filter whose memory spans a few samples (an
+    averaging or anti-alias filter, a decimation of a faster stream: consecutive samples
+    correlated) lowers it at the taus comparable to that memory, and the curve climbs to
+    the line by steps that grow while tau is below the filter's time constant and then
+    shrink (the deficit falls as 1 / tau beyond it). Bias instability and random walk
+    raise sigma^2 tau by steps that only grow (double or quadruple an octave). So the
+    leading run of significant steps (each over SETTLE_SIGMAS standard deviations of the
+    difference, white-noise edf taken as independent) is left out when it rises and then
+    falls, up to where the steps stop being significant or grow again; a run that only
+    grows is a term of the model and stays. At least MIN_TAUS taus remain. Read from the
+    rest, the white noise density is the flat part's, the density at frequencies well below
+    the filter's, which is what integrating the samples accumulates; read from the filtered
+    taus it would come out low, and the joint fit would explain their rise with a bias
+    instability that is not there.
+
+    The deficit does not end at the first tau kept: beyond the filter's memory it falls as
+    C / m (the Allan variance of correlated samples is the white line less a 1 / m^2
+    term), so at the first tau kept it is about the last step left out, and at cluster
+    size m that step times m_first / m (`fit_term` adds it back)."""
+    v = curve.adev ** 2 * curve.tau
+    sd = v * np.sqrt(2.0 / curve_edf(ALPHA["white"], curve, curve.m))
+    steps = np.diff(v)
+    i, falling = 0, False
+    while len(v) - (i + 1) >= MIN_TAUS and steps[i] > SETTLE_SIGMAS * math.hypot(sd[i], sd[i + 1]):
+        if i and steps[i] > steps[i - 1]:
+            if falling:
+                break  # growing again: a term of the model
+        elif i:
+            falling = True
+        i += 1
+    if not falling:
+        return 0, 0.0
+    return i, float(steps[i - 1])
+
+
+def settled_curve(curve: AllanCurve) -> tuple[AllanCurve, float]:
+    """(the curve from its first `settled` tau on, the last step left out)."""
+    start, step = settled(curve)
+    return AllanCurve(curve.tau[start:], curve.adev[start:], curve.m[start:], curve.n, curve.rate_hz,
+                      curve.segments), step
 
 
 def fit_axis(curve: AllanCurve, what: str = "axis") -> AxisNoise:
-    """All terms of one axis; TooShort (naming `what`) when white noise or random walk
-    dominates no tau."""
-    if len(curve.tau) < 4:
+    """All terms of one axis, read from the taus after the sensor's filtering (`settled`);
+    TooShort (naming `what`) when white noise or random walk dominates no tau. The
+    AxisNoise keeps the whole curve (edf of the taus left out: white noise's)."""
+    if len(curve.tau) < MIN_TAUS:
         raise TooShort(f"too short for the {what}: {curve.n} samples give {len(curve.tau)} octave taus; "
-                       f"expected at least 4 (record at least {_hours(160 / curve.rate_hz)})")
-    p, nu = joint_fit(curve)
-    white = fit_term(curve, p, nu, 1)
+                       f"expected at least {MIN_TAUS} (record at least {_hours(160 / curve.rate_hz)})")
+    read, step = settled_curve(curve)
+    start = len(curve.tau) - len(read.tau)
+    p, nu = joint_fit(read)
+    white = fit_term(read, p, nu, 1, step)
     if white is None:
-        raise TooShort(too_short_message(curve, p, 1, f"{what} white noise"))
-    rw = fit_term(curve, p, nu, 3)
+        raise TooShort(too_short_message(read, p, 1, f"{what} white noise"))
+    rw = fit_term(read, p, nu, 3, step)
     if rw is None:
-        raise TooShort(too_short_message(curve, p, 3, f"{what} random walk"))
-    return AxisNoise(curve, p, nu, white, rw, fit_bias_instability(curve, p))
+        raise TooShort(too_short_message(read, p, 3, f"{what} random walk"))
+    nu_all = np.concatenate([curve_edf(ALPHA["white"], curve, curve.m[:start]), nu]) if start else nu
+    return AxisNoise(curve, p, nu_all, white, rw, fit_bias_instability(read, p))
 
 
 def combine(fits: list[TermFit]) -> tuple[int, TermFit]:
