@@ -8,6 +8,13 @@ stage times its console prints (detection, intrinsics, solve, total) and the cam
 step's from the YAML, then `rigcal compare` against truth.yaml.
 
     python -m bench.imu_speed [--duration S] [--seed N]
+    python -m bench.imu_speed --after-detection [--duration S] [--seed N]
+
+`--after-detection` times what `calibrate` does after detection, in this process (its
+rusage: CPU of the main process, every thread), with the detected views read from a pickle
+made by the first such run (bench/out/imu_speed/detected_<duration>s_seed<N>.pickle): the
+part the speed work changes, timed in a minute instead of detection's three on a loaded
+machine. The YAML goes to bench/out/imu_speed/after_detection_<duration>s_seed<N>.yaml.
 """
 
 from __future__ import annotations
@@ -84,6 +91,55 @@ def run(duration: float = 30.0, seed: int = 0, log=say) -> dict:
     return res
 
 
+def after_detection(duration: float = 30.0, seed: int = 0, log=say) -> dict:
+    """`rigcal calibrate` (rigcal.commands.calibrate.run, --jobs JOBS) in this process with
+    detection read from a pickle of its views (made by the first run): wall and CPU seconds
+    (user + system, every thread of this process) of the rest."""
+    import pickle
+    import resource
+    import time
+
+    import rigcal.commands.calibrate as cal_cmd
+
+    d = simulated(duration, seed, log)
+    cache = OUT / "imu_speed" / f"detected_{duration:g}s_seed{seed}.pickle"
+    out_yaml = OUT / "imu_speed" / f"after_detection_{duration:g}s_seed{seed}.yaml"
+    detect = cal_cmd._detect_views
+
+    def cached(inp, *a, **k):
+        if cache.is_file():
+            views, det, rig, warnings = pickle.loads(cache.read_bytes())
+            return cal_cmd._Detected(views, det, rig, inp.images, warnings)
+        found = detect(inp, *a, **k)
+        cache.write_bytes(pickle.dumps((found.views, found.det, found.rig, found.warnings)))
+        raise _Cached
+
+    cal_cmd._detect_views = cached
+    try:
+        if not cache.is_file():
+            try:
+                cal_cmd.run(d, out_yaml, cal_cmd.CalibrateOptions(jobs=JOBS))
+            except _Cached:
+                log(f"  detected views kept in {cache}")
+        # what run() imports on first use, imported before the clock starts
+        import rigcal.camcal.pipeline, rigcal.camcal.stereo_checks, rigcal.commands.calibrate_imu  # noqa: F401, E401
+        import rigcal.detect.guided, rigcal.results.outputs, rigcal.results.imu_outputs  # noqa: F401, E401
+        r0, t0 = resource.getrusage(resource.RUSAGE_SELF), time.perf_counter()
+        cal_cmd.run(d, out_yaml, cal_cmd.CalibrateOptions(jobs=JOBS))
+        wall, r1 = time.perf_counter() - t0, resource.getrusage(resource.RUSAGE_SELF)
+    finally:
+        cal_cmd._detect_views = detect
+    res = {"duration_s": duration, "seed": seed, "wall_s": wall, "cpu_user_s": r1.ru_utime - r0.ru_utime,
+           "cpu_system_s": r1.ru_stime - r0.ru_stime, "load_avg": os.getloadavg()[0], "yaml": str(out_yaml)}
+    log(f"  after detection: {wall:.1f} s wall, {res['cpu_user_s']:.1f} s user + {res['cpu_system_s']:.1f} s system "
+        f"CPU (load {res['load_avg']:.1f})")
+    return res
+
+
+class _Cached(Exception):
+    """after_detection's first run: the views are kept, the rest is the timed run's."""
+
+
 def tables(r: dict) -> str:
     s = r["stages"]
     head = md_table(["recording", "images", "detection s", "camera-only (intrinsics + solve) s", "camera-IMU s",
@@ -102,7 +158,12 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=30.0)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--after-detection", action="store_true",
+                    help="time calibrate after detection only, in this process, detection read from a pickle")
     a = ap.parse_args(argv)
+    if a.after_detection:
+        write_json("imu_speed_after_detection", after_detection(a.duration, a.seed))
+        return 0
     res = run(a.duration, a.seed)
     write_json("imu_speed", res)
     print(tables(res))

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -229,33 +231,43 @@ def test_pnp_views_poses_each_view_and_a_views_pose_does_not_depend_on_the_other
     assert np.array_equal(ini.pnp_views(obj[:1], img[:1], vals, cam.intrinsics.model, faces[:1])[0][0], fresh[0][0])
 
 
-def test_own_views_start_without_the_radtan4_refit_reaches_the_same_intrinsics(monkeypatch):
-    """mono(refit=False) (calibrate_views' imu_start: a camera-IMU step follows) starts the
-    own-views solve from the radtan5 fit with k3 dropped instead of a radtan4 refit by
-    OpenCV; the solve over every view lands on the same intrinsics from either start."""
+@pytest.mark.parametrize("k3", [None, 0.05])
+def test_own_views_start_makes_monos_k3_decision_without_opencv(monkeypatch, k3):
+    """own_views_start (calibrate_views' imu_start: a camera-IMU step follows) fits the
+    same up to MAX_MONO_VIEWS views as mono() by rigcal's sparse solve instead of OpenCV's
+    dense one: the same k3 decision (dropped on a small k3, kept on a large one) on about
+    the same Wald statistic, no OpenCV fit, and the own-views solve over every view lands
+    on the same intrinsics from either start (within the solver's convergence)."""
+    import re
+
     from rigcal.camcal import initialise
     from rigcal.camcal.solve import Intrinsics
 
     rng = np.random.default_rng(5)
     truth = perturb(rigcal.load_rig("drone-stereo-back"), rng)
+    if k3 is not None:
+        m = truth.camera("front_left").intrinsics
+        truth = truth.with_cameras([c if c.name != "front_left" else replace(c, intrinsics=m.with_(
+            dist=(*m.dist[:4], k3))) for c in truth.cameras])
     views, corners = noisy_room(truth, rng, 0.3, n_frames=25)
     mine = [v for v in views if v.camera == "front_left"]
     declared = truth.camera("front_left").intrinsics
     mi = initialise.init_camera(mine, corners, declared, "auto", False)
+    monkeypatch.setattr(initialise, "MAX_MONO_VIEWS", 15)  # fewer than the camera's views: a selection
+    slow, slow_line = mi.mono()
     fits = []
     fit = initialise.fit_pinhole
     monkeypatch.setattr(initialise, "fit_pinhole", lambda o, i, m, n: fits.append(n) or fit(o, i, m, n))
-    refit, line = mi.mono()
-    assert "radtan4" in line and fits[-1] == 4  # k3 dropped here, so there is a refit to skip
-    fits.clear()
-    quick, quick_line = mi.mono(refit=False)
-    assert quick_line == line and 4 not in fits and len(quick) == len(refit) == 8
-    assert not np.array_equal(quick, refit)  # another start
+    quick, quick_line = initialise.own_views_start(mine, corners, Intrinsics("pinhole", mi.values.copy()), "auto")
+    assert not fits
+    assert ("kept" in quick_line) == ("kept" in slow_line) == (k3 is not None) and len(quick) == len(slow)
+    wald = [float(re.search(r"Wald ([0-9.]+)", x).group(1)) for x in (slow_line, quick_line)]
+    assert abs(wald[0] - wald[1]) <= 0.2 * max(wald[0], 1.0)
     own = [initialise.own_views_intrinsics(mine, corners, Intrinsics("pinhole", np.array(v, float)),
-                                           (declared.cx, declared.cy), "auto") for v in (refit, quick)]
-    # the same structure, the values within the solver's convergence: under a hundredth of their sigma
+                                           (declared.cx, declared.cy), "auto") for v in (slow, quick)]
     assert own[0].log == own[1].log
     sigma = np.sqrt(np.diag(own[0].cov))
+    # the same values, to well under a hundredth of their sigma
     assert np.all(np.abs(own[0].intrinsics.values - own[1].intrinsics.values) <= 0.01 * sigma)  # held: 0
 
 

@@ -354,7 +354,12 @@ def test_image_rows_keep_the_normal_equations(monkeypatch, huber_k, threads):
     whole = whole if huber_k is None else ir.huber(whole, huber_k)
     monkeypatch.setattr(ir, "CHUNK_CORNERS", 37)
     monkeypatch.setattr(ir, "JOBS_THREADS", threads)
+    sizes = []
+    image_rows = ir._image_rows
+    monkeypatch.setattr(ir, "_image_rows", lambda s, l, o, *a: sizes.append(len(o.cam)) or image_rows(s, l, o, *a))
     rows = ir.reprojection_rows(st, lay, obs, CAMS, 0.5, huber_k)
     _assert_same_normal_equations(whole, rows, lay.size)
+    # chunks of at most CHUNK_CORNERS, as many as a multiple of the threads, of equal size
+    assert sum(sizes) == 300 and max(sizes) <= 37 and len(sizes) % threads == 0 and max(sizes) - min(sizes) <= 1
     # 6 pose + 6 camera + 1 offset + 6 board columns and the intrinsic ones merged: as many rows a view
     assert rows.r.shape[1] == 6 + 6 + 1 + 6 + max(lay.n_intr)

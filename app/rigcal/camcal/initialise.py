@@ -268,8 +268,7 @@ def _faces(views: list[BoardView], faces: dict | None) -> list[float] | None:
 class MonoInit:
     """One camera's start: intrinsics, per-view T_cam_board (None where PnP failed), the
     model-selection log, and its own-views fit for the rigidity check (rms_px None when
-    the intrinsics were not fitted; mono() gives the values it supports on its own;
-    mono(refit=False) a start for them without the radtan4 refit where k3 is dropped)."""
+    the intrinsics were not fitted; mono() gives the values it supports on its own)."""
 
     values: np.ndarray
     T_cam_board: list
@@ -291,7 +290,7 @@ def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, di
         values = np.concatenate([[declared.fx, declared.fy, declared.cx, declared.cy], declared.dist])
     elif declared.model == "fisheye":
         values, rms = _init_fisheye(obj, img, declared, _faces(views, faces))
-        mono = lambda refit=True: (values, "fisheye (own views)")  # noqa: E731
+        mono = lambda: (values, "fisheye (own views)")  # noqa: E731
     else:
         sel = _select_views(np.array([len(o) for o in obj]), MAX_INIT_VIEWS)
         o_s, i_s = [obj[i] for i in sel], [img[i] for i in sel]
@@ -309,11 +308,10 @@ def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, di
                 chosen = fit8
         values, rms = chosen.values, chosen.rms_px
 
-        def mono(refit=True, n=len(chosen.values) - 4):
+        def mono(n=len(chosen.values) - 4):
             # refitted on the camera's views (up to MAX_MONO_VIEWS), cleaned: the k3 decision
-            # is kept, the values start own_views_intrinsics' solve over every view. k3
-            # dropped: radtan4 refitted (refit), else the radtan5 fit without k3 as the start
-            # (the solve over every view goes to the same optimum from either)
+            # is kept (radtan4 refitted where k3 is dropped), the values start
+            # own_views_intrinsics' solve over every view
             keep_views = _select_views(np.array([len(o) for o in obj]), MAX_MONO_VIEWS)
             own, _, _, o_c, i_c = _clean_fit([obj[i] for i in keep_views], [img[i] for i in keep_views],
                                              declared, n)
@@ -322,8 +320,7 @@ def init_camera(views: list[BoardView], corners: dict, declared: CameraModel, di
             keep, line = keep_k3(own.values[8], own.sigma[8] ** 2)
             if keep:
                 return own.values, f"radtan5 (own views; {line})"
-            four = fit_pinhole(o_c, i_c, declared, 4).values if refit else own.values[:8]
-            return four, f"radtan4 (own views; {line})"
+            return fit_pinhole(o_c, i_c, declared, 4).values, f"radtan4 (own views; {line})"
     return MonoInit(values, pnp_views(obj, img, values, declared.model, _faces(views, faces)), notes, rms, mono)
 
 
@@ -455,6 +452,35 @@ def own_views_intrinsics(views: list[BoardView], corners: dict, start: Intrinsic
             res = refit(res, 0, reduced)
             full = _intrinsics_cov(res)
     return OwnViews(res.state.intrinsics[0], lines, full, free)
+
+
+def own_views_start(views: list[BoardView], corners: dict, joint: Intrinsics, distortion: str,
+                    faces: dict | None = None) -> tuple[np.ndarray, str] | None:
+    """The start of one pinhole camera's own-views solve (own_views_intrinsics) when a
+    camera-IMU step re-estimates the intrinsics after it (calibrate_views' imu_start), and
+    its log line: as MonoInit.mono()'s, from the same up to MAX_MONO_VIEWS views and the
+    same k3 test (auto distortion on radtan5: Wald at K3_LEVEL, k3 dropped from the start
+    where it fails), fitted by rigcal's sparse one-camera solve from the joint solve's
+    intrinsics `joint` instead of OpenCV's solver, which is dense in the views (on the 30 s
+    three-camera recording 0.3 s a camera against 0.6-1.5 s, the same Wald statistics to
+    0.1). None when those views cannot be fitted (mono() then)."""
+    obj, img = _views_obj_img(views, corners)
+    keep = _select_views(np.array([len(o) for o in obj]), MAX_MONO_VIEWS)
+    f = _faces(views, faces)
+    res = one_camera_solve([obj[i] for i in keep], [img[i] for i in keep],
+                           replace(joint, values=joint.values.copy(), tie_focal=False, hold_centre=False),
+                           faces=None if f is None else [f[i] for i in keep])
+    if res is None:
+        return None
+    values = res.state.intrinsics[0].values.copy()
+    n = len(values) - 4
+    if distortion != "auto" or n != 5:
+        return values, f"{PINHOLE_MODEL_NAMES[n]} (own views)"
+    cov = _intrinsics_cov(res)
+    if cov is None:
+        return None
+    kept, line = keep_k3(values[8], cov[8, 8])
+    return (values, f"radtan5 (own views; {line})") if kept else (values[:8], f"radtan4 (own views; {line})")
 
 
 def _intrinsics_cov(res: SolveResult) -> np.ndarray | None:

@@ -391,23 +391,28 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
     squares, gave the same optimum in the same number of iterations on the 4 s test
     recording and cost 2.6 s on the 30 s one). The estimate is refined once more with the
     corners weighted by the noise it measured when that differs from the assumed by over
-    REWEIGHT_ABOVE. Returns (result, the settings it used, estimates run); its state's
+    REWEIGHT_ABOVE (the first pass then stopped at REFINE_COST_TOL: only the refinement's
+    start). Returns (result, the settings it used, estimates run); its state's
     boards are in estimator_corners' order, its `sigma` is not computed (parameter_sigmas
     gives every sigma the output needs)."""
     gauge, order, obs = estimator_corners(inp, len(T_world_board))
     models = [c.model for c in inp.cams]
     joint = settings.intrinsics  # the gauge pass (some cameras only) holds them
     intrinsics = inp.intrinsics if joint else ()
+    # where the corners' measured noise already says the re-weighted refinement follows, the
+    # first pass only starts it: it ends at REFINE_COST_TOL (the refinement converges from there
+    # in as many steps; 30 s recording: the pass's last step, which gained 0.0002, not taken)
+    loose = (ic.REFINE_COST_TOL, lambda blocks: abs(blocks[0].residual_rms - 1.0) >= REWEIGHT_ABOVE)
     if len(np.unique(inp.board)) > 1:
         # the corners weighted by the noise the gauge pass measured: the camera-only step's is
         # inflated by treating unsynchronised frames as one instant
         start, settings = _gauge_pass(inp, T_world_board, gauge, replace(settings, intrinsics=False))
         settings = replace(settings, intrinsics=joint)
         res = ic.solve_from(replace(start, T_world_board=T_world_board[order], intrinsics=intrinsics), obs, models,
-                            inp.imu, settings, sigmas=False)
+                            inp.imu, settings, sigmas=False, loose=loose)
     else:
         res = ic.calibrate_camera_imu(_with_boards(inp, T_world_board), obs, inp.imu, settings,
-                                      T_world_board[order], intrinsics, sigmas=False)
+                                      T_world_board[order], intrinsics, sigmas=False, loose=loose)
     if abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
         return res, settings, 1
     settings = _settings_with(settings, res)
@@ -428,12 +433,18 @@ def jacobian(res: ic.CameraImuResult, inp: Inputs, settings: ic.Settings):
     return ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay
 
 
-def linear_sigmas(J, A: np.ndarray, lay: ir.Layout) -> np.ndarray:
+def normal_factor(J, lay: ir.Layout):
+    """(solve, active columns) of J^T J: one sparse LU in the estimator's banded-arrow order
+    (imu_calib.factor; SuperLU's own ordering took 157 s on EuRoC's 72 s at 100 knots/s),
+    shared by linear_sigmas and intrinsics_coupling."""
+    return ic.factor((J.T @ J).tocsc(), ic.band_order(lay))
+
+
+def linear_sigmas(J, A: np.ndarray, lay: ir.Layout, factored=None) -> np.ndarray:
     """1-sigma of the linear combinations A (K, n) @ x under covariance (J^T J)^-1 (held
-    parameters have empty columns and are left out): one sparse LU in the estimator's
-    banded-arrow order (imu_calib.factor; SuperLU's own ordering took 157 s on EuRoC's 72 s
-    at 100 knots/s), K solves."""
-    solve, active = ic.factor((J.T @ J).tocsc(), ic.band_order(lay))
+    parameters have empty columns and are left out): K solves with normal_factor's LU
+    (`factored` when already made)."""
+    solve, active = factored or normal_factor(J, lay)
     a = np.asarray(A[:, active].T, dtype=float)
     return np.sqrt(np.maximum(np.einsum("ik,ik->k", a, solve(a)), 0.0))
 
@@ -447,13 +458,14 @@ def mean_weights(n: int) -> np.ndarray:
 
 
 def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bool = False,
-                     intrinsics: tuple = ()) -> dict:
+                     intrinsics: tuple = (), factored=None) -> dict:
     """1-sigma of each camera's pose (C, 6: rotation rad about body axes, position m) and
     clock offset (C,), the mean gyroscope and accelerometer biases (3,) and, when estimated,
     every camera's line delay (C,), the 12 scale-misalignment parameters (`scale`: L of
     M_gyro, then of M_accel, in imu_residuals.SCALE_ROWS / SCALE_COLS order) and, given the
     estimated `intrinsics`, each camera's intrinsic values (`intrinsics`: per camera
-    model_selection.intrinsic_sigmas' dict; held values 0)."""
+    model_selection.intrinsic_sigmas' dict; held values 0). factored: normal_factor(J, lay)
+    when already made."""
     w = mean_weights(lay.n_bias)
     C = lay.n_cam
 
@@ -477,7 +489,7 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bo
         A = np.zeros((len(intr.values), lay.size))
         A[:, lay.intr_start(c):lay.intr_start(c) + E.shape[1]] = E
         parts.append(A)
-    sd = linear_sigmas(J, np.concatenate(parts), lay)
+    sd = linear_sigmas(J, np.concatenate(parts), lay, factored)
     out = {"pose": sd[:6 * C].reshape(C, 6), "offset": sd[6 * C:7 * C], "gyro_bias": sd[7 * C:7 * C + 3],
            "accel_bias": sd[7 * C + 3:7 * C + 6]}
     k = 7 * C + 6
@@ -490,12 +502,13 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bo
     return out
 
 
-def intrinsics_coupling(J, lay: ir.Layout, intrinsics: tuple) -> np.ndarray:
+def intrinsics_coupling(J, lay: ir.Layout, intrinsics: tuple, factored=None) -> np.ndarray:
     """B (6 C, 4 C): how every camera's pose (rotation rad about body axes, position m: the
     sigmas' parameters) follows every camera's fx, fy, cx, cy at the optimum, from the formal
     covariance: B = C_PI C_II^+ (the regression of the poses on the intrinsics; held values
     have zero rows and drop out of the pseudo-inverse). When the intrinsics are less certain
-    than the formal covariance says by Delta, the poses are by B Delta B^T."""
+    than the formal covariance says by Delta, the poses are by B Delta B^T. factored:
+    normal_factor(J, lay) when already made."""
     C = lay.n_cam
     A_P = np.zeros((6 * C, lay.size))
     A_P[np.arange(6 * C), lay.cam + np.arange(6 * C)] = 1.0
@@ -503,7 +516,7 @@ def intrinsics_coupling(J, lay: ir.Layout, intrinsics: tuple) -> np.ndarray:
     for c, intr in enumerate(intrinsics):
         E = intr.basis()[:4]
         A_I[4 * c:4 * c + 4, lay.intr_start(c):lay.intr_start(c) + E.shape[1]] = E
-    solve, active = ic.factor((J.T @ J).tocsc(), ic.band_order(lay))
+    solve, active = factored or normal_factor(J, lay)
     S = solve(np.asarray(A_I[:, active].T, dtype=float))
     C_II, C_PI = A_I[:, active] @ S, A_P[:, active] @ S
     return C_PI @ np.linalg.pinv(C_II, rcond=1e-12, hermitian=True)
@@ -595,14 +608,15 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     # sigmas with the corners weighted by their measured noise (the variance factor)
     J, lay = jacobian(res, inp, _settings_with(settings, res))
     res = replace(res, blocks=())  # used: not kept in the answer
+    factored = normal_factor(J, lay)  # one LU for the sigmas and the intrinsics' coupling
     sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment,
-                           res.state.intrinsics if settings.intrinsics else ())
+                           res.state.intrinsics if settings.intrinsics else (), factored)
     names = list(cal.cam_names)
     check = None
     warnings = []
     if options.subsets:
         _, _, obs_all = estimator_corners(inp, len(cal.state.T_world_board))
-        coupling = intrinsics_coupling(J, lay, res.state.intrinsics) if settings.intrinsics else None
+        coupling = intrinsics_coupling(J, lay, res.state.intrinsics, factored) if settings.intrinsics else None
         check = subset_check(res, obs_all, [c.model for c in inp.cams], inp.imu, settings, sig, estimate_delay,
                              coupling)
         if check is not None:
