@@ -164,7 +164,7 @@ def test_corners_pulled_off_by_an_occluding_edge_are_left_out(truth, tmp_path):
     assert n > 100
     r = CliRunner().invoke(app, ["calibrate", str(ds), "--out", str(tmp_path / "cal.yaml"), "--jobs", "1"])
     assert r.exit_code == 0, r.output
-    m = re.search(r"the last without the (\d+) corners the one before put beyond 5 robust sigmas", r.output)
+    m = re.search(r"the second without the (\d+) corners the first put beyond 5 robust sigmas", r.output)
     assert m, r.output
     # 2 px is 6.7 sigmas: a shifted corner whose noise pulls it back under 5 sigmas stays
     assert 0.85 * n <= int(m.group(1)) <= n + 3, (m.group(1), n)

@@ -313,10 +313,11 @@ def _most_corners(board: np.ndarray, n_boards: int | None) -> int:
     return int(np.argmax(np.bincount(board, minlength=n_boards or 0)))
 
 
-def corner_outliers(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> np.ndarray:
-    """(M,) bool over obs: the corners the estimate `res` (its state; the corners it used)
+def judge_corners(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> tuple[np.ndarray, float]:
+    """((M,) bool over obs: the corners the estimate `res` (its state; the corners it used)
     projects more than REJECT_SIGMA robust sigmas away from where they were measured, the
-    sigma per camera from its median error (Rayleigh, as camcal.solve.judge_inliers). The
+    sigma per camera from its median error (Rayleigh, as camcal.solve.judge_inliers); the
+    other corners' RMS error per coordinate, px). The
     camera-only step's test cannot judge free-running images (grouped, their residuals
     carry the motion between them) and misses what only the continuous-time model shows;
     a corner whose refinement window took in another object's edge (a board or a hand in
@@ -329,7 +330,8 @@ def corner_outliers(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> n
         k = sub.cam == c
         sigma = float(np.median(e[k])) / math.sqrt(2.0 * math.log(2.0))
         out[used[k]] = e[k] > REJECT_SIGMA * max(sigma, 1e-4)
-    return out
+    e_in = e[~out[used]]
+    return out, float(np.sqrt(np.mean(e_in ** 2) / 2.0)) if len(e_in) else 0.0
 
 
 def estimator_corners(inp: Inputs, n_boards: int) -> tuple[int, np.ndarray, ir.Corners]:
@@ -382,7 +384,7 @@ def _gauge_pass(inp: Inputs, T_world_board: np.ndarray, gauge: int, settings: ic
 
 
 def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
-             ) -> tuple[ic.CameraImuResult, ic.Settings, int]:
+             ) -> tuple[ic.CameraImuResult, ic.Settings, int, Inputs, int]:
     """The camera-IMU estimate, every board's pose in it but the gauge's (most corners: the
     world frame). With several boards the start is the trajectory from the gauge board and
     the IMU alone (_gauge_pass), the other boards where the camera-only step put them, the
@@ -392,7 +394,9 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
     recording and cost 2.6 s on the 30 s one). The estimate is refined once more with the
     corners weighted by the noise it measured when that differs from the assumed by over
     REWEIGHT_ABOVE (the first pass then stopped at REFINE_COST_TOL: only the refinement's
-    start). Returns (result, the settings it used, estimates run); its state's
+    start), or without the corners it puts beyond REJECT_SIGMA (judge_corners) when they are
+    more than a handful. Returns (result, the settings it used, estimates run, the inputs
+    without those corners, how many were left out); its state's
     boards are in estimator_corners' order, its `sigma` is not computed (parameter_sigmas
     gives every sigma the output needs)."""
     gauge, order, obs = estimator_corners(inp, len(T_world_board))
@@ -413,10 +417,21 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
     else:
         res = ic.calibrate_camera_imu(_with_boards(inp, T_world_board), obs, inp.imu, settings,
                                       T_world_board[order], intrinsics, sigmas=False, loose=loose)
-    if abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
-        return res, settings, 1
-    settings = _settings_with(settings, res)
-    return ic.refine(res, models, obs, inp.imu, settings, cost_tol=ic.ESTIMATE_COST_TOL), settings, 2
+    out, inlier_px = judge_corners(res, obs, models)
+    n_out = int(out.sum())
+    if n_out > max(REJECT_MIN, REJECT_REFIT * len(out)):
+        # refined without them, weighted by the inliers' noise (the outliers inflated what the
+        # first pass measured): the pass that re-weighting would run anyway
+        inp = inp.corners_subset(~out)
+        obs = estimator_corners(inp, len(T_world_board))[2]
+        res = replace(res, corners_used=res.corners_used[~out])
+        settings = replace(settings, sigma_px=max(inlier_px, 1e-3))
+    elif abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
+        return res, settings, 1, inp, 0
+    else:
+        n_out = 0
+        settings = _settings_with(settings, res)
+    return ic.refine(res, models, obs, inp.imu, settings, cost_tol=ic.ESTIMATE_COST_TOL), settings, 2, inp, n_out
 
 
 def jacobian(res: ic.CameraImuResult, inp: Inputs, settings: ic.Settings):
@@ -571,22 +586,9 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
         inp, prior = with_prior(inp, cal.declared if cal.declared is not None else cal.rig, list(cal.cam_names))
         settings = replace(settings, intrinsics_prior=prior)
     try:
-        res, settings, passes = estimate(inp, cal.state.T_world_board, settings)
+        res, settings, passes, inp, n_out = estimate(inp, cal.state.T_world_board, settings)
         test = None
         _, order, obs = estimator_corners(inp, len(cal.state.T_world_board))
-        out = corner_outliers(res, obs, [c.model for c in inp.cams])
-        n_out = int(out.sum())
-        if n_out > max(REJECT_MIN, REJECT_REFIT * len(out)):
-            inp = inp.corners_subset(~out)
-            _, order, obs = estimator_corners(inp, len(cal.state.T_world_board))
-            res = replace(res, corners_used=res.corners_used[~out])
-            # the inliers' noise: the outliers inflated what the estimate measured
-            e = ir.corner_errors(res.state, obs.subset(res.corners_used), [c.model for c in inp.cams])
-            settings = replace(settings, sigma_px=max(float(np.sqrt(np.mean(e ** 2))), 1e-3))
-            res = ic.refine(res, [c.model for c in inp.cams], obs, inp.imu, settings, cost_tol=ic.ESTIMATE_COST_TOL)
-            passes += 1
-        else:
-            n_out = 0
         if options.imu_model == "auto":
             # scale-misalignment from the calibrated solution, on the same corners and weights,
             # the boards estimated with it
@@ -628,8 +630,9 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
     reweighted = " (the second with the corners re-weighted by the noise the first measured)" if passes > 1 else ""
     if n_out:
-        reweighted = (f" (the last without the {n_out} corners the one before put beyond {REJECT_SIGMA:g} robust "
-                      f"sigmas, e.g. near the edge of something in front of the board)")
+        reweighted = (f" (the second without the {n_out} corners the first put beyond {REJECT_SIGMA:g} robust "
+                      f"sigmas, e.g. near the edge of something in front of the board, and re-weighted by the "
+                      f"others' noise)")
     source = ("prior" if settings.intrinsics_prior else "joint") if settings.intrinsics else (
         "declared" if options.intrinsics_from_rig else "camera-only")
     held = {"joint": "too" + (" (fx, fy, cx, cy each: the camera-only step chose its structure on residuals that "
