@@ -54,6 +54,9 @@ Not sections (checks run by hand, each also `python -m bench.<name>`):
                (before and after a change to the pipeline)
   faults       a messy capture (blur, truncated, black and missing images) calibrates within 1.5x of the
                clean one's error
+  indie_corners  detected corners of an independent camera+IMU recording (tests/support/indie_motion.py)
+               against the renderer's exact ones, by distance to the other boards' sheet edges, with and
+               without detection's overlap step (`python -m bench.indie_corners DATASET`)
 
 Finished studies, whose conclusions the documentation records (docs/accuracy.md,
 docs/decisions.md), are in bench/archive/ (its README

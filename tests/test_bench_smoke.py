@@ -18,7 +18,7 @@ from rigcal.sim.synthetic import room_scene, with_noise
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 # checks run by hand, not benchmark sections (bench/__main__.py's docstring lists them)
-CHECKS = ("same_outputs", "faults")
+CHECKS = ("same_outputs", "faults", "indie_corners")
 MODULES = ("common", "accuracy", "noise_limit", "peer_opencv", "montecarlo", "scale", "speed", "real", "indie",
            "indie_noise", "simulate_imu", "imu_calib", "imu_coverage", "imu_euroc", "imu_freerun", "imu_speed",
            "indie_imu", "solver_libraries", "ingest", "aprilgrid_excess", "imu_noise", "imu_noise_real", "mag", "check",
