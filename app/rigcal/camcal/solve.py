@@ -665,8 +665,14 @@ def judge_inliers(obs: Observations, state: State, inliers: np.ndarray, gauge_ca
     noise when it has weights (whitened residuals)."""
     pb_all = Problem(obs, state, gauge_cam, gauge_board, fix_intrinsics)
     e = np.linalg.norm((obs.sqrt_weights() * pb_all.residuals(pb_all.x0())).reshape(-1, 2), axis=1)
-    # median |e| = sigma sqrt(2 ln 2) for isotropic Gaussian noise (Rayleigh)
-    sigma = np.median(e[inliers]) / np.sqrt(2 * np.log(2))
+    return within_robust_sigmas(e, reject_sigma, inliers)
+
+
+def within_robust_sigmas(e: np.ndarray, reject_sigma: float, ref: np.ndarray | None = None) -> np.ndarray:
+    """(M,) bool: the 2D errors e (M,) within reject_sigma robust sigmas, the sigma from the
+    median error of e[ref] (all when None): median |e| = sigma sqrt(2 ln 2) for isotropic
+    Gaussian noise (Rayleigh). Also the camera-IMU step's outlier test (imucal.step)."""
+    sigma = np.median(e if ref is None else e[ref]) / np.sqrt(2 * np.log(2))
     return e < reject_sigma * max(sigma, 1e-4)
 
 

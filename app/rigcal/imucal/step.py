@@ -46,6 +46,7 @@ from rigcal.imucal import start as imu_start
 from rigcal.errors import CalibrationError, DatasetError, InputError
 from rigcal.camcal.initialise import pnp_views
 from rigcal.camcal.model_selection import IMU_MODEL_LEVEL, intrinsic_sigmas, likelihood_ratio_test
+from rigcal.camcal.solve import within_robust_sigmas
 from rigcal.data.imu_csv import ImuSamples
 from rigcal.core.rig import Imu
 
@@ -316,8 +317,8 @@ def _most_corners(board: np.ndarray, n_boards: int | None) -> int:
 def judge_corners(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> tuple[np.ndarray, float]:
     """((M,) bool over obs: the corners the estimate `res` (its state; the corners it used)
     projects more than REJECT_SIGMA robust sigmas away from where they were measured, the
-    sigma per camera from its median error (Rayleigh, as camcal.solve.judge_inliers); the
-    other corners' RMS error per coordinate, px). The
+    sigma per camera from its median error (camcal.solve.within_robust_sigmas, the
+    camera-only step's rule); the other corners' RMS error per coordinate, px). The
     camera-only step's test cannot judge free-running images (grouped, their residuals
     carry the motion between them) and misses what only the continuous-time model shows;
     a corner whose refinement window took in another object's edge (a board or a hand in
@@ -328,8 +329,7 @@ def judge_corners(res: ic.CameraImuResult, obs: ir.Corners, models: list) -> tup
     out = np.zeros(len(obs.cam), bool)
     for c in np.unique(sub.cam):
         k = sub.cam == c
-        sigma = float(np.median(e[k])) / math.sqrt(2.0 * math.log(2.0))
-        out[used[k]] = e[k] > REJECT_SIGMA * max(sigma, 1e-4)
+        out[used[k]] = ~within_robust_sigmas(e[k], REJECT_SIGMA)
     e_in = e[~out[used]]
     return out, float(np.sqrt(np.mean(e_in ** 2) / 2.0)) if len(e_in) else 0.0
 
@@ -419,18 +419,18 @@ def estimate(inp: Inputs, T_world_board: np.ndarray, settings: ic.Settings
                                       T_world_board[order], intrinsics, sigmas=False, loose=loose)
     out, inlier_px = judge_corners(res, obs, models)
     n_out = int(out.sum())
-    if n_out > max(REJECT_MIN, REJECT_REFIT * len(out)):
+    if n_out <= max(REJECT_MIN, REJECT_REFIT * len(out)):
+        n_out = 0  # a handful: kept
+        if abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
+            return res, settings, 1, inp, 0
+        settings = _settings_with(settings, res)
+    else:
         # refined without them, weighted by the inliers' noise (the outliers inflated what the
         # first pass measured): the pass that re-weighting would run anyway
         inp = inp.corners_subset(~out)
         obs = estimator_corners(inp, len(T_world_board))[2]
         res = replace(res, corners_used=res.corners_used[~out])
         settings = replace(settings, sigma_px=max(inlier_px, 1e-3))
-    elif abs(res.normalised_rms["corners"] - 1.0) < REWEIGHT_ABOVE:
-        return res, settings, 1, inp, 0
-    else:
-        n_out = 0
-        settings = _settings_with(settings, res)
     return ic.refine(res, models, obs, inp.imu, settings, cost_tol=ic.ESTIMATE_COST_TOL), settings, 2, inp, n_out
 
 
@@ -628,11 +628,10 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     rate = math.sqrt(imu.update_rate)
     pred = imu.gyroscope_noise_density * rate, imu.accelerometer_noise_density * rate
     rms = res.normalised_rms["gyro"] * pred[0], res.normalised_rms["accel"] * pred[1]
-    reweighted = " (the second with the corners re-weighted by the noise the first measured)" if passes > 1 else ""
-    if n_out:
-        reweighted = (f" (the second without the {n_out} corners the first put beyond {REJECT_SIGMA:g} robust "
-                      f"sigmas, e.g. near the edge of something in front of the board, and re-weighted by the "
-                      f"others' noise)")
+    reweighted = (f" (the second without the {n_out} corners the first put beyond {REJECT_SIGMA:g} robust sigmas, "
+                  f"e.g. near the edge of something in front of the board, and re-weighted by the others' noise)"
+                  if n_out else " (the second with the corners re-weighted by the noise the first measured)"
+                  if passes > 1 else "")
     source = ("prior" if settings.intrinsics_prior else "joint") if settings.intrinsics else (
         "declared" if options.intrinsics_from_rig else "camera-only")
     held = {"joint": "too" + (" (fx, fy, cx, cy each: the camera-only step chose its structure on residuals that "
