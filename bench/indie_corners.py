@@ -25,6 +25,7 @@ import yaml
 import rigcal.detect.board_detectors as board_detectors
 from rigcal.core.target import load_target
 from rigcal.data.image_read import read_gray
+from rigcal.detect.overlap import pattern_rect
 
 from .common import md_table
 
@@ -45,9 +46,7 @@ def _project(p: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
 
 def sheet_outline(board) -> np.ndarray:
     """(4, 2) board-frame corners of the printed sheet (pattern + indie_render's margin)."""
-    m = ir.PAPER_MARGIN_SQUARES * board.square_length
-    w, h = board.size_m
-    return np.array([[-m, -m], [w + m, -m], [w + m, h + m], [-m, h + m]])
+    return pattern_rect(board, ir.PAPER_MARGIN_SQUARES * board.square_length)
 
 
 def corner_rows(ds: Path, every: int, cameras: list[str], overlap: bool) -> list[dict]:

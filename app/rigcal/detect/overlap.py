@@ -114,6 +114,13 @@ def hidden_inside(board: Board, H: np.ndarray, ids: np.ndarray, poly: np.ndarray
     return int((signed_distance(poly, uv) > 0).sum()) if len(uv) else 0
 
 
+def in_reach(uv: np.ndarray, poly: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """(N,) bool: the points uv (N, 2) within their reach (N,) px of the polygon's bounding box."""
+    lo, hi = poly.min(0), poly.max(0)
+    r = reach[:, None]
+    return np.all((uv >= lo - r) & (uv <= hi + r), axis=1)
+
+
 def near_other_boards(views: Sequence[tuple[Board, np.ndarray, np.ndarray]], size: tuple[int, int]
                       ) -> list[np.ndarray]:
     """Per view (board, ids, uv) of one image of size (w, h), (N,) bool: True for a corner
@@ -136,9 +143,7 @@ def near_other_boards(views: Sequence[tuple[Board, np.ndarray, np.ndarray]], siz
     for i, (_, _, uv) in enumerate(views):
         for j, band in enumerate(bands):
             if j != i and band is not None and bands[i] is not None:
-                lo, hi = band[1].min(0), band[1].max(0)
-                r = reach[i][:, None]
-                near[i, j] = bool(np.all((uv >= lo - r) & (uv <= hi + r), axis=1).any())
+                near[i, j] = bool(in_reach(uv, band[1], reach[i]).any())
     for i, ((b, ids, uv), h) in enumerate(zip(views, H)):
         for j in np.flatnonzero(near[i]):
             if near[j, i] and bands[j] is not None:
@@ -149,8 +154,7 @@ def near_other_boards(views: Sequence[tuple[Board, np.ndarray, np.ndarray]], siz
                     continue  # view i's board is in front of j's: j's edge is behind it
             inner, outer = bands[j]
             r = reach[i]
-            lo, hi = outer.min(0), outer.max(0)
-            k = np.flatnonzero(np.all((uv >= lo - r[:, None]) & (uv <= hi + r[:, None]), axis=1))
+            k = np.flatnonzero(in_reach(uv, outer, r))
             d_out = signed_distance(outer, uv[k])
             d_in = signed_distance(inner, uv[k])
             out[i][k] |= (d_out > -r[k]) & (d_in < r[k])
