@@ -267,23 +267,34 @@ def test_last_iterations_blocks_reweighted_equal_a_fresh_evaluation(solved):
     assert ic.reweighted_corners(replace(res, corners_used=res.corners_used.copy()), settings) is None
 
 
+def _refine_with_and_without(solved, settings, monkeypatch, counted, shortcut: str):
+    """(the refine() of `solved` with `settings` as it is, the same with the kept-blocks
+    shortcut `shortcut` (an estimator function) returning None), after checking that the
+    shortcut saves exactly one call of `counted` (module, function name) and nothing else:
+    the same iterations and cost."""
+    rec, res = solved
+    models = [c.model for c in rec.cams]
+    module, name = counted
+    calls = []
+    evaluate = getattr(module, name)
+    monkeypatch.setattr(module, name, lambda *a, **k: calls.append(1) or evaluate(*a, **k))
+    quick = ic.refine(res, models, rec.obs, rec.imu, settings, cost_tol=0.0)
+    n_quick = len(calls)
+    calls.clear()
+    monkeypatch.setattr(ic, shortcut, lambda *a: None)
+    fresh = ic.refine(res, models, rec.obs, rec.imu, settings, cost_tol=0.0)
+    assert len(calls) == n_quick + 1 and quick.iterations == fresh.iterations
+    assert np.isclose(sum(quick.costs.values()), sum(fresh.costs.values()), rtol=1e-9)
+    return quick, fresh
+
+
 def test_reweighted_refinement_starts_from_the_estimates_last_blocks(solved, monkeypatch):
     """refine() with only the corner noise changed (step.estimate's second pass) takes res's
     last blocks re-weighted as its first evaluation: one evaluation fewer, the same result
     as evaluating them afresh."""
-    rec, res = solved
-    settings = replace(res.settings, sigma_px=SIGMA_PX * 1.7)
-    models = [c.model for c in rec.cams]
-    calls = []
-    evaluate = ic.residual_blocks
-    monkeypatch.setattr(ic, "residual_blocks", lambda *a, **k: calls.append(1) or evaluate(*a, **k))
-    quick = ic.refine(res, models, rec.obs, rec.imu, settings, cost_tol=0.0)
-    n_quick = len(calls)
-    calls.clear()
-    monkeypatch.setattr(ic, "reweighted_blocks", lambda *a: None)
-    fresh = ic.refine(res, models, rec.obs, rec.imu, settings, cost_tol=0.0)
-    assert len(calls) == n_quick + 1 and quick.iterations == fresh.iterations
-    assert np.isclose(sum(quick.costs.values()), sum(fresh.costs.values()), rtol=1e-9)
+    settings = replace(solved[1].settings, sigma_px=SIGMA_PX * 1.7)
+    quick, fresh = _refine_with_and_without(solved, settings, monkeypatch, (ic, "residual_blocks"),
+                                            "reweighted_blocks")
     for a, b in ((quick.state.T_body_cam, fresh.state.T_body_cam), (quick.time_offset_s, fresh.time_offset_s)):
         assert np.allclose(a, b, rtol=0, atol=1e-9)
 
@@ -292,20 +303,11 @@ def test_scale_misalignment_refit_starts_from_the_estimates_corner_block(solved,
     """The IMU model's refit (scale-misalignment freed, step.calibrate_imu's test) takes res's
     last corner block as its first (the scale columns are no corner's) and evaluates only the
     IMU's blocks there: one corner evaluation fewer, the same fit as evaluating them afresh."""
-    rec, res = solved
+    res = solved[1]
     settings = replace(res.settings, scale_misalignment=True)
-    models = [c.model for c in rec.cams]
     assert ic.reweighted_blocks(res, settings) is None and ic.reweighted_corners(res, settings) is not None
-    calls = []
-    rows = ir.reprojection_rows
-    monkeypatch.setattr(ir, "reprojection_rows", lambda *a, **k: calls.append(1) or rows(*a, **k))
-    quick = ic.refine(res, models, rec.obs, rec.imu, settings, cost_tol=0.0)
-    n_quick = len(calls)
-    calls.clear()
-    monkeypatch.setattr(ic, "reweighted_corners", lambda *a: None)
-    fresh = ic.refine(res, models, rec.obs, rec.imu, settings, cost_tol=0.0)
-    assert len(calls) == n_quick + 1 and quick.iterations == fresh.iterations
-    assert np.isclose(sum(quick.costs.values()), sum(fresh.costs.values()), rtol=1e-9)
+    quick, fresh = _refine_with_and_without(solved, settings, monkeypatch, (ir, "reprojection_rows"),
+                                            "reweighted_corners")
     for a, b in ((quick.state.T_body_cam, fresh.state.T_body_cam), (quick.state.M_gyro, fresh.state.M_gyro),
                  (quick.state.M_accel, fresh.state.M_accel), (quick.time_offset_s, fresh.time_offset_s)):
         assert np.allclose(a, b, rtol=0, atol=1e-9)
