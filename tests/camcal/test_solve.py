@@ -282,6 +282,29 @@ def test_planted_outliers_are_rejected(drone):
         assert e["rot_deg"] < 0.03 and e["trans_mm"] < 1.0, (a, b, e)
 
 
+def test_bundle_adjust_continues_from_a_robust_pass_run_apart(drone):
+    """bundle_adjust(robust=robust_pass(...)) is bundle_adjust() to the bit; the robust pass
+    read on its own (provisional_result) judges planted gross errors out once."""
+    from rigcal.camcal.solve import bundle_adjust, provisional_result, robust_pass
+
+    rng = np.random.default_rng(21)
+    obs, state = _small_problem(drone, rng, n_frames=8)
+    bad = rng.choice(len(obs), 12, replace=False)
+    uv = obs.uv.copy()
+    uv[bad] += rng.choice([-1, 1], (12, 2)) * rng.uniform(5, 20, (12, 2))
+    obs = Observations(obs.cam, obs.frame, obs.board, obs.p_board, uv, obs.view)
+    whole = bundle_adjust(obs, state, 0, 0)
+    rp = robust_pass(obs, state, 0, 0)
+    apart = bundle_adjust(obs, state, 0, 0, robust=rp)
+    assert np.array_equal(whole.residuals, apart.residuals) and np.array_equal(whole.inliers, apart.inliers)
+    assert whole.history == apart.history and whole.history[0] == ("robust", rp.n_iterations)
+    early = provisional_result(obs, rp, 0, 0)
+    assert not early.inliers[bad].any() and early.inliers.sum() >= len(obs) - 20
+    assert early.history == [("robust", rp.n_iterations)] and early.residuals.shape == (early.inliers.sum(), 2)
+    # its residuals are the robust state's, no rounds: at least the converged solution's
+    assert early.sigma_px >= whole.sigma_px * (1 - 1e-9)
+
+
 def test_disconnected_camera_is_named(drone):
     rng = np.random.default_rng(13)
     truth = perturb(drone, rng)

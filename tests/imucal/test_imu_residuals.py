@@ -363,3 +363,19 @@ def test_image_rows_keep_the_normal_equations(monkeypatch, huber_k, threads):
     assert sum(sizes) == 300 and max(sizes) <= 37 and len(sizes) % threads == 0 and max(sizes) - min(sizes) <= 1
     # 6 pose + 6 camera + 1 offset + 6 board columns and the intrinsic ones merged: as many rows a view
     assert rows.r.shape[1] == 6 + 6 + 1 + 6 + max(lay.n_intr)
+
+
+def test_gram_over_two_halves_is_the_normal_matrix():
+    """estimator.gram: J^T J summed over two halves of J's rows on two threads equals the
+    one product to rounding, above the split size and below it."""
+    import scipy.sparse as sp
+
+    from rigcal.imucal import estimator as ic
+
+    rng = np.random.default_rng(5)
+    for rows in (ic.GRAM_SPLIT_ROWS // 2, 2 * ic.GRAM_SPLIT_ROWS + 1):
+        J = sp.random(rows, 300, density=0.02, format="csr", random_state=rng)
+        H = ic.gram(J)
+        assert sp.isspmatrix_csc(H) or H.format == "csc"
+        ref = (J.T @ J).toarray()
+        assert np.allclose(H.toarray(), ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())

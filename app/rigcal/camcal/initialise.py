@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections import defaultdict
 from contextlib import contextmanager
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import cv2
@@ -414,22 +414,34 @@ def one_camera_solve(obj: list, img: list, intr: Intrinsics, limit: int | None =
     P = np.concatenate([obj[k] for k in sel])
     uv = np.concatenate([img[k] for k in sel])
     frame = np.concatenate([np.full(len(obj[k]), j) for j, k in enumerate(sel)])
-    obs = Observations(np.zeros(len(P), int), frame, np.zeros(len(P), int), P, uv, frame)
+    # each corner's view is its index in obj: view_poses maps the solved frames back to it
+    view = np.concatenate([np.full(len(obj[k]), k) for k in sel])
+    obs = Observations(np.zeros(len(P), int), frame, np.zeros(len(P), int), P, uv, view)
     state = State([replace(intr, values=intr.values.copy())], np.eye(4)[None],
                   np.array([Ts[pos[k]] for k in sel]), np.eye(4)[None])
     return bundle_adjust(obs, state, gauge_cam=0, gauge_board=0)
 
 
+def view_poses(res: SolveResult) -> dict[int, np.ndarray]:
+    """A one_camera_solve's pose T_cam_board per view it kept (index in its obj list): each
+    view is a frame of its own, the camera the body and the board the world."""
+    o = res.problem.obs
+    frames, first = np.unique(o.frame, return_index=True)
+    return {int(o.view[i]): res.state.T_body_world[f] for f, i in zip(frames, first)}
+
+
 @dataclass(frozen=True)
 class OwnViews:
     """One camera's intrinsics from its own views (own_views_intrinsics): the structure
-    chosen, the log, and the covariance (n, n) of the values as solved and as estimated
-    freely before the choice (None when unknown)."""
+    chosen, the log, the covariance (n, n) of the values as solved and as estimated freely
+    before the choice (None when unknown), and per view (frame, board) the pose T_cam_board
+    solved with those intrinsics (empty when none could be solved)."""
 
     intrinsics: Intrinsics
     log: list
     cov: np.ndarray | None
     cov_free: np.ndarray | None
+    T_cam_board: dict = field(default_factory=dict)
 
 
 def own_views_intrinsics(views: list[BoardView], corners: dict, start: Intrinsics, centre, mode: str,
@@ -451,7 +463,8 @@ def own_views_intrinsics(views: list[BoardView], corners: dict, start: Intrinsic
         if reduced is not None:
             res = refit(res, 0, reduced)
             full = _intrinsics_cov(res)
-    return OwnViews(res.state.intrinsics[0], lines, full, free)
+    poses = {(views[k].frame, views[k].board): T for k, T in view_poses(res).items()}
+    return OwnViews(res.state.intrinsics[0], lines, full, free, poses)
 
 
 def own_views_start(views: list[BoardView], corners: dict, joint: Intrinsics, distortion: str,

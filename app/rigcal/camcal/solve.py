@@ -676,30 +676,80 @@ def within_robust_sigmas(e: np.ndarray, reject_sigma: float, ref: np.ndarray | N
     return e < reject_sigma * max(sigma, 1e-4)
 
 
+@dataclass(frozen=True)
+class RobustPass:
+    """robust_pass's answer: the state the Cauchy-weighted solve reached, its iterations,
+    whether it converged, and its seconds."""
+
+    state: State
+    n_iterations: int
+    converged: bool
+    seconds: float
+
+
+def robust_pass(obs: Observations, state: State, gauge_cam: int, gauge_board: int,
+                fix_intrinsics: np.ndarray | None = None) -> RobustPass:
+    """bundle_adjust's first stage: the solve under a Cauchy loss from a rough start. It only
+    has to bring the inliers close enough to tell them from the outliers (a few sigma of
+    parameter error move residuals far less than the noise), so it stops at a chi-square
+    drop of 10; the least-squares rounds after it converge to chi2_tol."""
+    import time
+
+    t0 = time.perf_counter()
+    pb = Problem(obs, state, gauge_cam, gauge_board, fix_intrinsics)
+    r0 = (obs.sqrt_weights() * pb.residuals(pb.x0())).reshape(-1, 2)  # whitened, as LM sees them
+    # Cauchy scale: generous at first so a rough start is not mistaken for outliers.
+    scale = max(3.0 * np.median(np.linalg.norm(r0, axis=1)), 1.0)
+    x, nit, conv = levenberg_marquardt(pb, scale=scale, chi2_tol=10.0)
+    return RobustPass(pb.state(x), nit, conv, time.perf_counter() - t0)
+
+
+def provisional_result(obs: Observations, robust: RobustPass, gauge_cam: int, gauge_board: int,
+                       fix_intrinsics: np.ndarray | None = None, reject_sigma: float = 5.0) -> SolveResult:
+    """The robust pass read as a solve without its least-squares rounds: the corners within
+    reject_sigma robust sigmas of it (judged once) are the inliers, the residuals theirs at
+    the robust state. For a verdict that does not need the converged solution (the
+    rigidity test of a rig that will be solved again), at the cost of the rounds."""
+    inliers = judge_inliers(obs, robust.state, np.ones(len(obs), bool), gauge_cam, gauge_board, fix_intrinsics,
+                            reject_sigma)
+    return _result(obs, robust.state, inliers, gauge_cam, gauge_board, fix_intrinsics, robust.n_iterations,
+                   robust.seconds, robust.converged, [("robust", robust.n_iterations)])
+
+
+def _result(obs: Observations, cur: State, inliers: np.ndarray, gauge_cam: int, gauge_board: int,
+            fix_intrinsics: np.ndarray | None, nit: int, seconds: float, conv: bool, history: list) -> SolveResult:
+    final = Problem(obs.subset(inliers), cur, gauge_cam, gauge_board, fix_intrinsics)
+    r = final.residuals(final.x0()).reshape(-1, 2)
+    dof = max(r.size - final.layout.size, 1)
+    sigma_px = float(np.sqrt(np.sum(r**2) / dof))
+    # the weighted problem's variance of unit weight (px^2 for a corner of weight 1)
+    vf = None if obs.weight is None else float(np.sum((final.obs.sqrt_weights() * r.ravel()) ** 2) / dof)
+    return SolveResult(cur, final, inliers, r, sigma_px, nit, seconds, conv, history, vf)
+
+
 def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: int,
                   fix_intrinsics: np.ndarray | None = None, reject_sigma: float = 5.0,
-                  max_rounds: int = 5, inliers: np.ndarray | None = None) -> SolveResult:
-    """Robust solve (Cauchy), then drop corners beyond `reject_sigma` robust sigmas and
-    re-solve with plain least squares on the inliers until the inlier set is stable.
+                  max_rounds: int = 5, inliers: np.ndarray | None = None,
+                  robust: RobustPass | None = None) -> SolveResult:
+    """Robust solve (Cauchy, robust_pass), then drop corners beyond `reject_sigma` robust
+    sigmas and re-solve with plain least squares on the inliers until the inlier set is
+    stable.
 
     inliers: (M,) bool from an earlier solve of nearly this problem (the same corners,
     a state close to its solution): the robust pass is skipped and rejection starts
-    from that set."""
+    from that set. robust: robust_pass already run on this problem from `state`: the
+    rounds continue from it (the same numbers as running it here)."""
     import time
 
     t0 = time.perf_counter()
     history = []
     conv = True
     if inliers is None:
-        pb = Problem(obs, state, gauge_cam, gauge_board, fix_intrinsics)
-        r0 = (obs.sqrt_weights() * pb.residuals(pb.x0())).reshape(-1, 2)  # whitened, as LM sees them
-        # Cauchy scale: generous at first so a rough start is not mistaken for outliers.
-        scale = max(3.0 * np.median(np.linalg.norm(r0, axis=1)), 1.0)
-        # only has to bring the inliers close enough to tell them from the outliers (a few
-        # sigma of parameter error move residuals far less than the noise); the rounds
-        # below converge to chi2_tol
-        x, nit, conv = levenberg_marquardt(pb, scale=scale, chi2_tol=10.0)
-        cur = pb.state(x)
+        if robust is None:
+            robust = robust_pass(obs, state, gauge_cam, gauge_board, fix_intrinsics)
+        else:
+            t0 -= robust.seconds
+        cur, nit, conv = robust.state, robust.n_iterations, robust.converged
         history.append(("robust", nit))
         inliers = np.ones(len(obs), bool)
     else:
@@ -724,13 +774,8 @@ def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: 
         cur = pb.state(x)
         inliers, ls_solved = new_inliers, True
         history.append(("inliers", k, int(inliers.sum())))
-    final = Problem(obs.subset(inliers), cur, gauge_cam, gauge_board, fix_intrinsics)
-    r = final.residuals(final.x0()).reshape(-1, 2)
-    dof = max(r.size - final.layout.size, 1)
-    sigma_px = float(np.sqrt(np.sum(r**2) / dof))
-    # the weighted problem's variance of unit weight (px^2 for a corner of weight 1)
-    vf = None if obs.weight is None else float(np.sum((final.obs.sqrt_weights() * r.ravel()) ** 2) / dof)
-    return SolveResult(cur, final, inliers, r, sigma_px, nit, time.perf_counter() - t0, conv, history, vf)
+    return _result(obs, cur, inliers, gauge_cam, gauge_board, fix_intrinsics, nit, time.perf_counter() - t0, conv,
+                   history)
 
 
 # ----------------------------------------------------------------------------- covariance
