@@ -282,9 +282,9 @@ def test_planted_outliers_are_rejected(drone):
         assert e["rot_deg"] < 0.03 and e["trans_mm"] < 1.0, (a, b, e)
 
 
-def test_bundle_adjust_continues_from_a_robust_pass_run_apart(drone):
-    """bundle_adjust(robust=robust_pass(...)) is bundle_adjust() to the bit; the robust pass
-    read on its own (provisional_result) judges planted gross errors out once."""
+def test_the_robust_pass_read_on_its_own_leaves_out_gross_errors(drone):
+    """bundle_adjust's first stage is robust_pass; read on its own (provisional_result) it
+    judges planted gross errors out once, and fits no better than the converged solve."""
     from rigcal.camcal.solve import bundle_adjust, provisional_result, robust_pass
 
     rng = np.random.default_rng(21)
@@ -295,9 +295,7 @@ def test_bundle_adjust_continues_from_a_robust_pass_run_apart(drone):
     obs = Observations(obs.cam, obs.frame, obs.board, obs.p_board, uv, obs.view)
     whole = bundle_adjust(obs, state, 0, 0)
     rp = robust_pass(obs, state, 0, 0)
-    apart = bundle_adjust(obs, state, 0, 0, robust=rp)
-    assert np.array_equal(whole.residuals, apart.residuals) and np.array_equal(whole.inliers, apart.inliers)
-    assert whole.history == apart.history and whole.history[0] == ("robust", rp.n_iterations)
+    assert whole.history[0] == ("robust", rp.n_iterations) and not whole.inliers[bad].any()
     early = provisional_result(obs, rp, 0, 0)
     assert not early.inliers[bad].any() and early.inliers.sum() >= len(obs) - 20
     assert early.history == [("robust", rp.n_iterations)] and early.residuals.shape == (early.inliers.sum(), 2)

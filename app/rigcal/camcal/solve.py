@@ -729,26 +729,21 @@ def _result(obs: Observations, cur: State, inliers: np.ndarray, gauge_cam: int, 
 
 def bundle_adjust(obs: Observations, state: State, gauge_cam: int, gauge_board: int,
                   fix_intrinsics: np.ndarray | None = None, reject_sigma: float = 5.0,
-                  max_rounds: int = 5, inliers: np.ndarray | None = None,
-                  robust: RobustPass | None = None) -> SolveResult:
+                  max_rounds: int = 5, inliers: np.ndarray | None = None) -> SolveResult:
     """Robust solve (Cauchy, robust_pass), then drop corners beyond `reject_sigma` robust
     sigmas and re-solve with plain least squares on the inliers until the inlier set is
     stable.
 
     inliers: (M,) bool from an earlier solve of nearly this problem (the same corners,
     a state close to its solution): the robust pass is skipped and rejection starts
-    from that set. robust: robust_pass already run on this problem from `state`: the
-    rounds continue from it (the same numbers as running it here)."""
+    from that set."""
     import time
 
     t0 = time.perf_counter()
     history = []
     conv = True
     if inliers is None:
-        if robust is None:
-            robust = robust_pass(obs, state, gauge_cam, gauge_board, fix_intrinsics)
-        else:
-            t0 -= robust.seconds
+        robust = robust_pass(obs, state, gauge_cam, gauge_board, fix_intrinsics)
         cur, nit, conv = robust.state, robust.n_iterations, robust.converged
         history.append(("robust", nit))
         inliers = np.ones(len(obs), bool)
