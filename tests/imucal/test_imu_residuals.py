@@ -379,3 +379,19 @@ def test_gram_over_two_halves_is_the_normal_matrix():
         assert sp.isspmatrix_csc(H) or H.format == "csc"
         ref = (J.T @ J).toarray()
         assert np.allclose(H.toarray(), ref, rtol=1e-12, atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize("boards", [False, True])
+def test_corner_errors_are_the_corner_block_residuals_unweighted(boards):
+    """corner_errors (the camera-IMU outlier test's errors, no Jacobians): the corner block's
+    residuals times its sigma, on boards and with intrinsics estimated alike."""
+    rng = np.random.default_rng(17)
+    st = _with_intrinsics(_state(rng))
+    obs = _corners(rng, st)
+    if boards:
+        st, obs = _on_boards(rng, st, obs)
+    e = ir.corner_errors(st, obs, CAMS)
+    r = ir.reprojection_block(st, ir.layout_for(st), obs, CAMS, 0.5).r * 0.5
+    assert e.shape == (len(obs.cam), 2) and np.all(np.isfinite(e))
+    assert np.allclose(e, r.reshape(-1, 2), rtol=0, atol=1e-12 * max(1.0, np.abs(r).max()))
+    assert np.abs(e).max() > 1e-3  # the start is off the measurements: a test of something

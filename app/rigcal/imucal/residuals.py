@@ -482,26 +482,12 @@ class _CornerParts:
 
 def _corner_parts(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float
                   ) -> _CornerParts:
-    t_all = corner_times(state, obs)
-    t_u, inv = np.unique(t_all, return_inverse=True)
+    t_u, inv = np.unique(corner_times(state, obs), return_inverse=True)
     mj = motion_jacobian(state, t_u)
     m_u = mj.motion
-    R, p = m_u.R_world_body[inv], m_u.p_world[inv]
+    R, p_world, dw, q, p_cam, uv, vals, kinds = _projected(state, obs, cameras, m_u, inv)
     c = obs.cam
-    R_bc, t_bc = state.T_body_cam[c, :3, :3], state.T_body_cam[c, :3, 3]
-    p_world = world_points(state, obs)
-    dw = p_world - p
-    p_body = np.einsum("mji,mj->mi", R, dw)
-    q = p_body - t_bc
-    p_cam = np.einsum("mji,mj->mi", R_bc, q)
-    if state.intrinsics:
-        vals, kinds = [i.values for i in state.intrinsics], [i.model for i in state.intrinsics]
-    else:
-        vals, kinds = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in cameras], [k.model for k in cameras]
-    # the lens polynomial as the camera BA evaluates it, also past the radius where it folds
-    # back (CameraModel.project gives NaN there): a start or a trial step may put a corner
-    # there, and a NaN cost made LM refuse every step (EuRoC: the start returned as result)
-    uv = project_obs(p_cam, c, vals, kinds)
+    R_bc = state.T_body_cam[c, :3, :3]
     J_uv, J_intr = projection_jacobians(p_cam, c, vals, kinds)  # (M, 2, 3), per camera (M_c, 2, n_values)
     Rt = np.swapaxes(R, 1, 2)
     Rt_skew_dw = Rt @ geo.skew(dw)  # d p_body / d theta (world-side rotation of R_world_body)
@@ -529,10 +515,34 @@ def _corner_parts(state: State, lay: Layout, obs: Corners, cameras: list[CameraM
                         np.concatenate(cols, axis=1), mj, inv)
 
 
+def _projected(state: State, obs: Corners, cameras: list[CameraModel], m_u: Motion, inv: np.ndarray) -> tuple:
+    """The corners through the rig at their times (m_u: the motion at the unique times, inv:
+    each corner's): (R_world_body, p_world, p_world - p_body_origin, p_body - t_body_cam,
+    p_cam, uv, per camera the projection values and kinds)."""
+    R, p = m_u.R_world_body[inv], m_u.p_world[inv]
+    c = obs.cam
+    R_bc, t_bc = state.T_body_cam[c, :3, :3], state.T_body_cam[c, :3, 3]
+    p_world = world_points(state, obs)
+    dw = p_world - p
+    q = np.einsum("mji,mj->mi", R, dw) - t_bc
+    p_cam = np.einsum("mji,mj->mi", R_bc, q)
+    if state.intrinsics:
+        vals, kinds = [i.values for i in state.intrinsics], [i.model for i in state.intrinsics]
+    else:
+        vals, kinds = [np.array([k.fx, k.fy, k.cx, k.cy, *k.dist]) for k in cameras], [k.model for k in cameras]
+    # the lens polynomial as the camera BA evaluates it, also past the radius where it folds
+    # back (CameraModel.project gives NaN there): a start or a trial step may put a corner
+    # there, and a NaN cost made LM refuse every step (EuRoC: the start returned as result)
+    return R, p_world, dw, q, p_cam, project_obs(p_cam, c, vals, kinds), vals, kinds
+
+
 def corner_errors(state: State, obs: Corners, cameras: list[CameraModel]) -> np.ndarray:
     """(M, 2) each corner's projection at its IMU-clock time minus its measurement, pixels
-    (the corner block's residuals unweighted)."""
-    return _corner_parts(state, layout_for(state), obs, cameras, 1.0).r
+    (the corner block's residuals unweighted), without the block's Jacobians."""
+    t_u, inv = np.unique(corner_times(state, obs), return_inverse=True)
+    i, u, Rc, P = _controls(state.spline, t_u)
+    uv = _projected(state, obs, cameras, motion_from_controls(t_u, u, Rc, P, state.spline.dt), inv)[5]
+    return uv - obs.uv
 
 
 def _image_rows(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float,
