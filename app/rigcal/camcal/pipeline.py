@@ -34,16 +34,16 @@ from rigcal.camcal.solve import (Intrinsics, NoiseModel, Observations, Problem, 
                                  provisional_result, robust_pass)
 
 MIN_FRAMES = 3
-# A camera whose corners miss the solved rig by more than this share of its image diagonal
-# (RMS; at least GROSS_RMS_MIN_PX) failed to calibrate: a target.yaml that misnumbers the
-# board, mirrored images, a chessboard declared on a ChArUco print. The real sets stay under
-# 0.12 % (the worst, the unsynchronised caliscope webcams: 1.6 px of a 1469 px diagonal).
 # sampled_rigidity (imu_start): the frames its robust pass samples, and how far its rigidity
 # factor must exceed the threshold for the verdict to stand without the joint solve over every
 # frame (the least-squares rounds lower the factor by a few per cent where it was measured:
 # 17.5 -> 17.0 on the 30 s recording)
 RIGIDITY_SAMPLE_FRAMES = 150
 EARLY_RIGIDITY_MARGIN = 1.5
+# A camera whose corners miss the solved rig by more than this share of its image diagonal
+# (RMS; at least GROSS_RMS_MIN_PX) failed to calibrate: a target.yaml that misnumbers the
+# board, mirrored images, a chessboard declared on a ChArUco print. The real sets stay under
+# 0.12 % (the worst, the unsynchronised caliscope webcams: 1.6 px of a 1469 px diagonal).
 GROSS_RMS_FRACTION = 0.01
 GROSS_RMS_MIN_PX = 5.0
 # corner weights: fit each camera's NoiseModel on the residuals, re-weight, re-solve; the
@@ -172,7 +172,8 @@ def calibrate_views(views: list[BoardView], rig: Rig, corners: dict[str, np.ndar
     absent; +1 for Kalibr's AprilGrid frame: Board.print_face).
     imu_start: the result starts a camera-IMU step that re-estimates the intrinsics (a motion
     dataset with an IMU, --imu-intrinsics joint or prior; held keeps this step's exactly, as
-    --camera-only gives them): where the rig is not rigid per frame, each pinhole camera's
+    --camera-only gives them): the rigidity check is made first on a sample of the frames
+    (sampled_rigidity), and where the rig is not rigid per frame, each pinhole camera's
     own-views solve starts from initialise.own_views_start (mono()'s views and k3 test, fitted
     by the sparse one-camera solve instead of OpenCV; the solve over every view reaches the
     same optimum; on the 30 s three-camera recording 4.3 -> 1.8 s CPU for the three cameras'
