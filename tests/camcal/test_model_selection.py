@@ -199,3 +199,26 @@ def test_the_rigidity_sample_keeps_every_camera_and_board_or_is_not_taken():
     # a second board seen in frame 5 only: lost too
     board2 = np.where(frame == 5, 1, 0)
     assert frame_sample(Observations(cam, frame, board2, obs.p_board, obs.uv, frame), 4, 2, 2) is None
+
+
+def test_own_view_poses_are_not_handed_over_after_a_flip_or_without_own_views():
+    """own_view_poses: None when a chessboard's corner order was flipped after the own-views
+    solves (their poses would be of the other order) or when a camera has no own-views fit;
+    else one pose per view of the observations, its own fit's where it has one."""
+    from types import SimpleNamespace as NS
+
+    from rigcal.camcal import pipeline
+    from rigcal.core.observations import BoardView
+
+    views = (BoardView("a", "f0", "b0", np.arange(4), np.zeros((4, 2))),
+             BoardView("b", "f0", "b0", np.arange(4), np.zeros((4, 2))))
+    start = (np.eye(4), 2 * np.eye(4))
+    posed = pipeline.PosedViews(views=views, cam=(0, 1), frame=(0, 0), board=(0, 0), T_cam_board=start,
+                                rms_px=(0.1, 0.1))
+    graph = NS(graph=NS(missing_boards=[], frame_posed=[True]))
+    own_pose = 3 * np.eye(4)
+    own = [NS(T_cam_board={("f0", "b0"): own_pose}), NS(T_cam_board={})]
+    T = pipeline.own_view_poses(NS(flips=0, posed=posed), graph, own)
+    assert T.shape == (2, 4, 4) and np.array_equal(T[0], own_pose) and np.array_equal(T[1], start[1])
+    assert pipeline.own_view_poses(NS(flips=1, posed=posed), graph, own) is None
+    assert pipeline.own_view_poses(NS(flips=0, posed=posed), graph, [own[0], None]) is None
