@@ -363,9 +363,10 @@ def first_solve(posed: PosedViews, rig_start: RigStart, inits: list[MonoInit], s
 
 
 def frame_sample(obs: Observations, n_frames: int, n_cams: int, n_boards: int) -> np.ndarray | None:
-    """(M,) bool: the corners of every k-th frame (in frame order: time, on a motion
-    dataset), k = frames // n_frames, when that keeps every camera and every board with
-    MIN_VIEW_CORNERS corners or more; None when k < 2 or a camera or board would be lost."""
+    """(M,) bool: the corners of every k-th frame in the frames' order (their names sorted:
+    time on a motion dataset, whose names are nanosecond stems), k = frames // n_frames, when
+    that keeps every camera and every board with MIN_VIEW_CORNERS corners or more; None when
+    k < 2 or a camera or board would be lost."""
     frames = np.unique(obs.frame)
     k = len(frames) // n_frames
     if k < 2:
