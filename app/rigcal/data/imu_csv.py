@@ -86,9 +86,13 @@ def _read_fast(path: Path) -> ImuSamples | None:
             return None
         with warnings.catch_warnings():  # an empty file is refused by _read_rows, in one line
             warnings.simplefilter("ignore", UserWarning)
+            # numpy reads an integer column's "1.6e18" through a float (deprecated, with a
+            # warning): a timestamp rounded to 256 ns, accepted. As an error it goes to
+            # _read_rows, which refuses the row
+            warnings.simplefilter("error", DeprecationWarning)
             data = np.loadtxt(path, delimiter=",", comments="#", dtype=[("t", "i8"), ("v", "f8", (COLUMNS - 1,))],
                               encoding="utf-8-sig", ndmin=1)
-    except (OSError, UnicodeDecodeError, ValueError, OverflowError):
+    except (OSError, UnicodeDecodeError, ValueError, OverflowError, DeprecationWarning):
         return None
     t, v = data["t"], data["v"]
     if len(t) < 2 or not np.isfinite(v).all() or t[0] < 0 or (np.diff(t) <= 0).any():

@@ -68,9 +68,11 @@ def _read_fast(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
         if not _plain(path):
             return None
         with warnings.catch_warnings():
-            warnings.simplefilter("error")  # an empty file's warning, too, sends it the slow way
+            # an empty file's warning, too, sends it the slow way, and numpy's deprecated
+            # reading of a "1.6e18" timestamp through a float (rounded to 256 ns)
+            warnings.simplefilter("error")
             rows = np.loadtxt(path, delimiter=",", comments="#", dtype=_ROW, encoding="utf-8-sig", ndmin=1)
-    except (OSError, UnicodeDecodeError, ValueError, OverflowError, UserWarning):
+    except (OSError, UnicodeDecodeError, ValueError, OverflowError, UserWarning, DeprecationWarning):
         return None
     t, m = rows["t"], rows["m"]
     if len(t) < MIN_SAMPLES or (t < 0).any() or (np.diff(t) <= 0).any() or not np.isfinite(m).all():

@@ -22,6 +22,7 @@ Checks (each refusal an InputError naming the file and, where there is one, the 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -88,8 +89,12 @@ def read_imu_file(path: str | Path) -> ImuRecording:
         raise InputError(f"{path}: row {lineno}: expected 7 or 8 comma-separated columns {_HINT}, got {ncol}")
     dtype = [("t", "i8"), ("v", "f8", (ncol - 1,))]
     try:
-        data = np.loadtxt(path, delimiter=",", comments="#", dtype=dtype, encoding="utf-8-sig", ndmin=1)
-    except (ValueError, OverflowError):
+        with warnings.catch_warnings():
+            # numpy 2.2 and older read an integer column's "1.6e18" through a float (rounded to
+            # 256 ns) with a DeprecationWarning: the row is refused instead
+            warnings.simplefilter("error", DeprecationWarning)
+            data = np.loadtxt(path, delimiter=",", comments="#", dtype=dtype, encoding="utf-8-sig", ndmin=1)
+    except (ValueError, OverflowError, DeprecationWarning):
         raise InputError(_first_bad_row(path, ncol)) from None
     except (OSError, UnicodeDecodeError) as e:
         raise InputError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
