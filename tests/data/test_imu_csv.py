@@ -81,4 +81,3 @@ def test_scan_sees_a_comment_split_across_its_blocks(tmp_path, monkeypatch):
     text[150] = text[150] + "#x"
     p.write_text("\n".join(text) + "\n", encoding="utf-8")
     assert not mod._plain(p)
-
