@@ -44,7 +44,8 @@ import scipy.sparse as sp
 from rigcal.core import geometry as geo
 from rigcal.core.camera import CameraModel
 from rigcal.camcal.solve import project_obs, projection_jacobians
-from rigcal.core.spline import ORDER, Motion, Spline, basis, motion_from_controls, rotation_chain, segment, segment_rotations
+from rigcal.core.spline import (ORDER, Motion, Spline, basis, evaluate, motion_from_controls, rotation_chain, segment,
+                                segment_rotations)
 
 GRAVITY = 9.80665
 STEP = 1e-6  # central-difference step (radians, metres, seconds, bias units)
@@ -540,9 +541,7 @@ def corner_errors(state: State, obs: Corners, cameras: list[CameraModel]) -> np.
     """(M, 2) each corner's projection at its IMU-clock time minus its measurement, pixels
     (the corner block's residuals unweighted), without the block's Jacobians."""
     t_u, inv = np.unique(corner_times(state, obs), return_inverse=True)
-    i, u, Rc, P = _controls(state.spline, t_u)
-    uv = _projected(state, obs, cameras, motion_from_controls(t_u, u, Rc, P, state.spline.dt), inv)[5]
-    return uv - obs.uv
+    return _projected(state, obs, cameras, evaluate(state.spline, t_u), inv)[5] - obs.uv
 
 
 def _image_rows(state: State, lay: Layout, obs: Corners, cameras: list[CameraModel], sigma_px: float,

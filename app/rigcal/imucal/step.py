@@ -448,18 +448,11 @@ def jacobian(res: ic.CameraImuResult, inp: Inputs, settings: ic.Settings):
     return ir.assemble(ir.normal_rows(blocks), lay.size)[0], lay
 
 
-def normal_factor(J, lay: ir.Layout):
-    """(solve, active columns) of J^T J: one sparse LU in the estimator's banded-arrow order
-    (imu_calib.factor; SuperLU's own ordering took 157 s on EuRoC's 72 s at 100 knots/s),
-    shared by linear_sigmas and intrinsics_coupling."""
-    return ic.factor((J.T @ J).tocsc(), ic.band_order(lay))
-
-
 def linear_sigmas(J, A: np.ndarray, lay: ir.Layout, factored=None) -> np.ndarray:
     """1-sigma of the linear combinations A (K, n) @ x under covariance (J^T J)^-1 (held
-    parameters have empty columns and are left out): K solves with normal_factor's LU
+    parameters have empty columns and are left out): K solves with estimator.normal_factor's LU
     (`factored` when already made)."""
-    solve, active = factored or normal_factor(J, lay)
+    solve, active = factored or ic.normal_factor(J, lay)
     a = np.asarray(A[:, active].T, dtype=float)
     return np.sqrt(np.maximum(np.einsum("ik,ik->k", a, solve(a)), 0.0))
 
@@ -479,7 +472,7 @@ def parameter_sigmas(J, lay: ir.Layout, estimate_delay: bool, estimate_scale: bo
     every camera's line delay (C,), the 12 scale-misalignment parameters (`scale`: L of
     M_gyro, then of M_accel, in imu_residuals.SCALE_ROWS / SCALE_COLS order) and, given the
     estimated `intrinsics`, each camera's intrinsic values (`intrinsics`: per camera
-    model_selection.intrinsic_sigmas' dict; held values 0). factored: normal_factor(J, lay)
+    model_selection.intrinsic_sigmas' dict; held values 0). factored: estimator.normal_factor(J, lay)
     when already made."""
     w = mean_weights(lay.n_bias)
     C = lay.n_cam
@@ -523,7 +516,7 @@ def intrinsics_coupling(J, lay: ir.Layout, intrinsics: tuple, factored=None) -> 
     covariance: B = C_PI C_II^+ (the regression of the poses on the intrinsics; held values
     have zero rows and drop out of the pseudo-inverse). When the intrinsics are less certain
     than the formal covariance says by Delta, the poses are by B Delta B^T. factored:
-    normal_factor(J, lay) when already made."""
+    estimator.normal_factor(J, lay) when already made."""
     C = lay.n_cam
     A_P = np.zeros((6 * C, lay.size))
     A_P[np.arange(6 * C), lay.cam + np.arange(6 * C)] = 1.0
@@ -531,7 +524,7 @@ def intrinsics_coupling(J, lay: ir.Layout, intrinsics: tuple, factored=None) -> 
     for c, intr in enumerate(intrinsics):
         E = intr.basis()[:4]
         A_I[4 * c:4 * c + 4, lay.intr_start(c):lay.intr_start(c) + E.shape[1]] = E
-    solve, active = factored or normal_factor(J, lay)
+    solve, active = factored or ic.normal_factor(J, lay)
     S = solve(np.asarray(A_I[:, active].T, dtype=float))
     C_II, C_PI = A_I[:, active] @ S, A_P[:, active] @ S
     return C_PI @ np.linalg.pinv(C_II, rcond=1e-12, hermitian=True)
@@ -610,7 +603,7 @@ def calibrate_imu(cal, samples: ImuSamples, imu: Imu, options: Options, faces: l
     # sigmas with the corners weighted by their measured noise (the variance factor)
     J, lay = jacobian(res, inp, _settings_with(settings, res))
     res = replace(res, blocks=())  # used: not kept in the answer
-    factored = normal_factor(J, lay)  # one LU for the sigmas and the intrinsics' coupling
+    factored = ic.normal_factor(J, lay)  # one LU for the sigmas and the intrinsics' coupling
     sig = parameter_sigmas(J, lay, estimate_delay, settings.scale_misalignment,
                            res.state.intrinsics if settings.intrinsics else (), factored)
     names = list(cal.cam_names)
